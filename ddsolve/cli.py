@@ -1,0 +1,92 @@
+"""Command line: ``ddsolve solve`` (also ``python -m ddsolve solve``).
+
+Bad input prints one line ``ddsolve: error: <field>: <message>`` on stderr and
+exits with status 2, without a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from typing import Any, Sequence
+
+from .errors import InputError
+from .spec import ProblemSpec
+
+EXIT_INPUT = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line and exit with status 2."""
+
+    def error(self, message: str) -> None:  # pragma: no cover - exercised through main()
+        raise InputError("arguments", message)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="ddsolve", description="Substructuring domain decomposition solvers (Lee 2009).")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    s = commands.add_parser("solve", help="solve one scene and report iterations, condition estimate, timings")
+    s.add_argument("scene", nargs="?", help="YAML scene file (flags override its fields)")
+    s.add_argument("--problem", help="problem: poisson")
+    s.add_argument("--method", help="feti, fetidp, bddc or direct")
+    s.add_argument("--bodies", help="bodies per side, 1/H_b")
+    s.add_argument("--subdomains", help="subdomains per body side, H_b/H_s")
+    s.add_argument("--elements", help="Q1 elements per subdomain side, H_s/h")
+    s.add_argument("--rho", help="coefficient: a positive number or checkerboard:V")
+    s.add_argument("--f", help="right-hand side: a constant (default 1) or random:SEED")
+    s.add_argument("--scaling", help="rho (default) or multiplicity")
+    s.add_argument("--gamma", help="exponent of the rho-scaling (default 1)")
+    s.add_argument("--rtol", help="relative residual tolerance (default 1e-6)")
+    s.add_argument("--maxiter", help="iteration limit (default 1000)")
+    s.add_argument("--cond", action="store_const", const=True, help="compute the Lanczos condition estimate")
+    s.add_argument("--check", action="store_const", const=True, help="also solve directly and report the error")
+    s.add_argument("--json", action="store_true", help="print one JSON object")
+    return parser
+
+
+def _spec_from_args(args: argparse.Namespace) -> ProblemSpec:
+    flags: dict[str, Any] = {name: getattr(args, name) for name in ProblemSpec.fields()
+                             if getattr(args, name, None) is not None}
+    if args.scene:
+        return ProblemSpec.from_yaml(args.scene, flags)
+    return ProblemSpec.from_mapping(flags)
+
+
+def _human(summary: dict[str, Any]) -> str:
+    lines = [f"{summary['problem']} / {summary['method']}: bodies={summary['bodies']} "
+             f"subdomains={summary['subdomains']} elements={summary['elements']} "
+             f"ndof={summary['ndof']} nlambda={summary['nlambda']}",
+             f"{'converged' if summary['converged'] else 'NOT converged'} in {summary['iterations']} iterations "
+             f"({summary['reason']})"]
+    if summary["cond"] is not None:
+        lines.append(f"cond ~ {summary['cond']:.4f} (lambda_min {summary['lambda_min']:.4f}, "
+                     f"lambda_max {summary['lambda_max']:.4f})")
+    if summary["error_vs_direct"] is not None:
+        lines.append(f"relative energy error vs direct: {summary['error_vs_direct']:.3e}")
+    lines.append(f"setup {summary['setup_seconds']:.3f} s, solve {summary['solve_seconds']:.3f} s, "
+                 f"{summary['n_factorizations']} factorizations")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit status."""
+    try:
+        args = build_parser().parse_args(argv)
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="%(levelname)s %(name)s: %(message)s")
+        spec = _spec_from_args(args)
+        from .api import solve
+        result = solve(spec)
+    except InputError as exc:
+        print(f"ddsolve: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    summary = result.to_dict()
+    print(json.dumps(summary) if args.json else _human(summary))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,103 @@
+"""One-level FETI with the Dirichlet preconditioner (Section 2.5)."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..krylov import pcg
+from .common import MethodOutput
+from .local import BatchedSolver
+from .operators import DirichletSchur, linear_operator
+from .substructure import Substructures
+
+
+def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False) -> MethodOutput:
+    """One-level FETI: PCG on P F lambda = P d, lambda in lambda_0 + V (2.14).
+
+    * F = B A^+ B^T, d = B A^+ f with a generalized inverse A^+ of each
+      floating subdomain matrix (one node fixed, which satisfies A A^+ A = A);
+    * G = B R with R the constants on floating subdomains, e = R^T f,
+      P = I - G (G^T G)^{-1} G^T and lambda_0 = G (G^T G)^{-1} e so that
+      G^T lambda_0 = e (2.13);
+    * Dirichlet preconditioner M_D^{-1} = B_D S B_D^T (Section 2.5);
+    * u = A^+ (f - B^T lambda) + R alpha, alpha = (G^T G)^{-1} G^T (F lambda - d).
+
+    Coefficient jumps. The orthogonal projection of (2.13) is not robust when
+    rho jumps between floating subdomains (the largest eigenvalue grows with
+    the jump). With rho-scaling we therefore use the Q-weighted projection
+    P_Q = I - Q G (G^T Q G)^{-1} G^T of Klawonn and Widlund, with the diagonal
+    Q = diag(B_D diag(rho) B_D^T) (for gamma = 1 the entry of the multiplier
+    between subdomains i and j is rho_i rho_j / (rho_i + rho_j)). It is applied
+    as the orthogonal projection of the similar system in mu = Q^{-1/2} lambda,
+    so PCG and the residual norms act on mu. With multiplicity scaling Q = I,
+    which is exactly (2.13)-(2.14).
+
+    Without floating subdomains there is no kernel: P, G and lambda_0 are skipped.
+
+    Parameters
+    ----------
+    sub : Substructures
+    rtol, maxiter : float, int
+        Stopping rule ||r_k|| / ||r_0|| < rtol.
+    cond : bool
+        Lanczos estimate of the condition number of P M_D^{-1} P F.
+
+    Returns
+    -------
+    MethodOutput
+    """
+    t0 = time.perf_counter()
+    cache: dict = {}
+    B, B_D = sub.jump_operators(np.ones(sub.n_W, dtype=bool))
+    # Generalized inverse: fix the middle local node of every floating subdomain.
+    fixed = np.zeros(sub.n_W, dtype=bool)
+    for s in np.flatnonzero(sub.floating_sub):
+        lo, hi = sub.offsets[s], sub.offsets[s + 1]
+        fixed[lo + (hi - lo) // 2] = True
+    Kplus = BatchedSolver(sub, ~fixed, cache)
+    schur = DirichletSchur(sub, sub.interface, cache)
+    n_lam = B.shape[0]
+
+    if sub.scaling == "multiplicity":
+        sq = np.ones(n_lam)
+    else:
+        sq = np.sqrt(B_D.multiply(B_D) @ sub.rho[sub.sub_of_W])   # Q^{1/2}
+
+    def F(mu: np.ndarray) -> np.ndarray:       # Q^{1/2} F Q^{1/2}
+        return sq * (B @ Kplus.solve(B.T @ (sq * mu)))
+
+    def M(mu: np.ndarray) -> np.ndarray:       # Q^{-1/2} M_D^{-1} Q^{-1/2}
+        return (B_D @ schur.matvec(B_D.T @ (mu / sq))) / sq
+
+    d = sq * (B @ Kplus.solve(sub.f_W))
+    n_fact = Kplus.n_new_factorizations + schur.II.n_new_factorizations
+    if sub.floating_sub.any():
+        R = sub.kernel_basis()
+        G = (sp.diags(sq) @ B @ R).tocsc()
+        GtG = spla.splu((G.T @ G).tocsc())
+        n_fact += 1
+        e = R.T @ sub.f_W
+
+        def P(lam: np.ndarray) -> np.ndarray:
+            return lam - G @ GtG.solve(G.T @ lam)
+
+        lam0 = G @ GtG.solve(e)
+        P_op = linear_operator(n_lam, P)
+    else:
+        R = G = GtG = None
+        lam0 = np.zeros(n_lam)
+        P_op = None
+    setup = time.perf_counter() - t0
+
+    kr = pcg(linear_operator(n_lam, F), d, lam0, rtol=rtol, maxiter=maxiter,
+             M=linear_operator(n_lam, M), P=P_op, cond=cond)
+    lam = sq * kr.x
+    u_W = Kplus.solve(sub.f_W - B.T @ lam)
+    if G is not None:
+        alpha = GtG.solve(G.T @ (F(kr.x) - d))
+        u_W = u_W + R @ alpha
+    return MethodOutput(u=sub.average(u_W), krylov=kr, nlambda=n_lam, n_factorizations=n_fact,
+                        setup_seconds=setup, extra={"n_floating": int(sub.floating_sub.sum())})

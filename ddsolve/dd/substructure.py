@@ -1,0 +1,220 @@
+"""The unassembled space W = prod_i W^(i) and the operators built on it.
+
+:class:`Substructures` lays out all subdomain vectors one after the other in a
+single array of length n_W ("W vectors"), Dirichlet nodes removed. Everything
+the solvers need is derived from the scene here, once:
+
+* the local-to-global map (the restriction R of Section 2.3 as an index array),
+* the block-diagonal stiffness diag(rho_i K_t) as one sparse matrix,
+* interface classification by multiplicity: interior (one subdomain), edge
+  (two), vertex (three or more, or two on the boundary of the body: the ends
+  of local edges that lie on the body's boundary, Section 3.4),
+* the delta-dagger scaling of Section 2.3 (rho-scaling with exponent gamma;
+  multiplicity scaling is rho = 1),
+* fully redundant jump operators B and their scaled versions B_D.
+"""
+from __future__ import annotations
+
+import itertools
+import logging
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..scene.assembly import LocalProblems
+
+log = logging.getLogger(__name__)
+
+
+class Substructures:
+    """Layout of W vectors and subdomain data of an assembled scene.
+
+    Parameters
+    ----------
+    local : LocalProblems
+        Assembled scene.
+    scaling : {"rho", "multiplicity"}
+        Weights delta-dagger of Section 2.3.
+    gamma : float
+        Exponent of the rho-scaling, gamma >= 1/2.
+
+    Attributes
+    ----------
+    n_sub, n_W, ndof : int
+        Subdomains, length of W vectors, global (Dirichlet-free) dofs.
+    offsets : ndarray, shape (n_sub + 1,)
+        Subdomain s owns W entries offsets[s]:offsets[s+1].
+    sub_of_W, local_index, node_of_W, l2g : ndarray, shape (n_W,)
+        Subdomain, template-local node index, global node and global dof of
+        each W entry.
+    multiplicity : ndarray, shape (n_W,)
+        Number of subdomains sharing the entry's node.
+    interface, vertex, floating_sub : ndarray of bool
+        Interface and vertex W entries; subdomains without Dirichlet nodes.
+    delta : ndarray, shape (n_W,)
+        delta-dagger_i(x) = rho_i^gamma / sum_{j in N_x} rho_j^gamma.
+    K_W : scipy.sparse.csr_matrix, shape (n_W, n_W)
+        diag(A^(i)), local matrices with Dirichlet rows and columns removed.
+    f_W : ndarray, shape (n_W,)
+        Stacked local loads f^(i).
+    """
+
+    def __init__(self, local: LocalProblems, scaling: str = "rho", gamma: float = 1.0) -> None:
+        scene = local.scene
+        self.local = local
+        self.scene = scene
+        self.n_sub = scene.n_subdomains
+        self.template = local.template
+        self.stiffness = local.stiffness
+        self.rho = np.asarray(scene.rho, dtype=float)
+        self.body_of_sub = scene.subdomain_body
+
+        nodes = local.nodes
+        sizes_full = np.array([len(nd) for nd in nodes])
+        full_off = np.concatenate([[0], np.cumsum(sizes_full)])
+        node_full = np.concatenate(nodes)
+        sub_full = np.repeat(np.arange(self.n_sub), sizes_full)
+        local_full = np.arange(full_off[-1]) - full_off[sub_full]
+        keep = ~scene.dirichlet[node_full]
+
+        self.node_of_W = node_full[keep]
+        self.sub_of_W = sub_full[keep]
+        self.local_index = local_full[keep]
+        self.n_W = int(keep.sum())
+        counts = np.bincount(self.sub_of_W, minlength=self.n_sub)
+        self.offsets = np.concatenate([[0], np.cumsum(counts)])
+        self.floating_sub = np.array([not scene.dirichlet[nd].any() for nd in nodes])
+
+        dof_of_node = np.full(scene.n_nodes, -1, dtype=np.int64)
+        free_nodes = np.flatnonzero(~scene.dirichlet)
+        dof_of_node[free_nodes] = np.arange(free_nodes.size)
+        self.dof_of_node = dof_of_node
+        self.ndof = int(free_nodes.size)
+        self.l2g = dof_of_node[self.node_of_W]
+
+        self.multiplicity = np.bincount(self.node_of_W, minlength=scene.n_nodes)[self.node_of_W]
+        self.interface = self.multiplicity > 1
+        on_body_boundary = np.zeros(self.n_W, dtype=bool)
+        for b in range(scene.n_bodies):
+            in_b = self.body_of_sub[self.sub_of_W] == b
+            on_body_boundary[in_b] = scene.boundary_nodes(b)[self.node_of_W[in_b]]
+        self.vertex = (self.multiplicity >= 3) | ((self.multiplicity == 2) & on_body_boundary)
+
+        self.scaling = scaling
+        self.gamma = float(gamma)
+        self.delta = self.scaling_weights(scaling, gamma)
+
+        self.K_W = self._block_diagonal(full_off, keep)
+        f_full = np.concatenate(local.loads)
+        self.f_W = f_full[keep]
+        self._free_local = [self.local_index[self.offsets[s]:self.offsets[s + 1]] for s in range(self.n_sub)]
+
+    # ------------------------------------------------------------------ layout
+    def _block_diagonal(self, full_off: np.ndarray, keep: np.ndarray) -> sp.csr_matrix:
+        """diag(rho_i K_t(i)) restricted to free entries, built per template without loops over nodes."""
+        rows, cols, vals = [], [], []
+        for t, K in enumerate(self.stiffness):
+            members = np.flatnonzero(self.template == t)
+            coo = K.tocoo()
+            shift = full_off[members][:, None]
+            rows.append((coo.row[None, :] + shift).ravel())
+            cols.append((coo.col[None, :] + shift).ravel())
+            vals.append((coo.data[None, :] * self.rho[members][:, None]).ravel())
+        n_full = int(full_off[-1])
+        K_full = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                               shape=(n_full, n_full))
+        idx = np.flatnonzero(keep)
+        return K_full[idx][:, idx].tocsr()
+
+    def position(self, s: int, loc: np.ndarray) -> np.ndarray:
+        """W positions of template-local (free) indices ``loc`` of subdomain s."""
+        return self.offsets[s] + np.searchsorted(self._free_local[s], loc)
+
+    def scaling_weights(self, scaling: str, gamma: float = 1.0) -> np.ndarray:
+        """delta-dagger weights of Section 2.3 for every W entry.
+
+        delta_i(x) = rho_i^gamma / sum_{j in N_x} rho_j^gamma, with rho = 1
+        for ``"multiplicity"`` scaling (then delta_i(x) = 1 / |N_x|).
+        """
+        if scaling == "multiplicity":
+            weight = np.ones(self.n_W)
+        else:
+            weight = self.rho[self.sub_of_W] ** gamma
+        total = np.bincount(self.node_of_W, weights=weight, minlength=self.scene.n_nodes)
+        return weight / total[self.node_of_W]
+
+    # ------------------------------------------------------------- restriction
+    def restrict(self, u: np.ndarray) -> np.ndarray:
+        """R u: global vector (ndof,) -> W vector (n_W,)."""
+        return u[self.l2g]
+
+    def assemble_vector(self, w: np.ndarray) -> np.ndarray:
+        """R^T w: sum the subdomain contributions, (n_W,) -> (ndof,)."""
+        return np.bincount(self.l2g, weights=w, minlength=self.ndof)
+
+    def average(self, w: np.ndarray) -> np.ndarray:
+        """R_D^T w: delta-weighted average of the subdomain copies, (n_W,) -> (ndof,)."""
+        return np.bincount(self.l2g, weights=self.delta * w, minlength=self.ndof)
+
+    def global_matrix(self) -> sp.csr_matrix:
+        """Assembled stiffness R^T diag(A^(i)) R, shape (ndof, ndof) (for direct solves and checks)."""
+        R = sp.csr_matrix((np.ones(self.n_W), (np.arange(self.n_W), self.l2g)), shape=(self.n_W, self.ndof))
+        return (R.T @ self.K_W @ R).tocsr()
+
+    # ---------------------------------------------------------- jump operators
+    def jump_operators(self, mask: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+        """Fully redundant jump operator B and its scaled version B_D (Section 2.3).
+
+        Every pair (i, j), i < j, of subdomains sharing a node x whose W entries
+        are selected by ``mask`` gets one multiplier row: +1 on (i, x), -1 on
+        (j, x). In B_D the entry of subdomain i is multiplied by delta_j(x) and
+        that of j by delta_i(x).
+
+        Parameters
+        ----------
+        mask : ndarray of bool, shape (n_W,)
+
+        Returns
+        -------
+        B, B_D : scipy.sparse.csr_matrix, shape (n_lambda, n_W)
+        """
+        idx = np.flatnonzero(mask & self.interface)
+        order = idx[np.lexsort((self.sub_of_W[idx], self.node_of_W[idx]))]
+        node = self.node_of_W[order]
+        starts = np.flatnonzero(np.r_[True, node[1:] != node[:-1]])
+        sizes = np.diff(np.r_[starts, node.size])
+        first, second = [], []
+        for k in np.unique(sizes):
+            if k < 2:
+                continue
+            group_starts = starts[sizes == k]
+            for a, b in itertools.combinations(range(int(k)), 2):
+                first.append(order[group_starts + a])
+                second.append(order[group_starts + b])
+        if first:
+            pa, pb = np.concatenate(first), np.concatenate(second)
+            srt = np.lexsort((self.node_of_W[pb], self.node_of_W[pa]))
+            pa, pb = pa[srt], pb[srt]
+        else:
+            pa = pb = np.zeros(0, dtype=np.int64)
+        n_lam = pa.size
+        rows = np.r_[np.arange(n_lam), np.arange(n_lam)]
+        cols = np.r_[pa, pb]
+        B = sp.csr_matrix((np.r_[np.ones(n_lam), -np.ones(n_lam)], (rows, cols)), shape=(n_lam, self.n_W))
+        B_D = sp.csr_matrix((np.r_[self.delta[pb], -self.delta[pa]], (rows, cols)), shape=(n_lam, self.n_W))
+        return B, B_D
+
+    def kernel_basis(self) -> sp.csr_matrix:
+        """R: orthonormal basis of ker(diag(A^(i))), constants on floating subdomains.
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix, shape (n_W, n_floating)
+        """
+        floating = np.flatnonzero(self.floating_sub)
+        col_of_sub = np.full(self.n_sub, -1)
+        col_of_sub[floating] = np.arange(floating.size)
+        entries = np.flatnonzero(self.floating_sub[self.sub_of_W])
+        sub = self.sub_of_W[entries]
+        size = np.diff(self.offsets)[sub]
+        return sp.csr_matrix((1.0 / np.sqrt(size), (entries, col_of_sub[sub])), shape=(self.n_W, floating.size))

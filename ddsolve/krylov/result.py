@@ -1,0 +1,49 @@
+"""Result dataclass shared by the Krylov solvers."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class KrylovResult:
+    """Outcome of a Krylov iteration.
+
+    Attributes
+    ----------
+    x : ndarray, shape (n,)
+        Final iterate.
+    converged : bool
+        True when ||r_k||_2 <= rtol * ||r_0||_2 (or ||r_k||_2 <= atol).
+    reason : str
+        One-line reason for stopping, e.g. ``"converged: ||r||/||r0|| = 3.1e-07 < 1e-06"``,
+        ``"maxiter 200 reached"`` or ``"breakdown: <p, A p> <= 0"``.
+    iterations : int
+        Number of iterations performed.
+    residuals : ndarray, shape (iterations + 1,)
+        ||r_k||_2 for k = 0..iterations (the recursively updated residual).
+    lambda_min, lambda_max, cond : float or None
+        Lanczos estimates of the extreme eigenvalues of the preconditioned
+        operator and their ratio (PCG with ``cond=True`` only).
+    matvecs : int
+        Number of operator applications.
+    seconds : float
+        Wall time of the iteration.
+    true_residual : float or None
+        ||P (b - A x)||_2 (||b - A x||_2 without a projection ``P``) recomputed
+        from the returned ``x`` with one extra operator application, to compare
+        with the recursively updated ``residuals[-1]``.
+    """
+
+    x: np.ndarray
+    converged: bool
+    reason: str
+    iterations: int
+    residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lambda_min: float | None = None
+    lambda_max: float | None = None
+    cond: float | None = None
+    matvecs: int = 0
+    seconds: float = 0.0
+    true_residual: float | None = None

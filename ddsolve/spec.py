@@ -1,0 +1,231 @@
+"""Problem specification: the validated description of one solve.
+
+A :class:`ProblemSpec` is what the command line, a YAML scene file and the
+Snakemake pipeline all produce. :meth:`ProblemSpec.from_mapping` validates every
+field and raises :class:`~ddsolve.errors.InputError` naming the first bad one.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from .errors import InputError
+
+#: Problems and the methods each one accepts (the first is the default).
+METHODS: dict[str, tuple[str, ...]] = {
+    "poisson": ("fetidp", "feti", "bddc", "direct"),
+}
+SCALINGS = ("rho", "multiplicity")
+
+
+def _as_int(field: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise InputError(field, f"must be an integer >= {minimum}, got {value!r}")
+    try:
+        as_float = float(value)
+    except ValueError:
+        raise InputError(field, f"must be an integer >= {minimum}, got {value!r}") from None
+    if not math.isfinite(as_float) or as_float != int(as_float):
+        raise InputError(field, f"must be an integer >= {minimum}, got {value!r}")
+    if int(as_float) < minimum:
+        raise InputError(field, f"must be an integer >= {minimum}, got {value!r}")
+    return int(as_float)
+
+
+def _as_positive_float(field: str, value: Any) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise InputError(field, f"must be a positive number, got {value!r}") from None
+    if isinstance(value, bool) or not math.isfinite(out) or out <= 0:
+        raise InputError(field, f"must be a positive number, got {value!r}")
+    return out
+
+
+def parse_rho(value: Any) -> tuple[str, float]:
+    """Parse the coefficient specification.
+
+    Parameters
+    ----------
+    value : float or str
+        A positive number (constant coefficient) or ``"checkerboard:V"`` (rho
+        alternates between 1 and V > 0 across subdomains, like the colours of a
+        chess board).
+
+    Returns
+    -------
+    (kind, value) : tuple
+        ``("constant", rho)`` or ``("checkerboard", V)``.
+    """
+    if isinstance(value, str) and value.strip().lower().startswith("checkerboard"):
+        _, _, rest = value.partition(":")
+        if not rest:
+            raise InputError("rho", f"checkerboard needs a value, e.g. 'checkerboard:100', got {value!r}")
+        return "checkerboard", _as_positive_float("rho", rest)
+    return "constant", _as_positive_float("rho", value)
+
+
+def parse_f(value: Any) -> tuple[str, float]:
+    """Parse the right-hand side specification.
+
+    Parameters
+    ----------
+    value : float or str
+        A number (constant load) or ``"random:SEED"``: element-wise constant
+        loads drawn uniformly from [-1, 1] with numpy's default generator
+        seeded by the integer SEED (a generic load that excites the whole
+        spectrum, unlike f = 1 on a symmetric decomposition).
+
+    Returns
+    -------
+    (kind, value) : tuple
+        ``("constant", f)`` or ``("random", seed)``.
+    """
+    if isinstance(value, str) and value.strip().lower().startswith("random"):
+        _, _, rest = value.partition(":")
+        return "random", _as_int("f", rest or "0", 0)
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise InputError("f", f"must be a number or 'random:SEED', got {value!r}") from None
+    if isinstance(value, bool) or not math.isfinite(out):
+        raise InputError("f", f"must be a finite number or 'random:SEED', got {value!r}")
+    return "constant", out
+
+
+@dataclass(frozen=True)
+class ProblemSpec:
+    """A validated problem and solver specification.
+
+    Attributes
+    ----------
+    problem : str
+        ``"poisson"``: -div(rho grad u) = f on the unit square, u = 0 on its boundary.
+    method : str
+        Solver: ``"feti"``, ``"fetidp"``, ``"bddc"`` or ``"direct"``.
+    bodies : int
+        Bodies per side, 1/H_b.
+    subdomains : int
+        Subdomains per body side, H_b/H_s.
+    elements : int
+        Q1 elements per subdomain side, H_s/h (at least 2, so that every
+        subdomain has interior nodes).
+    rho : float or str
+        Coefficient: a positive number, or ``"checkerboard:V"``.
+    f : float or str
+        Right-hand side: a constant, or ``"random:SEED"`` (see :func:`parse_f`).
+    scaling : str
+        ``"rho"`` (delta-dagger rho-scaling, Section 2.3) or ``"multiplicity"``.
+    gamma : float
+        Exponent of the rho-scaling, gamma >= 1/2.
+    rtol : float
+        Relative residual tolerance ||r_k|| / ||r_0|| < rtol.
+    maxiter : int
+        Iteration limit.
+    cond : bool
+        Compute Lanczos estimates of the extreme eigenvalues.
+    check : bool
+        Also solve directly and report the relative energy-norm error.
+    """
+
+    problem: str = "poisson"
+    method: str = "fetidp"
+    bodies: int = 1
+    subdomains: int = 2
+    elements: int = 4
+    rho: float | str = 1.0
+    f: float | str = 1.0
+    scaling: str = "rho"
+    gamma: float = 1.0
+    rtol: float = 1e-6
+    maxiter: int = 1000
+    cond: bool = False
+    check: bool = False
+
+    @classmethod
+    def fields(cls) -> tuple[str, ...]:
+        """Names of all fields."""
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any]) -> "ProblemSpec":
+        """Validate a mapping (YAML scene, CLI flags) and build a spec.
+
+        Raises
+        ------
+        InputError
+            Naming the first invalid or unknown field.
+        """
+        if not isinstance(data, Mapping):
+            raise InputError("scene", f"must be a mapping of fields, got {type(data).__name__}")
+        known = set(cls.fields())
+        for key in data:
+            if key not in known:
+                raise InputError(str(key), f"unknown field (known: {', '.join(sorted(known))})")
+        merged = {**dataclasses.asdict(cls()), **{k: v for k, v in data.items() if v is not None}}
+
+        problem = str(merged["problem"]).strip().lower()
+        if problem not in METHODS:
+            raise InputError("problem", f"unknown problem {merged['problem']!r} (choose from {', '.join(METHODS)})")
+        method = str(merged["method"]).strip().lower()
+        if method not in METHODS[problem]:
+            raise InputError("method", f"unknown method {merged['method']!r} for problem {problem!r} "
+                                       f"(choose from {', '.join(METHODS[problem])})")
+        bodies = _as_int("bodies", merged["bodies"], 1)
+        subdomains = _as_int("subdomains", merged["subdomains"], 1)
+        elements = _as_int("elements", merged["elements"], 1)
+        if problem == "poisson" and bodies != 1:
+            raise InputError("bodies", f"problem 'poisson' has exactly one body, got {bodies}")
+        if elements < 2:
+            raise InputError("elements", f"mesh too small for the decomposition: each subdomain needs "
+                                         f">= 2 elements per side to have interior nodes, got {elements}")
+        rho = merged["rho"]
+        parse_rho(rho)
+        f = merged["f"]
+        if parse_f(f)[0] == "constant":
+            f = float(f)
+        scaling = str(merged["scaling"]).strip().lower()
+        if scaling not in SCALINGS:
+            raise InputError("scaling", f"unknown scaling {merged['scaling']!r} (choose from {', '.join(SCALINGS)})")
+        gamma = _as_positive_float("gamma", merged["gamma"])
+        if gamma < 0.5:
+            raise InputError("gamma", f"must be >= 1/2 (Section 2.3), got {gamma}")
+        rtol = _as_positive_float("rtol", merged["rtol"])
+        if rtol >= 1:
+            raise InputError("rtol", f"must be in (0, 1), got {rtol}")
+        maxiter = _as_int("maxiter", merged["maxiter"], 1)
+        for flag in ("cond", "check"):
+            if not isinstance(merged[flag], bool):
+                raise InputError(flag, f"must be true or false, got {merged[flag]!r}")
+        return cls(problem=problem, method=method, bodies=bodies, subdomains=subdomains,
+                   elements=elements, rho=rho, f=f, scaling=scaling, gamma=gamma, rtol=rtol,
+                   maxiter=maxiter, cond=merged["cond"], check=merged["check"])
+
+    @classmethod
+    def from_yaml(cls, path: str | Path, overrides: Mapping[str, Any] | None = None) -> "ProblemSpec":
+        """Read a YAML scene file; ``overrides`` (e.g. CLI flags) take precedence."""
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise InputError("scene", f"cannot read {str(path)!r}: {exc.strerror}") from None
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            where = getattr(exc, "problem_mark", None)
+            at = f" at line {where.line + 1}" if where is not None else ""
+            raise InputError("scene", f"malformed YAML in {str(path)!r}{at}") from None
+        if data is None:
+            data = {}
+        if not isinstance(data, Mapping):
+            raise InputError("scene", f"{str(path)!r} must hold a mapping of fields, got {type(data).__name__}")
+        return cls.from_mapping({**data, **(overrides or {})})
+
+    def to_dict(self) -> dict[str, Any]:
+        """All fields as a plain dictionary."""
+        return dataclasses.asdict(self)
