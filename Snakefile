@@ -1,0 +1,21 @@
+# ddsolve studies: one job per case, then a summary table and plots.
+# Usage: snakemake --cores 4 [--configfile config/quick.yaml]
+# Layout of results/ and reports/: README.md, "Running studies".
+from snakemake.utils import validate
+
+
+configfile: "config/default.yaml"
+
+
+validate(config, "workflows/schemas/config.schema.yaml")
+
+
+include: "workflows/rules/common.smk"
+include: "workflows/rules/solve.smk"
+include: "workflows/rules/aggregate.smk"
+include: "workflows/rules/report.smk"
+
+
+rule all:
+    input:
+        report_files(),

@@ -1,0 +1,31 @@
+"""Result files and tables.
+
+- :mod:`ddsolve.io.hdf5`: one run per HDF5 file (:func:`write_result`,
+  :func:`read_result`, :func:`read_residuals`); layout in README.md, "HDF5 layout".
+- :mod:`ddsolve.io.aggregate`: many runs into one DataFrame / CSV
+  (:func:`collect`, :func:`write_table`).
+
+Names are imported lazily so that ``import ddsolve.io.hdf5`` does not load pandas.
+"""
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "write_result": "hdf5",
+    "read_result": "hdf5",
+    "read_residuals": "hdf5",
+    "read_params": "hdf5",
+    "collect": "aggregate",
+    "write_table": "aggregate",
+    "read_table": "aggregate",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        module = importlib.import_module(f".{_EXPORTS[name]}", __name__)
+        return getattr(module, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

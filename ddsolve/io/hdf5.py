@@ -1,0 +1,296 @@
+"""One solve per HDF5 file: write atomically, read back as a flat dictionary.
+
+The file layout (``format = "ddsolve-result"``, ``format_version = 1``) is
+documented in one place only: the section "HDF5 layout" of ``README.md``.
+In short: root attributes ``format``, ``format_version``, ``ddsolve_version``;
+group ``/params`` with one attribute per :class:`~ddsolve.spec.ProblemSpec`
+field; group ``/result`` with one attribute per scalar of
+:meth:`~ddsolve.result.SolveResult.to_dict` (``None`` stored as NaN), the
+dataset ``/result/residuals`` and one dataset per list-valued entry.
+
+:func:`write_result` never leaves a partial file at the target path: it writes
+``.<name>.<pid>.<random>.tmp`` in the target's directory, flushes and fsyncs
+it, then renames it onto the target with :func:`os.replace` (atomic on POSIX);
+on any error the temporary file is removed and the target is left untouched.
+"""
+from __future__ import annotations
+
+import math
+import os
+import uuid
+from pathlib import Path
+from typing import Any, Mapping
+
+import h5py
+import numpy as np
+
+FORMAT = "ddsolve-result"
+FORMAT_VERSION = 1
+
+#: Keys that are both spec fields and result scalars and must agree (the
+#: identity of the case). Any other name present in both ``/params`` and
+#: ``/result`` (today only ``cond``: the flag vs. the estimate) appears in the
+#: flat dictionary of :func:`read_result` as ``param_<name>`` for the parameter.
+IDENTITY_KEYS: tuple[str, ...] = ("problem", "method", "bodies", "subdomains", "elements")
+
+#: Datasets of ``/result`` that are not list-valued result entries.
+RESERVED_DATASETS: tuple[str, ...] = ("residuals", "u")
+
+
+def ddsolve_version() -> str:
+    """The installed ddsolve version (``"unknown"`` when it cannot be found)."""
+    try:
+        import ddsolve
+
+        version = getattr(ddsolve, "__version__", None)
+        if version:
+            return str(version)
+    except ImportError:  # pragma: no cover - we are inside ddsolve
+        pass
+    try:
+        from importlib.metadata import PackageNotFoundError, version as _version
+
+        return _version("ddsolve")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+# ----------------------------------------------------------------------------
+# conversion helpers
+# ----------------------------------------------------------------------------
+
+def _scalar_attr(key: str, value: Any) -> Any:
+    """Convert one scalar to an HDF5 attribute value (None -> NaN)."""
+    if value is None:
+        return np.float64(np.nan)
+    if isinstance(value, (bool, np.bool_)):
+        return np.bool_(value)
+    if isinstance(value, (int, np.integer)):
+        return np.int64(value)
+    if isinstance(value, (float, np.floating)):
+        return np.float64(value)
+    if isinstance(value, str):
+        return value
+    raise TypeError(f"{key}: cannot store {type(value).__name__} {value!r} as an HDF5 attribute")
+
+
+def _list_array(key: str, value: Any) -> np.ndarray:
+    """Convert a list-valued entry to an array (ints -> int64, floats/None -> float64)."""
+    items = list(value)
+    if any(isinstance(v, str) for v in items):
+        if not all(isinstance(v, str) for v in items):
+            raise TypeError(f"{key}: list mixes strings and other values")
+        return np.array(items, dtype=h5py.string_dtype())
+    try:
+        if any(v is None for v in items):
+            return np.array([np.nan if v is None else v for v in items], dtype=np.float64)
+        arr = np.asarray(items)
+    except (ValueError, TypeError) as exc:
+        raise TypeError(f"{key}: cannot store list as a rectangular numeric dataset ({exc})") from None
+    if arr.size == 0:
+        return np.zeros(arr.shape, dtype=np.int64)
+    if arr.dtype == np.bool_:
+        return arr
+    if np.issubdtype(arr.dtype, np.integer):
+        return arr.astype(np.int64)
+    if np.issubdtype(arr.dtype, np.floating):
+        return arr.astype(np.float64)
+    raise TypeError(f"{key}: cannot store list of {arr.dtype} as a dataset")
+
+
+def _from_attr(value: Any) -> Any:
+    """Convert an attribute read by h5py back to a Python scalar."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8")
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    if isinstance(value, np.ndarray) and value.shape == ():
+        return _from_attr(value[()])
+    return value
+
+
+def _from_dataset(ds: h5py.Dataset) -> list:
+    if h5py.check_string_dtype(ds.dtype) is not None:
+        return ds.asstr()[()].tolist()
+    return ds[()].tolist()
+
+
+def _spec_dict(spec: Any) -> dict[str, Any]:
+    if hasattr(spec, "to_dict"):
+        return dict(spec.to_dict())
+    if isinstance(spec, Mapping):
+        return dict(spec)
+    raise TypeError(f"spec must be a ProblemSpec or a mapping, got {type(spec).__name__}")
+
+
+# ----------------------------------------------------------------------------
+# writing
+# ----------------------------------------------------------------------------
+
+def write_result(path: str | os.PathLike, spec: Any, result: Any, *, store_solution: bool = False) -> Path:
+    """Write one run (spec and result) to ``path`` atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        Target ``.h5`` file; its directory is created if needed. An existing
+        file is replaced.
+    spec : ProblemSpec or mapping
+        The problem specification (``spec.to_dict()`` is stored in ``/params``).
+    result : SolveResult
+        The result: ``result.to_dict()`` (scalars and lists) and
+        ``result.residuals`` are stored in ``/result``.
+    store_solution : bool
+        Also store ``result.u`` as the dataset ``/result/u`` (off by default).
+
+    Returns
+    -------
+    Path
+        The written file.
+
+    Raises
+    ------
+    ValueError
+        If spec and result disagree on an identity key (problem, method,
+        bodies, subdomains, elements).
+    TypeError
+        If a value cannot be stored (e.g. a dictionary or a ragged list).
+    """
+    path = Path(path)
+    params = _spec_dict(spec)
+    summary = dict(result.to_dict())
+    for key in IDENTITY_KEYS:
+        if key in params and key in summary and params[key] != summary[key]:
+            raise ValueError(f"{key}: spec says {params[key]!r} but the result says {summary[key]!r}")
+
+    # Convert everything before touching the disk, so type errors create no file.
+    param_attrs = {key: _scalar_attr(f"params/{key}", val) for key, val in params.items()}
+    result_attrs: dict[str, Any] = {}
+    result_lists: dict[str, np.ndarray] = {}
+    for key, val in summary.items():
+        if key in RESERVED_DATASETS:
+            raise ValueError(f"{key}: result key clashes with a reserved dataset name")
+        if isinstance(val, (list, tuple, np.ndarray)):
+            result_lists[key] = _list_array(f"result/{key}", val)
+        else:
+            result_attrs[key] = _scalar_attr(f"result/{key}", val)
+    residuals = np.asarray(getattr(result, "residuals", np.zeros(0)), dtype=np.float64).ravel()
+    solution = None
+    if store_solution and getattr(result, "u", None) is not None:
+        solution = np.asarray(result.u)
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        with h5py.File(tmp, "x", track_order=True) as h5:
+            h5.attrs["format"] = FORMAT
+            h5.attrs["format_version"] = np.int64(FORMAT_VERSION)
+            h5.attrs["ddsolve_version"] = ddsolve_version()
+            gparams = h5.create_group("params", track_order=True)
+            for key, val in param_attrs.items():
+                gparams.attrs[key] = val
+            gresult = h5.create_group("result", track_order=True)
+            for key, val in result_attrs.items():
+                gresult.attrs[key] = val
+            gresult.create_dataset("residuals", data=residuals, dtype=np.float64)
+            for key, arr in result_lists.items():
+                gresult.create_dataset(key, data=arr)
+            if solution is not None:
+                gresult.create_dataset("u", data=solution)
+            h5.flush()
+        _fsync(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    return path
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+# ----------------------------------------------------------------------------
+# reading
+# ----------------------------------------------------------------------------
+
+def _open_checked(path: str | os.PathLike) -> h5py.File:
+    h5 = h5py.File(path, "r")
+    fmt = _from_attr(h5.attrs.get("format"))
+    version = _from_attr(h5.attrs.get("format_version"))
+    if fmt != FORMAT:
+        h5.close()
+        raise ValueError(f"{os.fspath(path)}: not a ddsolve result file (format={fmt!r})")
+    if not isinstance(version, int) or version > FORMAT_VERSION:
+        h5.close()
+        raise ValueError(f"{os.fspath(path)}: unsupported format_version {version!r} "
+                         f"(this ddsolve reads <= {FORMAT_VERSION})")
+    return h5
+
+
+def read_params(path: str | os.PathLike) -> dict[str, Any]:
+    """The ``/params`` group as a dictionary (spec field -> value)."""
+    with _open_checked(path) as h5:
+        return {key: _from_attr(val) for key, val in h5["params"].attrs.items()}
+
+
+def read_result(path: str | os.PathLike) -> dict[str, Any]:
+    """Read one run as a flat dictionary of parameters and scalar results.
+
+    Returns
+    -------
+    dict
+        The ``/params`` attributes, then the ``/result`` attributes and the
+        list-valued ``/result`` datasets (as Python lists; ``residuals`` and
+        ``u`` are not included, see :func:`read_residuals`). Missing floats are
+        NaN. A parameter whose name is also a result key is overridden by the
+        result; unless it is one of :data:`IDENTITY_KEYS` it is kept as
+        ``param_<name>`` (e.g. ``param_cond``, the flag, beside ``cond``, the
+        estimate).
+    """
+    with _open_checked(path) as h5:
+        params = {key: _from_attr(val) for key, val in h5["params"].attrs.items()}
+        gresult = h5["result"]
+        results = {key: _from_attr(val) for key, val in gresult.attrs.items()}
+        for key, obj in gresult.items():
+            if key in RESERVED_DATASETS or not isinstance(obj, h5py.Dataset):
+                continue
+            results[key] = _from_dataset(obj)
+    flat: dict[str, Any] = {}
+    for key, val in params.items():
+        if key in results and key not in IDENTITY_KEYS:
+            flat[f"param_{key}"] = val
+        else:
+            flat[key] = val
+    flat.update(results)
+    return flat
+
+
+def read_residuals(path: str | os.PathLike) -> np.ndarray:
+    """The residual history ``/result/residuals`` (float64, shape (iterations + 1,))."""
+    with _open_checked(path) as h5:
+        return np.asarray(h5["result/residuals"][()], dtype=np.float64)
+
+
+def read_solution(path: str | os.PathLike) -> np.ndarray | None:
+    """The solution ``/result/u`` if it was stored (``store_solution=True``), else None."""
+    with _open_checked(path) as h5:
+        if "u" not in h5["result"]:
+            return None
+        return np.asarray(h5["result/u"][()])
+
+
+def is_missing(value: Any) -> bool:
+    """True for values stored as missing (None written as NaN)."""
+    return value is None or (isinstance(value, float) and math.isnan(value))

@@ -1,0 +1,370 @@
+"""Thesis-style tables from the aggregated results (see :mod:`ddsolve.io.aggregate`).
+
+The main table, :func:`condition_table`, has one row per (1/H, H/h) case and,
+per method, the columns ``cond`` (Lanczos condition number estimate) and
+``iter`` (Krylov iterations), like Table 4.1 of the thesis. It is a DataFrame
+with a column MultiIndex ``(method, quantity)``; :func:`to_markdown` and
+:func:`to_latex` render it (or any flat DataFrame) as text. Iteration counts
+of runs that did not converge are marked ``*`` with a note under the table.
+
+Comparisons with the thesis use flat frames: :func:`flatten` turns the wide
+table into columns ``<method>_<quantity>``, and :func:`side_by_side` merges our
+values with a transcribed thesis table (``tables/table_4_1.csv``, ...) on key
+columns, adding ``<col>_thesis`` and ``<col>_dev`` = (ours - thesis) / |thesis|.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+#: Display names of key columns (1/H = subdomains per side, H/h = elements per subdomain side).
+ROW_LABELS: dict[str, str] = {
+    "bodies": "1/H_b",
+    "subdomains": "1/H",
+    "elements": "H/h",
+}
+#: LaTeX versions of labels that need math mode.
+LATEX_LABELS: dict[str, str] = {
+    "1/H_b": "$1/H_b$",
+    "1/H": "$1/H$",
+    "H/h": "$H/h$",
+    "H_b/H_s": "$H_b/H_s$",
+    "H_s/h": "$H_s/h$",
+}
+METHOD_LABELS: dict[str, str] = {
+    "feti": "FETI",
+    "fetidp": "FETI-DP",
+    "bddc": "BDDC",
+    "direct": "direct",
+}
+QUANTITY_LABELS: dict[str, str] = {
+    "cond": "cond",
+    "iterations": "iter",
+    "thesis": "thesis",
+    "dev": "dev.",
+}
+#: Quantities shown as integers even when missing values made them float.
+INTEGER_QUANTITIES = frozenset({"iterations", "ndof", "nlambda", "n_factorizations",
+                                "subdomains", "elements", "bodies"})
+NOT_CONVERGED_MARK = "*"
+NOT_CONVERGED_NOTE = "not converged (stopped at maxiter or by a breakdown); the count is where it stopped"
+
+#: Parameters summarised by :func:`describe_constants`, in this order.
+DESCRIBED_PARAMS: tuple[str, ...] = ("problem", "bodies", "rho", "f", "scaling", "gamma", "rtol", "maxiter")
+
+
+# ----------------------------------------------------------------------------
+# building tables
+# ----------------------------------------------------------------------------
+
+def _truthy(value: Any) -> bool:
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    return str(value).strip().lower() in ("true", "1", "yes")
+
+
+def condition_table(df: pd.DataFrame, *, rows: Sequence[str] = ("subdomains", "elements"),
+                    methods: Sequence[str] | None = None,
+                    quantities: Sequence[str] = ("cond", "iterations")) -> pd.DataFrame:
+    """Pivot the aggregated runs into the thesis layout.
+
+    Parameters
+    ----------
+    df : DataFrame
+        One row per run (:func:`ddsolve.io.aggregate.collect` or the summary CSV),
+        with columns ``method``, the ``rows`` keys and the ``quantities``.
+    rows : sequence of str
+        Key columns that identify a row, default (1/H, H/h) = (subdomains, elements).
+    methods : sequence of str, optional
+        Methods (column groups) in display order; default: order of appearance.
+        A method without runs gets empty columns.
+    quantities : sequence of str
+        Values shown per method, default (cond, iterations).
+
+    Returns
+    -------
+    DataFrame
+        Index: the ``rows`` keys (sorted); columns: MultiIndex (method, quantity).
+        ``attrs["marks"]`` lists ``(index, column, mark)`` of flagged cells and
+        ``attrs["notes"]`` maps a mark to its footnote.
+
+    Raises
+    ------
+    KeyError
+        If a needed column is missing.
+    ValueError
+        If two runs share the same method and row keys.
+    """
+    rows = list(rows)
+    quantities = list(quantities)
+    missing = [c for c in ["method", *rows, *quantities] if c not in df.columns]
+    if missing:
+        raise KeyError(f"condition_table: missing column(s) {', '.join(missing)}")
+    data = df.copy()
+    if methods is None:
+        methods = list(dict.fromkeys(data["method"]))
+    else:
+        methods = list(methods)
+        data = data[data["method"].isin(methods)]
+    dup = data.duplicated(subset=[*rows, "method"], keep=False)
+    if dup.any():
+        cases = data.loc[dup, ["method", *rows]].drop_duplicates().to_dict("records")
+        raise ValueError(f"condition_table: several runs for the same case: {cases}")
+    for q in quantities:
+        data[q] = pd.to_numeric(data[q], errors="coerce")
+    columns = pd.MultiIndex.from_product([methods, quantities], names=["method", "quantity"])
+    if data.empty:
+        index = pd.MultiIndex.from_tuples([], names=rows) if len(rows) > 1 else pd.Index([], name=rows[0])
+        wide = pd.DataFrame(index=index, columns=columns, dtype=float)
+    else:
+        wide = data.pivot(index=rows, columns="method", values=quantities)
+        wide = wide.swaplevel(0, 1, axis=1).reindex(columns=columns).sort_index()
+    wide.columns.names = ["method", "quantity"]
+    for col in wide.columns:
+        if col[1] in INTEGER_QUANTITIES or pd.api.types.is_integer_dtype(df[col[1]].dtype):
+            values = pd.to_numeric(wide[col], errors="coerce")
+            if values.dropna().map(lambda v: float(v).is_integer()).all():
+                wide[col] = values.round().astype("Int64")
+
+    marks = []
+    if "converged" in data.columns and not data.empty:
+        flag_q = "iterations" if "iterations" in quantities else quantities[0]
+        for _, run in data.iterrows():
+            if not _truthy(run["converged"]):
+                key = tuple(run[r] for r in rows) if len(rows) > 1 else run[rows[0]]
+                marks.append((key, (run["method"], flag_q), NOT_CONVERGED_MARK))
+    wide.attrs["marks"] = marks
+    wide.attrs["notes"] = {NOT_CONVERGED_MARK: NOT_CONVERGED_NOTE} if marks else {}
+    return wide
+
+
+def flatten(table: pd.DataFrame, sep: str = "_") -> pd.DataFrame:
+    """Wide table -> flat frame: index as columns, ``(method, q)`` as ``method<sep>q``."""
+    out = table.copy()
+    if isinstance(out.columns, pd.MultiIndex):
+        out.columns = [sep.join(str(p) for p in col if str(p)) for col in out.columns]
+    if out.index.names != [None]:
+        out = out.reset_index()
+    out.attrs = {}
+    return out
+
+
+def side_by_side(ours_df: pd.DataFrame, thesis_df: pd.DataFrame,
+                 keys: Sequence[str] | Mapping[str, str],
+                 columns: Sequence[str] | Mapping[str, str], *, how: str = "left") -> pd.DataFrame:
+    """Put our values beside the thesis's and their relative deviation.
+
+    Parameters
+    ----------
+    ours_df, thesis_df : DataFrame
+        Flat frames (use :func:`flatten` on a wide table).
+    keys : list of str or mapping
+        Key columns to merge on. A list names columns present in both frames; a
+        mapping ``{ours_name: thesis_name}`` renames the thesis's keys (e.g.
+        ``{"elements": "Hs_over_h"}``).
+    columns : list of str or mapping
+        Compared value columns, likewise ``{ours_name: thesis_name}`` (e.g.
+        ``{"feti_cond": "cond_I"}``).
+    how : str
+        Merge type (``"left"``: all our rows, NaN where the thesis has none;
+        ``"inner"``: only rows in both).
+
+    Returns
+    -------
+    DataFrame
+        The key columns, then for each value column ``<col>``, ``<col>_thesis``,
+        ``<col>_dev`` with ``dev = (ours - thesis) / |thesis|`` (NaN where either
+        is missing or not numeric, or the thesis value is 0).
+    """
+    kmap = dict(keys) if isinstance(keys, Mapping) else {k: k for k in keys}
+    cmap = dict(columns) if isinstance(columns, Mapping) else {c: c for c in columns}
+    for name, frame, cols in (("ours_df", ours_df, list(kmap) + list(cmap)),
+                              ("thesis_df", thesis_df, list(kmap.values()) + list(cmap.values()))):
+        missing = [c for c in cols if c not in frame.columns]
+        if missing:
+            raise KeyError(f"side_by_side: {name} lacks column(s) {', '.join(missing)}")
+    ours = ours_df[list(kmap) + list(cmap)].copy()
+    ours.attrs = {}
+    thesis = thesis_df[list(kmap.values()) + list(cmap.values())].copy()
+    thesis.attrs = {}
+    thesis.columns = list(kmap) + [f"{c}_thesis" for c in cmap]
+    merged = ours.merge(thesis, on=list(kmap), how=how)
+    out_cols = list(kmap)
+    for col in cmap:
+        mine = pd.to_numeric(merged[col], errors="coerce").astype(float)
+        ref = pd.to_numeric(merged[f"{col}_thesis"], errors="coerce").astype(float)
+        dev = (mine - ref) / ref.abs()
+        merged[f"{col}_dev"] = dev.where(ref != 0)
+        out_cols += [col, f"{col}_thesis", f"{col}_dev"]
+    return merged[out_cols]
+
+
+def describe_constants(df: pd.DataFrame, params: Iterable[str] = DESCRIBED_PARAMS) -> str:
+    """One line ``name=value, ...`` of the parameters that are the same for all runs."""
+    parts = []
+    for name in params:
+        if name in df.columns:
+            values = df[name].dropna().unique()
+            if len(values) == 1:
+                parts.append(f"{name}={_plain(values[0])}")
+    return ", ".join(parts)
+
+
+def _plain(value: Any) -> str:
+    if isinstance(value, (float, np.floating)) and float(value).is_integer():
+        return str(int(value))
+    if isinstance(value, (np.generic,)):
+        return str(value.item())
+    return str(value)
+
+
+# ----------------------------------------------------------------------------
+# rendering
+# ----------------------------------------------------------------------------
+
+def _is_missing(value: Any) -> bool:
+    if value is None or value is pd.NA:
+        return True
+    try:
+        return bool(isinstance(value, (float, np.floating)) and math.isnan(value))
+    except TypeError:
+        return False
+
+
+def _column_kind(name: Any, series: pd.Series) -> str:
+    """'dev' (relative deviation), 'int', 'float' or 'other' for formatting."""
+    last = str(name[-1] if isinstance(name, tuple) else name)
+    if last.endswith("_dev") or last == "dev":
+        return "dev"
+    if pd.api.types.is_bool_dtype(series.dtype):
+        return "other"
+    if pd.api.types.is_integer_dtype(series.dtype):
+        return "int"
+    if pd.api.types.is_float_dtype(series.dtype):
+        values = series.dropna()
+        quantity = last.removesuffix("_thesis")
+        integral = len(values) > 0 and values.map(lambda v: float(v).is_integer()).all()
+        if integral and (quantity in INTEGER_QUANTITIES or quantity.startswith("iter")
+                         or quantity.endswith("_it") or quantity.endswith("iterations")):
+            return "int"
+        return "float"
+    return "other"
+
+
+def _format(value: Any, kind: str, digits: int, missing: str) -> str:
+    if _is_missing(value):
+        return missing
+    if kind == "dev":
+        return f"{float(value):+.1%}"
+    if kind == "int":
+        return str(int(round(float(value))))
+    if kind == "float":
+        return f"{float(value):.{digits}f}"
+    return str(value)
+
+
+def _layout(table: pd.DataFrame, digits: int, missing: str):
+    """Common part of the renderers: (groups, labels, cell rows, notes)."""
+    marks = {(key, col): mark for key, col, mark in table.attrs.get("marks", [])}
+    notes = dict(table.attrs.get("notes", {}))
+    multi = isinstance(table.columns, pd.MultiIndex)
+    index_names = [n for n in table.index.names if n is not None]
+    groups: list[str] = [""] * len(index_names)
+    labels: list[str] = [ROW_LABELS.get(n, str(n)) for n in index_names]
+    for col in table.columns:
+        if multi:
+            groups.append(METHOD_LABELS.get(str(col[0]), str(col[0])))
+            labels.append(QUANTITY_LABELS.get(str(col[-1]), str(col[-1])))
+        else:
+            groups.append("")
+            labels.append(ROW_LABELS.get(str(col), str(col)))
+    kinds = [_column_kind(col, table[col]) for col in table.columns]
+    index_kinds = []
+    for level, name in enumerate(index_names):
+        values = pd.Series(table.index.get_level_values(level))
+        index_kinds.append(_column_kind(name, values))
+    cells = []
+    for i, key in enumerate(table.index):
+        key_tuple = key if isinstance(key, tuple) else (key,)
+        row = [_format(v, k, digits, missing) for v, k in zip(key_tuple, index_kinds)] if index_names else []
+        for j, col in enumerate(table.columns):
+            text = _format(table.iat[i, j], kinds[j], digits, missing)
+            mark = marks.get((key, col))
+            row.append(text + mark if mark and text != missing else text)
+        cells.append(row)
+    return groups, labels, cells, notes
+
+
+def to_markdown(table: pd.DataFrame, *, digits: int = 4, missing: str = "-") -> str:
+    """Render a table (wide or flat) as a GitHub Markdown table.
+
+    Column headers of a wide table read ``<METHOD> <quantity>`` (e.g.
+    ``FETI-DP cond``); floats get ``digits`` decimals, relative deviations are
+    percentages, missing values are ``missing``. Footnotes for marked cells
+    follow the table.
+    """
+    groups, labels, cells, notes = _layout(table, digits, missing)
+    headers = [f"{g} {l}".strip() for g, l in zip(groups, labels)]
+    if not cells:
+        cells = [[missing] * len(headers)]
+    frame = pd.DataFrame(cells, columns=range(len(headers)))
+    frame.columns = headers
+    text = frame.to_markdown(index=False, disable_numparse=True, stralign="right")
+    for mark, note in notes.items():
+        text += f"\n\n{mark} {note}"
+    return text + "\n"
+
+
+_LATEX_ESCAPES = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
+                  "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\^{}"}
+
+
+def latex_escape(text: str) -> str:
+    """Escape LaTeX special characters in plain text."""
+    return "".join(_LATEX_ESCAPES.get(ch, ch) for ch in str(text))
+
+
+def _latex_label(label: str) -> str:
+    return LATEX_LABELS.get(label, latex_escape(label))
+
+
+def to_latex(table: pd.DataFrame, *, digits: int = 4, missing: str = "--") -> str:
+    """Render a table (wide or flat) as a booktabs ``tabular`` (needs ``\\usepackage{booktabs}``).
+
+    A wide table gets a first header row with one ``\\multicolumn`` per method
+    and ``\\cmidrule`` under each; footnotes for marked cells follow
+    ``\\bottomrule`` in a spanning row.
+    """
+    groups, labels, cells, notes = _layout(table, digits, missing)
+    ncol = len(labels)
+    lines = ["% generated by ddsolve.report.tables.to_latex; needs \\usepackage{booktabs}",
+             "\\begin{tabular}{" + "r" * ncol + "}", "\\toprule"]
+    if any(groups):
+        spans: list[tuple[str, int, int]] = []  # (label, first, last) 1-based
+        for j, g in enumerate(groups, start=1):
+            if spans and spans[-1][0] == g and g:
+                spans[-1] = (g, spans[-1][1], j)
+            else:
+                spans.append((g, j, j))
+        head, rules = [], []
+        for g, a, b in spans:
+            if not g:
+                head.extend([""] * (b - a + 1))
+                continue
+            head.append(f"\\multicolumn{{{b - a + 1}}}{{c}}{{{latex_escape(g)}}}")
+            rules.append(f"\\cmidrule(lr){{{a}-{b}}}")
+        lines.append(" & ".join(head) + " \\\\")
+        lines.append(" ".join(rules))
+    lines.append(" & ".join(_latex_label(l) for l in labels) + " \\\\")
+    lines.append("\\midrule")
+    for row in cells:
+        lines.append(" & ".join(latex_escape(c) for c in row) + " \\\\")
+    lines.append("\\bottomrule")
+    for mark, note in notes.items():
+        lines.append(f"\\multicolumn{{{ncol}}}{{l}}{{\\footnotesize {latex_escape(mark)} "
+                     f"{latex_escape(note)}}} \\\\")
+    lines.append("\\end{tabular}")
+    return "\n".join(lines) + "\n"

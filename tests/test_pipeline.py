@@ -1,0 +1,107 @@
+"""The Snakemake pipeline, run on a copy of the workflow in a temporary directory.
+
+The dry runs need only Snakemake; the real run of the tiny ``quick`` study
+(config/quick.yaml) needs the solvers (``ddsolve.api``) and is skipped without them.
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytest.importorskip("snakemake")
+
+
+def has_api() -> bool:
+    try:
+        return importlib.util.find_spec("ddsolve.api") is not None
+    except ImportError:
+        return False
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    """A copy of Snakefile, workflows/ and config/ (outputs never touch the repository)."""
+    wd = tmp_path_factory.mktemp("pipeline")
+    shutil.copy(ROOT / "Snakefile", wd / "Snakefile")
+    shutil.copytree(ROOT / "workflows", wd / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "config", wd / "config")
+    return wd
+
+
+def snakemake(wd: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
+    proc = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=wd, env=env,
+                          capture_output=True, text=True, timeout=300)
+    if check and proc.returncode != 0:
+        pytest.fail(f"snakemake {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+    return proc
+
+
+def planned(proc: subprocess.CompletedProcess) -> dict[str, int]:
+    """Job counts from the 'Job stats' table of a dry run."""
+    text = proc.stdout + proc.stderr
+    counts = {}
+    for rule in ("solve_case", "aggregate", "table", "plot_cond", "all"):
+        match = re.search(rf"^{rule}\s+(\d+)\s*$", text, flags=re.MULTILINE)
+        counts[rule] = int(match.group(1)) if match else 0
+    return counts
+
+
+def test_dry_run_default_and_quick(workdir):
+    default = planned(snakemake(workdir, "-n", "--cores", "1"))
+    assert default["solve_case"] == 3 * 3 * 4 and default["aggregate"] == 1
+    quick = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/quick.yaml"))
+    assert quick == {"solve_case": 6, "aggregate": 1, "table": 1, "plot_cond": 1, "all": 1}
+
+
+def test_bad_config_is_rejected(workdir):
+    (workdir / "bad.yaml").write_text("methods: [feti, newton]\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "bad.yaml", check=False)
+    assert proc.returncode != 0
+    assert "newton" in proc.stdout + proc.stderr
+
+
+@pytest.mark.skipif(not has_api(), reason="ddsolve.api (the solvers) not available yet")
+def test_quick_study_end_to_end(workdir):
+    snakemake(workdir, "--cores", "2", "--configfile", "config/quick.yaml")
+    results = workdir / "results" / "quick"
+    reports = workdir / "reports" / "quick"
+    for method in ("feti", "fetidp", "bddc"):
+        for m in (2, 4):
+            assert (results / method / f"Ns2_m{m}.h5").is_file()
+            assert (workdir / "logs" / "quick" / method / f"Ns2_m{m}.log").is_file()
+    df = pd.read_csv(results / "summary.csv")
+    assert len(df) == 6 and set(df["method"]) == {"feti", "fetidp", "bddc"}
+    assert df["converged"].all() and (df["cond"] >= 1 - 1e-8).all()
+    table = (reports / "table.md").read_text()
+    assert "FETI-DP cond" in table and "BDDC iter" in table
+    assert "\\begin{tabular}" in (reports / "table.tex").read_text()
+    assert (reports / "cond_vs_Hh.png").read_bytes()[:4] == b"\x89PNG"
+    assert not list(results.rglob("*.tmp"))
+    # the default study's outputs are separate and untouched
+    assert not (workdir / "results" / "default").exists()
+
+    # finished cases are never rerun ...
+    again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/quick.yaml")
+    assert "Nothing to be done" in again.stdout + again.stderr
+    # ... a new H/h adds only its cases ...
+    (workdir / "more.yaml").write_text("elements: [2, 4, 8]\n")
+    more = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/quick.yaml",
+                             "more.yaml"))
+    assert more["solve_case"] == 3 and more["aggregate"] == 1
+    # ... and a changed parameter reruns the cases it affects (params rerun-trigger)
+    (workdir / "rtol.yaml").write_text("rtol: 1.0e-8\n")
+    rerun = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/quick.yaml",
+                              "rtol.yaml"))
+    assert rerun["solve_case"] == 6

@@ -1,0 +1,174 @@
+"""Report tables, fits and plots (ddsolve.report), and the pipeline's config schema."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from ddsolve.report import plots, tables
+
+ROOT = Path(__file__).resolve().parents[1]
+SCHEMA = ROOT / "workflows" / "schemas" / "config.schema.yaml"
+
+
+def runs() -> pd.DataFrame:
+    rows = []
+    for method, scale in [("feti", 1.0), ("fetidp", 0.5)]:
+        for ns in (2, 4):
+            for m in (4, 8):
+                rows.append({"problem": "poisson", "method": method, "subdomains": ns, "elements": m,
+                             "cond": round(scale * ns * (1 + math.log(m)) ** 2, 4),
+                             "iterations": ns + m, "converged": True})
+    df = pd.DataFrame(rows)
+    df.loc[(df.method == "feti") & (df.subdomains == 4) & (df.elements == 8), "converged"] = False
+    df.loc[(df.method == "fetidp") & (df.subdomains == 2) & (df.elements == 8), "cond"] = float("nan")
+    return df
+
+
+def test_condition_table_layout():
+    table = tables.condition_table(runs(), methods=["feti", "fetidp", "bddc"])
+    assert table.index.names == ["subdomains", "elements"]
+    assert list(table.index) == [(2, 4), (2, 8), (4, 4), (4, 8)]
+    assert list(table.columns.get_level_values(0).unique()) == ["feti", "fetidp", "bddc"]
+    assert table.loc[(2, 4), ("feti", "cond")] == pytest.approx(2 * (1 + math.log(4)) ** 2, abs=1e-4)
+    assert table.loc[(4, 8), ("fetidp", "iterations")] == 12
+    assert table[("bddc", "cond")].isna().all()  # no runs: empty columns
+
+
+def test_markdown_rendering():
+    df = runs()
+    text = tables.to_markdown(tables.condition_table(df))
+    expected_cond = f"{df.loc[0, 'cond']:.4f}"  # feti, 1/H=2, H/h=4
+    assert expected_cond in text
+    assert "FETI cond" in text and "FETI-DP iter" in text and "1/H" in text and "H/h" in text
+    assert " 12* |" in text  # feti, 1/H=4, H/h=8 did not converge
+    assert "* not converged" in text
+    # missing cond shown as '-'
+    row = [line for line in text.splitlines() if line.startswith("|") and "|     2 |     8 |" in line][0]
+    assert " - |" in row
+
+
+def test_latex_rendering():
+    table = tables.condition_table(runs())
+    tex = tables.to_latex(table)
+    assert "\\begin{tabular}{rrrrrr}" in tex and "\\end{tabular}" in tex
+    assert "\\toprule" in tex and "\\midrule" in tex and "\\bottomrule" in tex
+    assert "\\multicolumn{2}{c}{FETI-DP}" in tex and "\\cmidrule(lr){3-4}" in tex
+    assert "$1/H$ & $H/h$ & cond & iter & cond & iter" in tex
+    body = tex.split("\\midrule")[1].split("\\bottomrule")[0].strip().splitlines()
+    assert len(body) == 4 and all(line.count("&") == 5 for line in body)
+    assert "12*" in tex
+
+
+def test_duplicate_runs_rejected():
+    df = pd.concat([runs(), runs().iloc[[0]]])
+    with pytest.raises(ValueError, match="several runs"):
+        tables.condition_table(df)
+
+
+def test_side_by_side_deviation_columns():
+    ours = tables.flatten(tables.condition_table(runs(), methods=["feti"]))
+    assert list(ours.columns) == ["subdomains", "elements", "feti_cond", "feti_iterations"]
+    thesis = pd.DataFrame({"Hb_over_Hs": [2, 2, 4], "Hs_over_h": [4, 8, 4],
+                           "cond_I": [ours.feti_cond[0] * 1.25, 0.0, ours.feti_cond[2]],
+                           "iter_I": [5, 10, 8]})
+    out = tables.side_by_side(ours, thesis, keys={"subdomains": "Hb_over_Hs", "elements": "Hs_over_h"},
+                              columns={"feti_cond": "cond_I", "feti_iterations": "iter_I"})
+    assert list(out.columns) == ["subdomains", "elements",
+                                 "feti_cond", "feti_cond_thesis", "feti_cond_dev",
+                                 "feti_iterations", "feti_iterations_thesis", "feti_iterations_dev"]
+    assert len(out) == 4  # all our rows; (4, 8) has no thesis value
+    assert out.feti_cond_dev[0] == pytest.approx(1 / 1.25 - 1)
+    assert math.isnan(out.feti_cond_dev[1])  # thesis value 0
+    assert out.feti_cond_dev[2] == pytest.approx(0.0)
+    assert math.isnan(out.feti_cond_thesis[3]) and math.isnan(out.feti_cond_dev[3])
+    assert out.feti_iterations_dev[0] == pytest.approx((6 - 5) / 5)
+    text = tables.to_markdown(out)
+    assert "+20.0%" in text and "-20.0%" in text
+    assert "\\%" in tables.to_latex(out)
+
+
+def test_side_by_side_same_names_and_missing_column():
+    ours = pd.DataFrame({"k": [1, 2], "v": [1.0, 2.0]})
+    thesis = pd.DataFrame({"k": [1, 2], "v": [2.0, 2.0]})
+    out = tables.side_by_side(ours, thesis, keys=["k"], columns=["v"], how="inner")
+    assert out.v_dev.tolist() == pytest.approx([-0.5, 0.0])
+    with pytest.raises(KeyError, match="thesis_df lacks"):
+        tables.side_by_side(ours, thesis.drop(columns="v"), keys=["k"], columns=["v"])
+
+
+def test_describe_constants():
+    text = tables.describe_constants(pd.DataFrame({"problem": ["poisson"] * 2, "rtol": [1e-6, 1e-6],
+                                                   "rho": [1.0, 10.0]}))
+    assert text == "problem=poisson, rtol=1e-06"
+
+
+def test_fit_log_squared_exact():
+    x = np.array([2, 4, 8, 16, 32, 64])
+    c, r2 = plots.fit_log_squared(x, 0.37 * (1 + np.log(x)) ** 2)
+    assert c == pytest.approx(0.37, rel=1e-12) and r2 == pytest.approx(1.0, abs=1e-12)
+    # non-finite points are ignored; one point gives C but no R^2
+    c, r2 = plots.fit_log_squared([4, 8, 16], [0.5 * (1 + math.log(4)) ** 2, float("nan"), None])
+    assert c == pytest.approx(0.5) and math.isnan(r2)
+    assert all(math.isnan(v) for v in plots.fit_log_squared([], []))
+
+
+def test_fit_linear_exact():
+    slope, intercept, r2 = plots.fit_linear([1, 2, 3, 4], [5.5, 8, 10.5, 13])
+    assert (slope, intercept, r2) == pytest.approx((2.5, 3.0, 1.0))
+    assert all(math.isnan(v) for v in plots.fit_linear([1, 1], [2, 3]))
+
+
+def test_plot_writes_png(tmp_path):
+    df = runs()
+    out = tmp_path / "fig" / "cond.png"
+    fits = plots.plot_cond_vs_Hh(df, out, methods=["feti", "fetidp"])
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    c, r2 = fits[("feti", 2)]
+    assert c == pytest.approx(2.0, rel=1e-4) and r2 == pytest.approx(1.0, abs=1e-6)
+    assert set(fits) == {("feti", 2), ("feti", 4), ("fetidp", 2), ("fetidp", 4)}
+
+
+# --- the pipeline's configuration schema -------------------------------------------------
+
+def validate(config):
+    from snakemake.utils import validate as snakemake_validate
+
+    snakemake_validate(config, str(SCHEMA))
+    return config
+
+
+@pytest.mark.parametrize("name", ["default.yaml", "quick.yaml"])
+def test_shipped_configs_validate(name):
+    base = yaml.safe_load((ROOT / "config" / "default.yaml").read_text())
+    config = {**base, **yaml.safe_load((ROOT / "config" / name).read_text())}
+    validate(config)
+
+
+def test_schema_fills_defaults():
+    config = validate({"study": "s", "methods": ["bddc"], "subdomains": [2], "elements": [4]})
+    assert config["problem"] == "poisson" and config["rtol"] == 1e-6 and config["cond"] is True
+    assert config["scaling"] == "rho" and config["maxiter"] == 1000
+
+
+@pytest.mark.parametrize("change", [
+    {"methods": ["feti", "newton"]},        # unknown method
+    {"subdomains": [2, -4]},                # negative count
+    {"elements": [1]},                      # below the minimum
+    {"rtol": "1e-6"},                       # YAML 1.1 reads 1e-6 as a string
+    {"maxiter": 0},
+    {"rho": "stripes:3"},
+    {"study": "../escape"},
+    {"solver": "fetidp"},                   # unknown key
+    {"methods": []},
+])
+def test_schema_rejects_bad_config(change):
+    from snakemake.exceptions import WorkflowError
+
+    config = {"study": "s", "methods": ["feti"], "subdomains": [2], "elements": [4], **change}
+    with pytest.raises(WorkflowError):
+        validate(config)

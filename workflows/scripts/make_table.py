@@ -1,0 +1,20 @@
+"""Snakemake script of rule table: summary CSV -> table.md and table.tex."""
+import sys
+from pathlib import Path
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stdout = sys.stderr = log
+    import pandas as pd
+
+    from ddsolve.report.tables import condition_table, describe_constants, to_latex, to_markdown
+
+    df = pd.read_csv(snakemake.input[0])  # noqa: F821
+    table = condition_table(df, methods=snakemake.params.methods)  # noqa: F821
+    study = snakemake.wildcards.study  # noqa: F821
+    heading = (f"# Study `{study}`: condition number estimates and iterations\n\n"
+               f"cond: Lanczos estimate of the condition number; iter: Krylov iterations; "
+               f"1/H: subdomains per side; H/h: elements per subdomain side. "
+               f"{describe_constants(df)}.\n\n")
+    Path(snakemake.output.md).write_text(heading + to_markdown(table))  # noqa: F821
+    Path(snakemake.output.tex).write_text(to_latex(table))  # noqa: F821
+    print(to_markdown(table))

@@ -1,0 +1,14 @@
+"""Snakemake script of rule plot_cond: summary CSV -> cond_vs_Hh.png."""
+import sys
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stdout = sys.stderr = log
+    import pandas as pd
+
+    from ddsolve.report.plots import plot_cond_vs_Hh
+
+    df = pd.read_csv(snakemake.input[0])  # noqa: F821
+    fits = plot_cond_vs_Hh(df, snakemake.output[0], methods=snakemake.params.methods,  # noqa: F821
+                           title=f"Study {snakemake.wildcards.study}: cond vs H/h")  # noqa: F821
+    for (method, ns), (c, r2) in fits.items():
+        print(f"{method} 1/H={ns}: C={c:.4g} R2={r2:.4f}")
