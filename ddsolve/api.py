@@ -9,6 +9,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, Substructures, solve_bddc, solve_direct, solve_feti, solve_fetidp
+from .multibody import GlobalInterface
+from .multibody.direct import solve_constrained_direct
+from .multibody.fetifeti import FetiFetiSolver
 from .result import SolveResult
 from .scene import assemble, checkerboard, structured_square
 from .spec import ProblemSpec, parse_f, parse_rho
@@ -20,6 +23,14 @@ _ITERATIVE: dict[str, Callable[..., MethodOutput]] = {
     "fetidp": solve_fetidp,
     "bddc": solve_bddc,
 }
+
+
+def _multibody_solver(method: str, sub: Substructures, gi: GlobalInterface):
+    """The multibody solver object for ``method`` (factorizations happen here)."""
+    if method == "feti-feti":
+        return FetiFetiSolver(sub, gi)
+    from .multibody.hybrid import HybridSolver
+    return HybridSolver(sub, gi)
 
 
 def build_scene(spec: ProblemSpec):
@@ -82,8 +93,19 @@ def _solve(spec: ProblemSpec) -> SolveResult:
     result = SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies,
                          subdomains=spec.subdomains, elements=spec.elements, ndof=sub.ndof)
     t1 = time.perf_counter()
-    if spec.method == "direct":
-        out = solve_direct(sub)
+    reference: Callable[[], MethodOutput] = lambda: solve_direct(sub)   # noqa: E731
+    if spec.problem == "multibody":
+        gi = GlobalInterface(sub)
+        active = gi.contact_mask(spec.contact)
+        reference = lambda: solve_constrained_direct(sub, gi, active)   # noqa: E731
+        if spec.method == "direct":
+            out = reference()
+        else:
+            out = _multibody_solver(spec.method, sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
+                                                                cond=spec.cond)
+        result.extra["n_active"] = int(active.sum())
+    elif spec.method == "direct":
+        out = reference()
     else:
         out = _ITERATIVE[spec.method](sub, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
     t_total = time.perf_counter() - t1
@@ -93,7 +115,7 @@ def _solve(spec: ProblemSpec) -> SolveResult:
     result.n_factorizations = out.n_factorizations
     result.setup_seconds = t_assembly + out.setup_seconds
     result.solve_seconds = t_total - out.setup_seconds
-    result.extra.update(out.extra)
+    result.extra.update({k: v for k, v in out.extra.items() if np.ndim(v) == 0})
     result.extra["n_templates"] = local.n_templates
     if out.krylov is None:
         result.converged, result.reason, result.iterations = True, "direct solve", 0
@@ -104,7 +126,7 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         if spec.cond:
             result.cond, result.lambda_min, result.lambda_max = kr.cond, kr.lambda_min, kr.lambda_max
     if spec.check:
-        ref = out if spec.method == "direct" else solve_direct(sub)
+        ref = out if spec.method == "direct" else reference()
         result.error_vs_direct = energy_error(sub.global_matrix(), out.u, ref.u)
     log.info("%s %s: %s", spec.problem, spec.method, result.reason)
     return result

@@ -19,7 +19,12 @@ from .errors import InputError
 #: Problems and the methods each one accepts (the first is the default).
 METHODS: dict[str, tuple[str, ...]] = {
     "poisson": ("fetidp", "feti", "bddc", "direct"),
+    "multibody": ("feti-feti", "hybrid", "direct"),
 }
+#: Default right-hand side per problem: f = 1 for poisson; a generic seeded load for
+#: multibody (f = 1 is symmetric there and PCG converges unrepresentatively fast).
+DEFAULT_F: dict[str, float | str] = {"poisson": 1.0, "multibody": "random:0"}
+CONTACTS = ("full", "middle")
 SCALINGS = ("rho", "multiplicity")
 
 
@@ -105,9 +110,15 @@ class ProblemSpec:
     Attributes
     ----------
     problem : str
-        ``"poisson"``: -div(rho grad u) = f on the unit square, u = 0 on its boundary.
-    method : str
-        Solver: ``"feti"``, ``"fetidp"``, ``"bddc"`` or ``"direct"``.
+        ``"poisson"``: -div(rho grad u) = f on the unit square, u = 0 on its
+        boundary (one body). ``"multibody"``: problem (4.32), the unit square
+        split into bodies x bodies square bodies tied on the active contact area.
+    method : str or None
+        None takes the problem's first method. Solver: ``"feti"``, ``"fetidp"``, ``"bddc"``, ``"direct"`` (poisson);
+        ``"feti-feti"``, ``"hybrid"``, ``"direct"`` (multibody).
+    contact : str
+        Active area between bodies (multibody): ``"full"`` (case I) or
+        ``"middle"`` (case II, middle third of each face).
     bodies : int
         Bodies per side, 1/H_b.
     subdomains : int
@@ -117,8 +128,9 @@ class ProblemSpec:
         subdomain has interior nodes).
     rho : float or str
         Coefficient: a positive number, or ``"checkerboard:V"``.
-    f : float or str
-        Right-hand side: a constant, or ``"random:SEED"`` (see :func:`parse_f`).
+    f : float or str or None
+        Right-hand side: a constant, or ``"random:SEED"`` (see :func:`parse_f`);
+        None takes the problem's default (:data:`DEFAULT_F`).
     scaling : str
         ``"rho"`` (delta-dagger rho-scaling, Section 2.3) or ``"multiplicity"``.
     gamma : float
@@ -134,18 +146,26 @@ class ProblemSpec:
     """
 
     problem: str = "poisson"
-    method: str = "fetidp"
+    method: str | None = None
     bodies: int = 1
     subdomains: int = 2
     elements: int = 4
     rho: float | str = 1.0
-    f: float | str = 1.0
+    f: float | str | None = None
+    contact: str = "full"
     scaling: str = "rho"
     gamma: float = 1.0
     rtol: float = 1e-6
     maxiter: int = 1000
     cond: bool = False
     check: bool = False
+
+    def __post_init__(self) -> None:
+        # problem-dependent defaults (also when the dataclass is built directly)
+        if self.method is None and self.problem in METHODS:
+            object.__setattr__(self, "method", METHODS[self.problem][0])
+        if self.f is None:
+            object.__setattr__(self, "f", DEFAULT_F.get(self.problem, 1.0))
 
     @classmethod
     def fields(cls) -> tuple[str, ...]:
@@ -167,11 +187,16 @@ class ProblemSpec:
         for key in data:
             if key not in known:
                 raise InputError(str(key), f"unknown field (known: {', '.join(sorted(known))})")
-        merged = {**dataclasses.asdict(cls()), **{k: v for k, v in data.items() if v is not None}}
+        defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+        merged = {**defaults, **{k: v for k, v in data.items() if v is not None}}
+        if merged["f"] is None:
+            merged["f"] = DEFAULT_F.get(str(merged["problem"]).strip().lower(), 1.0)
 
         problem = str(merged["problem"]).strip().lower()
         if problem not in METHODS:
             raise InputError("problem", f"unknown problem {merged['problem']!r} (choose from {', '.join(METHODS)})")
+        if merged["method"] is None:
+            merged["method"] = METHODS[problem][0]
         method = str(merged["method"]).strip().lower()
         if method not in METHODS[problem]:
             raise InputError("method", f"unknown method {merged['method']!r} for problem {problem!r} "
@@ -184,6 +209,9 @@ class ProblemSpec:
         if elements < 2:
             raise InputError("elements", f"mesh too small for the decomposition: each subdomain needs "
                                          f">= 2 elements per side to have interior nodes, got {elements}")
+        contact = str(merged["contact"]).strip().lower()
+        if contact not in CONTACTS:
+            raise InputError("contact", f"unknown contact area {merged['contact']!r} (choose from {', '.join(CONTACTS)})")
         rho = merged["rho"]
         parse_rho(rho)
         f = merged["f"]
@@ -203,7 +231,7 @@ class ProblemSpec:
             if not isinstance(merged[flag], bool):
                 raise InputError(flag, f"must be true or false, got {merged[flag]!r}")
         return cls(problem=problem, method=method, bodies=bodies, subdomains=subdomains,
-                   elements=elements, rho=rho, f=f, scaling=scaling, gamma=gamma, rtol=rtol,
+                   elements=elements, rho=rho, f=f, contact=contact, scaling=scaling, gamma=gamma, rtol=rtol,
                    maxiter=maxiter, cond=merged["cond"], check=merged["check"])
 
     @classmethod

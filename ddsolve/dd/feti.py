@@ -4,13 +4,11 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from ..krylov import pcg
 from .common import MethodOutput
+from .dual import solve_dual
 from .local import BatchedSolver
-from .operators import DirichletSchur, linear_operator
+from .operators import DirichletSchur
 from .substructure import Substructures
 
 
@@ -61,43 +59,27 @@ def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     schur = DirichletSchur(sub, sub.interface, cache)
     n_lam = B.shape[0]
 
-    if sub.scaling == "multiplicity":
-        sq = np.ones(n_lam)
-    else:
-        sq = np.sqrt(B_D.multiply(B_D) @ sub.rho[sub.sub_of_W])   # Q^{1/2}
+    def F(lam: np.ndarray) -> np.ndarray:
+        return B @ Kplus.solve(B.T @ lam)
 
-    def F(mu: np.ndarray) -> np.ndarray:       # Q^{1/2} F Q^{1/2}
-        return sq * (B @ Kplus.solve(B.T @ (sq * mu)))
+    def M(lam: np.ndarray) -> np.ndarray:
+        return B_D @ schur.matvec(B_D.T @ lam)
 
-    def M(mu: np.ndarray) -> np.ndarray:       # Q^{-1/2} M_D^{-1} Q^{-1/2}
-        return (B_D @ schur.matvec(B_D.T @ (mu / sq))) / sq
-
-    d = sq * (B @ Kplus.solve(sub.f_W))
+    d = B @ Kplus.solve(sub.f_W)
     n_fact = Kplus.n_new_factorizations + schur.II.n_new_factorizations
+    R = G = e = None
     if sub.floating_sub.any():
         R = sub.kernel_basis()
-        G = (sp.diags(sq) @ B @ R).tocsc()
-        GtG = spla.splu((G.T @ G).tocsc())
-        n_fact += 1
+        G = (B @ R).tocsc()
         e = R.T @ sub.f_W
-
-        def P(lam: np.ndarray) -> np.ndarray:
-            return lam - G @ GtG.solve(G.T @ lam)
-
-        lam0 = G @ GtG.solve(e)
-        P_op = linear_operator(n_lam, P)
-    else:
-        R = G = GtG = None
-        lam0 = np.zeros(n_lam)
-        P_op = None
+        n_fact += 1
+    q = None if sub.scaling == "multiplicity" else B_D.multiply(B_D) @ sub.rho[sub.sub_of_W]
     setup = time.perf_counter() - t0
 
-    kr = pcg(linear_operator(n_lam, F), d, lam0, rtol=rtol, maxiter=maxiter,
-             M=linear_operator(n_lam, M), P=P_op, cond=cond)
-    lam = sq * kr.x
-    u_W = Kplus.solve(sub.f_W - B.T @ lam)
-    if G is not None:
-        alpha = GtG.solve(G.T @ (F(kr.x) - d))
-        u_W = u_W + R @ alpha
+    sol = solve_dual(F, M, d, G, e, q, rtol=rtol, maxiter=maxiter, cond=cond)
+    kr = sol.krylov
+    u_W = Kplus.solve(sub.f_W - B.T @ sol.lam)
+    if sol.alpha is not None:
+        u_W = u_W + R @ sol.alpha
     return MethodOutput(u=sub.average(u_W), krylov=kr, nlambda=n_lam, n_factorizations=n_fact,
                         setup_seconds=setup, extra={"n_floating": int(sub.floating_sub.sum())})

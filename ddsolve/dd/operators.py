@@ -31,12 +31,15 @@ class DirichletSchur:
         The local interface Gamma_i; everything else free is interior.
     cache : dict
         Shared factorization cache.
+    exclude : ndarray of bool, shape (n_W,), optional
+        Entries treated as Dirichlet nodes (removed from the interior).
     """
 
-    def __init__(self, sub: Substructures, gamma_mask: np.ndarray, cache: dict) -> None:
+    def __init__(self, sub: Substructures, gamma_mask: np.ndarray, cache: dict,
+                 exclude: np.ndarray | None = None) -> None:
         self.sub = sub
         self.gamma = gamma_mask
-        self.interior = ~gamma_mask
+        self.interior = ~gamma_mask if exclude is None else ~gamma_mask & ~exclude
         self.II = BatchedSolver(sub, self.interior, cache)
 
     def matvec(self, w: np.ndarray) -> np.ndarray:
@@ -77,12 +80,21 @@ class PrimalConstrainedSolver:
         Primal W entries (subdomain copies of the vertex dofs).
     cache : dict
         Shared factorization cache.
+    exclude : ndarray of bool, shape (n_W,), optional
+        Entries treated as Dirichlet nodes (zero in the solution).
+    fixed_bodies : sequence of int, optional
+        Floating bodies: one primal dof of each is pinned to zero, which turns
+        the singular A~ of such a body into a generalized inverse A~^+
+        (A~ A~^+ A~ = A~), as needed for S~^dagger in (4.11) and F in (3.35).
     """
 
-    def __init__(self, sub: Substructures, primal_mask: np.ndarray, cache: dict) -> None:
+    def __init__(self, sub: Substructures, primal_mask: np.ndarray, cache: dict,
+                 exclude: np.ndarray | None = None, fixed_bodies=()) -> None:
         self.sub = sub
+        if exclude is not None:
+            primal_mask = primal_mask & ~exclude
         self.primal = primal_mask
-        self.r = ~primal_mask
+        self.r = ~primal_mask if exclude is None else ~primal_mask & ~exclude
         self.rr = BatchedSolver(sub, self.r, cache)
         # global primal numbering
         prim_dofs = np.unique(sub.l2g[primal_mask])
@@ -125,7 +137,20 @@ class PrimalConstrainedSolver:
         rows = np.broadcast_to(self.coarse_cols[:, :, None], S_loc.shape)
         cols = np.broadcast_to(self.coarse_cols[:, None, :], S_loc.shape)
         ok = (rows >= 0) & (cols >= 0)
-        self.S_PiPi = sp.csc_matrix((S_loc[ok], (rows[ok], cols[ok])), shape=(self.n_primal, self.n_primal))
+        S_PiPi = sp.csr_matrix((S_loc[ok], (rows[ok], cols[ok])), shape=(self.n_primal, self.n_primal))
+        pinned = []
+        for body in fixed_bodies:
+            cand = np.flatnonzero(primal_mask & (sub.body_of_sub[sub.sub_of_W] == body))
+            if cand.size == 0:
+                raise ValueError(f"floating body {body} has no primal vertex to pin")
+            pinned.append(coarse_of_W[cand[0]])
+        self.pinned = np.asarray(pinned, dtype=np.int64)
+        if self.pinned.size:
+            keep = np.ones(self.n_primal)
+            keep[self.pinned] = 0.0
+            D = sp.diags(keep)
+            S_PiPi = D @ S_PiPi @ D + sp.diags(1.0 - keep)
+        self.S_PiPi = S_PiPi.tocsc()
         self.coarse = spla.splu(self.S_PiPi, permc_spec="MMD_AT_PLUS_A") if self.n_primal else None
         self.n_factorizations = self.rr.n_new_factorizations + (1 if self.n_primal else 0)
         self._entry_cols = self.coarse_cols[sub.sub_of_W] if p_max else np.zeros((sub.n_W, 0), dtype=int)
@@ -144,6 +169,7 @@ class PrimalConstrainedSolver:
         proj = np.add.reduceat(self.Psi * br[:, None], sub.offsets[:-1], axis=0)   # (n_sub, p_max)
         ok = self.coarse_cols >= 0
         b_pi -= np.bincount(self.coarse_cols[ok], weights=proj[ok], minlength=self.n_primal)
+        b_pi[self.pinned] = 0.0
         u_pi = self.coarse.solve(b_pi)
         u_cols = np.where(self._entry_cols >= 0, u_pi[np.maximum(self._entry_cols, 0)], 0.0)
         x -= np.einsum("ij,ij->i", self.Psi, u_cols)

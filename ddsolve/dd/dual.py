@@ -1,0 +1,88 @@
+"""Projected PCG for FETI-type dual problems (Section 2.5, (2.13)-(2.14)).
+
+Shared by one-level FETI and FETI-FETI: given F, d, the Dirichlet
+preconditioner M and the natural coarse space G = B R, e = R^T f, solve
+
+    P^T F lambda = P^T d,   G^T lambda = e,
+
+with the Q-weighted projection P = I - Q G (G^T Q G)^{-1} G^T, Q diagonal
+(Q = I is the orthogonal projection of the thesis). It is run as the
+orthogonal projection of the similar system in mu = Q^{-1/2} lambda. Without a
+kernel (no floating subdomains or bodies), P and lambda_0 are skipped.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..krylov import KrylovResult, pcg
+from .operators import linear_operator
+
+Matvec = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass
+class DualSolution:
+    """lambda, the kernel coefficients alpha (None without kernel) and the PCG result."""
+
+    lam: np.ndarray
+    alpha: np.ndarray | None
+    krylov: KrylovResult
+
+
+def solve_dual(F: Matvec, M: Matvec, d: np.ndarray, G: sp.spmatrix | None, e: np.ndarray | None,
+               q: np.ndarray | None = None, *, rtol: float = 1e-6, maxiter: int = 1000,
+               cond: bool = False, lam0: np.ndarray | None = None) -> DualSolution:
+    """Projected PCG on the dual problem.
+
+    Parameters
+    ----------
+    F, M : callable
+        lambda -> F lambda and the preconditioner lambda -> M^{-1} lambda, shape (n,) -> (n,).
+    d : ndarray, shape (n,)
+    G : sparse matrix, shape (n, k), or None
+        Natural coarse space B R (None or k = 0: no projection).
+    e : ndarray, shape (k,)
+        R^T f, so that G^T lambda = e.
+    q : ndarray, shape (n,), optional
+        Diagonal of Q (positive); None for Q = I.
+    rtol, maxiter, cond : see :func:`ddsolve.krylov.pcg`.
+    lam0 : ndarray, optional
+        Warm start; it is corrected to satisfy G^T lambda = e.
+
+    Returns
+    -------
+    DualSolution
+        alpha solves G alpha = F lambda - d in the least-squares sense, so that
+        u = A^+ (f - B^T lambda) + R alpha.
+    """
+    n = d.shape[0]
+    sq = np.ones(n) if q is None else np.sqrt(q)
+
+    def Fs(mu: np.ndarray) -> np.ndarray:
+        return sq * F(sq * mu)
+
+    def Ms(mu: np.ndarray) -> np.ndarray:
+        return M(mu / sq) / sq
+
+    ds = sq * d
+    mu0 = np.zeros(n) if lam0 is None else lam0 / sq
+    P_op = None
+    Gs = None
+    if G is not None and G.shape[1] > 0:
+        Gs = (sp.diags(sq) @ G).tocsc()
+        GtG = spla.splu((Gs.T @ Gs).tocsc())
+
+        def P(mu: np.ndarray) -> np.ndarray:
+            return mu - Gs @ GtG.solve(Gs.T @ mu)
+
+        P_op = linear_operator(n, P)
+        mu0 = P(mu0) + Gs @ GtG.solve(e)
+    kr = pcg(linear_operator(n, Fs), ds, mu0, rtol=rtol, maxiter=maxiter, M=linear_operator(n, Ms),
+             P=P_op, cond=cond)
+    alpha = GtG.solve(Gs.T @ (Fs(kr.x) - ds)) if Gs is not None else None
+    return DualSolution(lam=sq * kr.x, alpha=alpha, krylov=kr)
