@@ -101,8 +101,10 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         if spec.method == "direct":
             out = reference()
         else:
+            # PCR (hybrid) has no Lanczos estimate: cond stays None there.
+            options = {"cond": spec.cond} if spec.method == "feti-feti" else {}
             out = _multibody_solver(spec.method, sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
-                                                                cond=spec.cond)
+                                                                **options)
         result.extra["n_active"] = int(active.sum())
     elif spec.method == "direct":
         out = reference()
@@ -115,7 +117,8 @@ def _solve(spec: ProblemSpec) -> SolveResult:
     result.n_factorizations = out.n_factorizations
     result.setup_seconds = t_assembly + out.setup_seconds
     result.solve_seconds = t_total - out.setup_seconds
-    result.extra.update({k: v for k, v in out.extra.items() if np.ndim(v) == 0})
+    result.extra.update({k: v for k, v in out.extra.items()
+                         if isinstance(v, (bool, int, float, str, np.number, np.bool_))})
     result.extra["n_templates"] = local.n_templates
     if out.krylov is None:
         result.converged, result.reason, result.iterations = True, "direct solve", 0
@@ -123,7 +126,7 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         kr = out.krylov
         result.converged, result.reason, result.iterations = kr.converged, kr.reason, kr.iterations
         result.residuals = np.asarray(kr.residuals, dtype=float)
-        if spec.cond:
+        if spec.cond and kr.cond is not None:
             result.cond, result.lambda_min, result.lambda_max = kr.cond, kr.lambda_min, kr.lambda_max
     if spec.check:
         ref = out if spec.method == "direct" else reference()

@@ -104,3 +104,15 @@ def test_cli_multibody_json(capsys):
                  "--method", "feti-feti", "--contact", "middle", "--check", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["converged"] and data["error_vs_direct"] < 1e-5 and data["n_floating_bodies"] == 1
+
+
+@pytest.mark.parametrize("contact", ["full", "middle"])
+def test_cli_hybrid_json(capsys, contact):
+    from ddsolve.cli import main
+    import json
+    assert main(["solve", "--problem", "multibody", "--bodies", "3", "--subdomains", "2", "--elements", "2",
+                 "--method", "hybrid", "--contact", contact, "--check", "--cond", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["converged"] and data["error_vs_direct"] < 1e-5
+    assert data["cond"] is None            # PCR gives no Lanczos estimate
+    assert data["nlambda"] == data["n_active"]

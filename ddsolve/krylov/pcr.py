@@ -47,7 +47,7 @@ logger = logging.getLogger(__name__)
 
 #: ``|<z, A z>| <= _CR_PIVOT_TOL * ||z|| * ||A z||`` hands over to the three-term
 #: recurrence (the two-term CR would divide by a numerically zero pivot).
-_CR_PIVOT_TOL = 1e-12
+_CR_PIVOT_TOL = 1e-8
 
 # outcomes of one recurrence
 _CONVERGED, _MAXITER, _BREAKDOWN, _SWITCH = "converged", "maxiter", "breakdown", "switch"
