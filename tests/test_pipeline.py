@@ -52,7 +52,7 @@ def planned(proc: subprocess.CompletedProcess) -> dict[str, int]:
     """Job counts from the 'Job stats' table of a dry run."""
     text = proc.stdout + proc.stderr
     counts = {}
-    for rule in ("solve_case", "aggregate", "table", "plot_cond", "all"):
+    for rule in ("solve_case", "aggregate", "table", "plot_cond", "table_4", "figure_4", "all"):
         match = re.search(rf"^{rule}\s+(\d+)\s*$", text, flags=re.MULTILINE)
         counts[rule] = int(match.group(1)) if match else 0
     return counts
@@ -62,7 +62,8 @@ def test_dry_run_default_and_quick(workdir):
     default = planned(snakemake(workdir, "-n", "--cores", "1"))
     assert default["solve_case"] == 3 * 3 * 4 and default["aggregate"] == 1
     quick = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/quick.yaml"))
-    assert quick == {"solve_case": 6, "aggregate": 1, "table": 1, "plot_cond": 1, "all": 1}
+    assert quick == {"solve_case": 6, "aggregate": 1, "table": 1, "plot_cond": 1, "table_4": 0,
+                     "figure_4": 0, "all": 1}
 
 
 def test_bad_config_is_rejected(workdir):

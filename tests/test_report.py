@@ -123,6 +123,18 @@ def test_fit_linear_exact():
     assert all(math.isnan(v) for v in plots.fit_linear([1, 1], [2, 3]))
 
 
+def test_fit_log_squared_affine_and_log_linear_exact():
+    x = [2, 4, 8, 16, 32, 64, 128]
+    g = [(1 + math.log(v)) ** 2 for v in x]
+    c1, c2, r2 = plots.fit_log_squared_affine(x, [1.5 + 0.6 * v for v in g])
+    assert (c1, c2, r2) == pytest.approx((1.5, 0.6, 1.0))
+    a, b, r2 = plots.fit_log_linear(x, [7 + 2 * math.log(v) for v in x])
+    assert (a, b, r2) == pytest.approx((7.0, 2.0, 1.0))
+    assert all(math.isnan(v) for v in plots.fit_log_squared_affine([4], [1.0]))
+    with pytest.raises(ValueError):
+        plots.fit_log_linear([0, 1], [1, 2])
+
+
 def test_plot_writes_png(tmp_path):
     df = runs()
     out = tmp_path / "fig" / "cond.png"
@@ -142,7 +154,7 @@ def validate(config):
     return config
 
 
-@pytest.mark.parametrize("name", ["default.yaml", "quick.yaml"])
+@pytest.mark.parametrize("name", ["default.yaml", "quick.yaml", "table_4.yaml"])
 def test_shipped_configs_validate(name):
     base = yaml.safe_load((ROOT / "config" / "default.yaml").read_text())
     config = {**base, **yaml.safe_load((ROOT / "config" / name).read_text())}
@@ -165,6 +177,9 @@ def test_schema_fills_defaults():
     {"study": "../escape"},
     {"solver": "fetidp"},                   # unknown key
     {"methods": []},
+    {"methods": ["feti-feti"]},             # a multibody method for the poisson problem
+    {"contacts": ["full"]},                 # multibody only
+    {"bodies": 0},
 ])
 def test_schema_rejects_bad_config(change):
     from snakemake.exceptions import WorkflowError

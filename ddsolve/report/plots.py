@@ -8,6 +8,16 @@ number of subdomains per side 1/H (N_s), and the fitted curve of each
 (method, N_s) series, because C depends on the method and, before the
 asymptotic regime, on N_s. The fitted C and R^2 appear in the legend.
 
+For the multibody study (thesis Section 4.4), :func:`plot_sweep_fits` draws
+values against one varied parameter for several series (contact cases I and
+II), ours as filled markers with a dashed fitted curve and the thesis's as open
+markers with a dotted one, using one of the :data:`FIT_MODELS`: ``linear``
+(a x + b), ``log_linear`` (a + b log x, see :func:`fit_log_linear`) or
+``log_squared_affine`` (C1 + C2 (1 + log x)^2, see
+:func:`fit_log_squared_affine`). :func:`multibody_sweep` and
+:func:`thesis_sweep` pick such series from the runs and from a thesis
+transcription; :func:`plot_multibody_sweep` does both.
+
 Uses the non-interactive Agg backend.
 """
 from __future__ import annotations
@@ -15,7 +25,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Mapping, Sequence
 
 import matplotlib
 
@@ -24,7 +34,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from .tables import METHOD_LABELS, ROW_LABELS  # noqa: E402
+from .tables import (CONTACT_CASES, LATEX_LABELS, METHOD_LABELS, MULTIBODY_ROW_LABELS,  # noqa: E402
+                     ROW_LABELS, THESIS_KEYS, THESIS_QUANTITIES)
 
 
 def _finite_pairs(x, y) -> tuple[np.ndarray, np.ndarray]:
@@ -104,8 +115,254 @@ def fit_linear(x, y) -> tuple[float, float, float]:
     return slope, intercept, _r_squared(y, slope * x + intercept)
 
 
+def fit_log_squared_affine(h_ratio, y) -> tuple[float, float, float]:
+    """Least-squares fit of ``y ~ C1 + C2 (1 + log(x))^2`` (natural logarithm).
+
+    The FETI-FETI bound of Theorem 4.3.x grows like (1 + log(H_s/h))^2 for a
+    fixed H_b/H_s; unlike :func:`fit_log_squared` this fit has an intercept.
+
+    Parameters
+    ----------
+    h_ratio : array_like
+        x values (> 0), e.g. H_s/h.
+    y : array_like
+        Values; pairs with a non-finite value are ignored.
+
+    Returns
+    -------
+    (C1, C2, r2) : tuple of float
+        NaN with fewer than two distinct x values; R^2 as in :func:`fit_linear`.
+    """
+    x, y = _finite_pairs(h_ratio, y)
+    if np.any(x <= 0):
+        raise ValueError("x must be positive")
+    slope, intercept, r2 = fit_linear(log_squared(x), y)
+    return intercept, slope, r2
+
+
+def fit_log_linear(x, y) -> tuple[float, float, float]:
+    """Least-squares fit of ``y ~ a + b log(x)`` (natural logarithm).
+
+    Returns
+    -------
+    (a, b, r2) : tuple of float
+        NaN with fewer than two distinct x values.
+    """
+    x, y = _finite_pairs(x, y)
+    if np.any(x <= 0):
+        raise ValueError("x must be positive")
+    slope, intercept, r2 = fit_linear(np.log(x), y)
+    return intercept, slope, r2
+
+
+def _fit_linear_model(x, y):
+    slope, intercept, r2 = fit_linear(x, y)
+    return (slope, intercept), r2
+
+
+def _fit_log_linear_model(x, y):
+    a, b, r2 = fit_log_linear(x, y)
+    return (a, b), r2
+
+
+def _fit_log_squared_affine_model(x, y):
+    c1, c2, r2 = fit_log_squared_affine(x, y)
+    return (c1, c2), r2
+
+
+#: Fit models of :func:`plot_sweep_fits`: name -> (fit(x, y) -> (params, r2),
+#: curve(params, x) -> y, legend text of the params).
+FIT_MODELS: dict[str, tuple[Callable, Callable, Callable]] = {
+    "linear": (_fit_linear_model,
+               lambda p, x: p[0] * np.asarray(x, dtype=float) + p[1],
+               lambda p: f"{_fmt(p[0], '.3g')} x {_signed(p[1])}"),
+    "log_linear": (_fit_log_linear_model,
+                   lambda p, x: p[0] + p[1] * np.log(np.asarray(x, dtype=float)),
+                   lambda p: f"{_fmt(p[0], '.3g')} {_signed(p[1])} log x"),
+    "log_squared_affine": (_fit_log_squared_affine_model,
+                           lambda p, x: p[0] + p[1] * log_squared(x),
+                           lambda p: f"$C_1$={_fmt(p[0], '.3g')}, $C_2$={_fmt(p[1], '.3g')}"),
+}
+#: Formula of each model for the legend title.
+FIT_FORMULAS: dict[str, str] = {
+    "linear": "fit a x + b",
+    "log_linear": "fit a + b log x",
+    "log_squared_affine": "fit $C_1 + C_2 (1 + \\log x)^2$",
+}
+
+
+def plot_sweep_fits(series: Mapping[str, tuple], path: str | os.PathLike | None = None, *,
+                    model: str, reference: Mapping[str, tuple] | None = None,
+                    xlabel: str = "x", ylabel: str = "y", title: str | None = None,
+                    logx: bool = False, reference_label: str = "thesis") -> dict:
+    """Values against one parameter, several series, each with a least-squares fit.
+
+    Parameters
+    ----------
+    series : mapping
+        ``{label: (x, y)}``: our values, filled markers and a dashed fitted curve.
+    path : path-like, optional
+        Where to save the figure (PNG by extension); the figure is closed then.
+    model : str
+        A key of :data:`FIT_MODELS`.
+    reference : mapping, optional
+        ``{label: (x, y)}``: reference values (the thesis's), open markers and a
+        dotted fitted curve in the colour of the series with the same label.
+    xlabel, ylabel, title : str
+        Axis labels and figure title.
+    logx : bool
+        Logarithmic x axis (base 2, ticks at the data).
+    reference_label : str
+        Name of the reference values in the legend.
+
+    Returns
+    -------
+    dict
+        ``{(label, "ours" | reference_label): (params, r2)}``; params is
+        (a, b) for ``linear`` (a x + b), (a, b) for ``log_linear`` (a + b log x)
+        and (C1, C2) for ``log_squared_affine``; NaN where a fit is impossible.
+    """
+    if model not in FIT_MODELS:
+        raise ValueError(f"unknown model {model!r} (choose from {', '.join(FIT_MODELS)})")
+    fit, curve, describe = FIT_MODELS[model]
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    markers = ["o", "s", "^", "D", "v", "P"]
+    reference = dict(reference or {})
+    labels = list(dict.fromkeys([*series, *reference]))
+    fig, ax = plt.subplots(figsize=(6.4, 4.6))
+    fits: dict[tuple[str, str], tuple[tuple[float, ...], float]] = {}
+    xticks: set[float] = set()
+    for k, label in enumerate(labels):
+        color, marker = colors[k % len(colors)], markers[k % len(markers)]
+        for who, data, filled, style in (("ours", series.get(label), True, "--"),
+                                         (reference_label, reference.get(label), False, ":")):
+            if data is None:
+                continue
+            x, y = _finite_pairs(*data)
+            if x.size == 0:
+                continue
+            order = np.argsort(x)
+            x, y = x[order], y[order]
+            xticks.update(x.tolist())
+            params, r2 = fit(x, y)
+            fits[(label, who)] = (params, r2)
+            text = f"{label} {who}: {describe(params)}, $R^2$={_fmt(r2, '.3f')}"
+            ax.plot(x, y, linestyle="none", marker=marker, color=color, label=text,
+                    markerfacecolor=color if filled else "none", markersize=6 if filled else 8)
+            if all(math.isfinite(v) for v in params) and x.max() > x.min():
+                xs = np.geomspace(x.min(), x.max(), 200) if logx else np.linspace(x.min(), x.max(), 200)
+                ax.plot(xs, curve(params, xs), linestyle=style, color=color, linewidth=1)
+    if logx:
+        ax.set_xscale("log", base=2)
+    if xticks:
+        ticks = sorted(xticks)
+        ax.set_xticks(ticks)
+        ax.set_xticklabels([_plain_number(t) for t in ticks])
+        if logx:
+            ax.minorticks_off()
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, which="major", alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize="small", title=FIT_FORMULAS.get(model), title_fontsize="small")
+    else:
+        ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    if path is not None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+    return fits
+
+
+def _sweep_rows(frame: pd.DataFrame, keys: Mapping[str, str], x: str, base: Sequence[int]) -> pd.DataFrame:
+    """Rows of ``frame`` equal to ``base`` in every key but ``x`` (keys: ours -> frame's names)."""
+    ours = list(THESIS_KEYS)
+    if x not in ours:
+        raise KeyError(f"x must be one of {', '.join(ours)}, got {x!r}")
+    mask = np.ones(len(frame), dtype=bool)
+    for key, value in zip(ours, base):
+        if key != x:
+            mask &= pd.to_numeric(frame[keys[key]], errors="coerce").to_numpy() == int(value)
+    return frame[mask]
+
+
+def multibody_sweep(df: pd.DataFrame, *, method: str, x: str, y: str, base: Sequence[int],
+                    contacts: Sequence[str] = ("full", "middle")) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Our runs of ``method`` that vary only ``x`` from ``base``, one series per contact case.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Aggregated runs (columns method, contact, bodies, subdomains, elements, ``y``).
+    x : {"bodies", "subdomains", "elements"}
+        The varied parameter.
+    base : (bodies, subdomains, elements)
+        The base case; the other two keys are fixed at its values.
+
+    Returns
+    -------
+    dict
+        ``{"(I)": (x values, y values), ...}`` sorted by x, for the contacts with runs.
+    """
+    out = {}
+    rows = _sweep_rows(df[df["method"] == method], {k: k for k in THESIS_KEYS}, x, base)
+    for contact in contacts:
+        sub = rows[rows["contact"] == contact].sort_values(x)
+        if not sub.empty:
+            out[f"({CONTACT_CASES[contact]})"] = (pd.to_numeric(sub[x]).to_numpy(dtype=float),
+                                                  pd.to_numeric(sub[y], errors="coerce").to_numpy(dtype=float))
+    return out
+
+
+def thesis_sweep(thesis: pd.DataFrame, *, x: str, y: str, base: Sequence[int],
+                 contacts: Sequence[str] = ("full", "middle")) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Like :func:`multibody_sweep` for a thesis transcription (tables/table_4_*.csv)."""
+    out = {}
+    rows = _sweep_rows(thesis, THESIS_KEYS, x, base).sort_values(THESIS_KEYS[x])
+    for contact in contacts:
+        column = f"{THESIS_QUANTITIES.get(y, y)}_{CONTACT_CASES[contact]}"
+        if column in rows.columns and not rows.empty:
+            out[f"({CONTACT_CASES[contact]})"] = (pd.to_numeric(rows[THESIS_KEYS[x]]).to_numpy(dtype=float),
+                                                  pd.to_numeric(rows[column], errors="coerce").to_numpy(dtype=float))
+    return out
+
+
+def plot_multibody_sweep(df: pd.DataFrame, thesis: pd.DataFrame | None, path: str | os.PathLike | None = None,
+                         *, method: str, x: str, y: str, base: Sequence[int], model: str,
+                         contacts: Sequence[str] = ("full", "middle"), logx: bool = False,
+                         title: str | None = None) -> dict:
+    """Figures 4.2 / 4.3 style: ``y`` of ``method`` against ``x`` from ``base``, cases I and II.
+
+    Our values (:func:`multibody_sweep`) and the thesis's (:func:`thesis_sweep`,
+    when ``thesis`` is given) with fits of ``model``; see :func:`plot_sweep_fits`
+    for the returned fits.
+    """
+    series = multibody_sweep(df, method=method, x=x, y=y, base=base, contacts=contacts)
+    reference = thesis_sweep(thesis, x=x, y=y, base=base, contacts=contacts) if thesis is not None else None
+    def math_label(key: str) -> str:
+        label = MULTIBODY_ROW_LABELS.get(key, key)
+        return LATEX_LABELS.get(label, label)
+
+    fixed = ", ".join(f"{math_label(k)} = {int(v)}" for k, v in zip(THESIS_KEYS, base) if k != x)
+    ylabel = {"cond": "condition number estimate", "iterations": "iterations"}.get(y, y)
+    full_title = f"{title}\n({fixed})" if title else f"{METHOD_LABELS.get(method, method)} ({fixed})"
+    return plot_sweep_fits(series, path, model=model, reference=reference,
+                           xlabel=math_label(x), ylabel=ylabel, title=full_title, logx=logx)
+
+
 def _fmt(value: float, spec: str) -> str:
     return "n/a" if not math.isfinite(value) else format(value, spec)
+
+
+def _signed(value: float, spec: str = ".3g") -> str:
+    """``+ 1.5`` or ``− 1.5`` (a term appended to a formula)."""
+    if not math.isfinite(value):
+        return "+ n/a"
+    return f"{'−' if value < 0 else '+'} {format(abs(value), spec)}"
 
 
 def plot_cond_vs_Hh(df: pd.DataFrame, path: str | os.PathLike | None = None, *,

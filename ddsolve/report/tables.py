@@ -11,6 +11,11 @@ Comparisons with the thesis use flat frames: :func:`flatten` turns the wide
 table into columns ``<method>_<quantity>``, and :func:`side_by_side` merges our
 values with a transcribed thesis table (``tables/table_4_1.csv``, ...) on key
 columns, adding ``<col>_thesis`` and ``<col>_dev`` = (ours - thesis) / |thesis|.
+
+Multibody studies (problem (4.32)) are shown like Tables 4.1 / 4.2 by
+:func:`multibody_table`: rows (1/H_b, H_b/H_s, H_s/h), one column group per
+contact case ((I) = ``full``, (II) = ``middle``), and beside each of our values
+the thesis's value and the relative deviation.
 """
 from __future__ import annotations
 
@@ -39,18 +44,34 @@ METHOD_LABELS: dict[str, str] = {
     "fetidp": "FETI-DP",
     "bddc": "BDDC",
     "direct": "direct",
+    "feti-feti": "FETI-FETI",
+    "hybrid": "hybrid",
 }
 QUANTITY_LABELS: dict[str, str] = {
     "cond": "cond",
     "iterations": "iter",
     "thesis": "thesis",
     "dev": "dev.",
+    "cond_thesis": "cond thesis",
+    "cond_dev": "cond dev.",
+    "iterations_thesis": "iter thesis",
+    "iterations_dev": "iter dev.",
 }
 #: Quantities shown as integers even when missing values made them float.
 INTEGER_QUANTITIES = frozenset({"iterations", "ndof", "nlambda", "n_factorizations",
                                 "subdomains", "elements", "bodies"})
 NOT_CONVERGED_MARK = "*"
 NOT_CONVERGED_NOTE = "not converged (stopped at maxiter or by a breakdown); the count is where it stopped"
+
+#: Contact areas of problem (4.32) and the thesis's names of the two cases.
+CONTACT_CASES: dict[str, str] = {"full": "I", "middle": "II"}
+#: Our key columns of a multibody case -> the keys of the thesis transcriptions
+#: (``tables/table_4_1.csv``, ``tables/table_4_2.csv``).
+THESIS_KEYS: dict[str, str] = {"bodies": "inv_Hb", "subdomains": "Hb_over_Hs", "elements": "Hs_over_h"}
+#: Our quantities -> their prefix in the thesis transcriptions (``cond_I``, ``iter_II``).
+THESIS_QUANTITIES: dict[str, str] = {"cond": "cond", "iterations": "iter"}
+#: Display names of the multibody keys (the thesis's notation).
+MULTIBODY_ROW_LABELS: dict[str, str] = {"bodies": "1/H_b", "subdomains": "H_b/H_s", "elements": "H_s/h"}
 
 #: Parameters summarised by :func:`describe_constants`, in this order.
 DESCRIBED_PARAMS: tuple[str, ...] = ("problem", "bodies", "rho", "f", "scaling", "gamma", "rtol", "maxiter")
@@ -200,6 +221,109 @@ def side_by_side(ours_df: pd.DataFrame, thesis_df: pd.DataFrame,
         merged[f"{col}_dev"] = dev.where(ref != 0)
         out_cols += [col, f"{col}_thesis", f"{col}_dev"]
     return merged[out_cols]
+
+
+def multibody_table(df: pd.DataFrame, thesis: pd.DataFrame | None = None, *, method: str,
+                    quantities: Sequence[str] = ("cond", "iterations"),
+                    contacts: Sequence[str] = ("full", "middle"),
+                    order: Sequence[Sequence[int]] | None = None) -> pd.DataFrame:
+    """One method's multibody runs in the layout of Tables 4.1 / 4.2, beside the thesis.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Aggregated runs with columns ``method``, ``contact``, ``bodies``,
+        ``subdomains``, ``elements`` and the ``quantities`` (and optionally
+        ``converged``).
+    thesis : DataFrame, optional
+        A thesis transcription with the keys of :data:`THESIS_KEYS` and the
+        columns ``<cond|iter>_<I|II>`` (:data:`THESIS_QUANTITIES`). A quantity
+        the transcription lacks gets no comparison columns. Without it, only
+        our values are shown.
+    method : str
+        The method shown (e.g. ``"feti-feti"``).
+    quantities : sequence of str
+        Our quantities per case, default (cond, iterations).
+    contacts : sequence of str
+        Contact areas, one column group each: ``"full"`` -> (I), ``"middle"`` -> (II).
+    order : sequence of (bodies, subdomains, elements), optional
+        Row order (e.g. the study's cases); rows not listed follow, sorted.
+        Default: the thesis's row order, else sorted.
+
+    Returns
+    -------
+    DataFrame
+        Index (1/H_b, H_b/H_s, H_s/h) with our cases only; columns a MultiIndex
+        ``("(I)", q)``, ``("(I)", q + "_thesis")``, ``("(I)", q + "_dev")``, ...
+        with dev = (ours - thesis) / |thesis| (:func:`side_by_side`). Iteration
+        counts of runs that did not converge are marked as in
+        :func:`condition_table`. Render with :func:`to_markdown` / :func:`to_latex`.
+
+    Raises
+    ------
+    KeyError
+        If a needed column is missing or a contact is unknown.
+    ValueError
+        If two runs share method, contact and keys.
+    """
+    keys = list(THESIS_KEYS)
+    quantities = list(quantities)
+    unknown = [c for c in contacts if c not in CONTACT_CASES]
+    if unknown:
+        raise KeyError(f"multibody_table: unknown contact(s) {', '.join(unknown)}")
+    if "contact" not in df.columns:
+        raise KeyError("multibody_table: missing column contact")
+    cases = [CONTACT_CASES[c] for c in contacts]
+    data = df[(df["method"] == method) & df["contact"].isin(list(contacts))].copy()
+    data["method"] = data["contact"].map(CONTACT_CASES)  # the case plays the method's role
+    wide = condition_table(data.astype({"method": object}), rows=keys, methods=cases,
+                           quantities=quantities)
+    marks, notes = wide.attrs["marks"], wide.attrs["notes"]
+    flat = flatten(wide)
+    for key in keys:
+        flat[key] = pd.to_numeric(flat[key]).astype("int64")
+
+    if order is None and thesis is not None:
+        order = thesis[list(THESIS_KEYS.values())].itertuples(index=False, name=None)
+    rank = {tuple(int(v) for v in case): i for i, case in enumerate(order or [])}
+    position = [rank.get(tuple(row), len(rank)) for row in flat[keys].itertuples(index=False, name=None)]
+    flat = flat.assign(_rank=position).sort_values(["_rank", *keys], kind="stable")
+    flat = flat.drop(columns="_rank").reset_index(drop=True)
+
+    compared = {}
+    if thesis is not None:
+        for case in cases:
+            for q in quantities:
+                name = f"{THESIS_QUANTITIES.get(q, q)}_{case}"
+                if name in thesis.columns:
+                    compared[f"{case}_{q}"] = name
+    merged = flat
+    if compared:
+        merged = side_by_side(flat, thesis, keys=THESIS_KEYS, columns=compared)
+        if len(merged) != len(flat):
+            raise ValueError("multibody_table: the thesis table lists a case more than once")
+        for col in flat.columns.difference(merged.columns):
+            merged[col] = flat[col].to_numpy()
+
+    columns, sources = [], []
+    for case in cases:
+        for q in quantities:
+            source = f"{case}_{q}"
+            suffixes = ["", "_thesis", "_dev"] if source in compared else [""]
+            for suffix in suffixes:
+                columns.append((f"({case})", q + suffix))
+                sources.append(source + suffix)
+    out = merged[sources].copy()
+    out.columns = pd.MultiIndex.from_tuples(columns, names=["case", "quantity"])
+    out.index = pd.MultiIndex.from_frame(merged[keys].rename(columns=MULTIBODY_ROW_LABELS))
+    for col in out.columns:
+        if col[1].startswith("iterations") and not col[1].endswith("_dev"):
+            values = pd.to_numeric(out[col], errors="coerce")
+            if values.dropna().map(lambda v: float(v).is_integer()).all():
+                out[col] = values.round().astype("Int64")
+    out.attrs["marks"] = [(tuple(key), (f"({col[0]})", col[1]), mark) for key, col, mark in marks]
+    out.attrs["notes"] = notes
+    return out
 
 
 def describe_constants(df: pd.DataFrame, params: Iterable[str] = DESCRIBED_PARAMS) -> str:
