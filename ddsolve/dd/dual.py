@@ -25,6 +25,34 @@ from .operators import linear_operator
 Matvec = Callable[[np.ndarray], np.ndarray]
 
 
+def dual_operators(B: sp.spmatrix, B_D: sp.spmatrix, primal_solve: Matvec,
+                   schur: Matvec) -> tuple[Matvec, Matvec]:
+    """F = B K^{-1} B^T and the Dirichlet preconditioner M^{-1} = B_D S B_D^T.
+
+    Parameters
+    ----------
+    B, B_D : sparse matrix, shape (n_lambda, n_W)
+        Jump operator and its scaled version.
+    primal_solve : callable
+        W vector -> K^{-1} w (A^+ for FETI, A~^{-1} for FETI-DP and FETI-FETI).
+    schur : callable
+        W vector -> S w on the interface.
+
+    Returns
+    -------
+    (F, M) : tuple of callables, shape (n_lambda,) -> (n_lambda,)
+    """
+    BT, B_DT = B.T.tocsr(), B_D.T.tocsr()
+
+    def F(lam: np.ndarray) -> np.ndarray:
+        return B @ primal_solve(BT @ lam)
+
+    def M(lam: np.ndarray) -> np.ndarray:
+        return B_D @ schur(B_DT @ lam)
+
+    return F, M
+
+
 @dataclass
 class DualSolution:
     """lambda, the kernel coefficients alpha (None without kernel) and the PCG result."""

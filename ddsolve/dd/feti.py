@@ -6,7 +6,7 @@ import time
 import numpy as np
 
 from .common import MethodOutput
-from .dual import solve_dual
+from .dual import dual_operators, solve_dual
 from .local import BatchedSolver
 from .operators import DirichletSchur
 from .substructure import Substructures
@@ -59,12 +59,7 @@ def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     schur = DirichletSchur(sub, sub.interface, cache)
     n_lam = B.shape[0]
 
-    def F(lam: np.ndarray) -> np.ndarray:
-        return B @ Kplus.solve(B.T @ lam)
-
-    def M(lam: np.ndarray) -> np.ndarray:
-        return B_D @ schur.matvec(B_D.T @ lam)
-
+    F, M = dual_operators(B, B_D, Kplus.solve, schur.matvec)
     d = B @ Kplus.solve(sub.f_W)
     n_fact = Kplus.n_new_factorizations + schur.II.n_new_factorizations
     R = G = e = None

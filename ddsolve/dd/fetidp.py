@@ -7,6 +7,7 @@ import numpy as np
 
 from ..krylov import pcg
 from .common import MethodOutput
+from .dual import dual_operators
 from .operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from .substructure import Substructures
 
@@ -40,12 +41,7 @@ def solve_fetidp(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000,
     schur = DirichletSchur(sub, sub.interface, cache)
     n_lam = B.shape[0]
 
-    def F(lam: np.ndarray) -> np.ndarray:
-        return B @ At.solve(B.T @ lam)
-
-    def M(lam: np.ndarray) -> np.ndarray:
-        return B_D @ schur.matvec(B_D.T @ lam)
-
+    F, M = dual_operators(B, B_D, At.solve, schur.matvec)
     d = B @ At.solve(sub.f_W)
     setup = time.perf_counter() - t0
     kr = pcg(linear_operator(n_lam, F), d, None, rtol=rtol, maxiter=maxiter,

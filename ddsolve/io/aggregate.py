@@ -11,13 +11,12 @@ thesis transcriptions in ``tables/*.csv``; missing values are empty cells.
 from __future__ import annotations
 
 import os
-import uuid
 from pathlib import Path
 from typing import Iterable
 
 import pandas as pd
 
-from .hdf5 import read_result
+from .hdf5 import atomic_target, read_result
 
 
 def collect(paths: Iterable[str | os.PathLike]) -> pd.DataFrame:
@@ -63,17 +62,8 @@ def write_table(df: pd.DataFrame, path: str | os.PathLike) -> Path:
     for col in out.columns:
         if out[col].dtype == object:
             out[col] = out[col].map(_cell_to_csv)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
+    with atomic_target(path) as tmp:
         out.to_csv(tmp, index=False)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
     return path
 
 

@@ -18,8 +18,9 @@ from __future__ import annotations
 import math
 import os
 import uuid
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import h5py
 import numpy as np
@@ -183,9 +184,7 @@ def write_result(path: str | os.PathLike, spec: Any, result: Any, *, store_solut
     if store_solution and getattr(result, "u", None) is not None:
         solution = np.asarray(result.u)
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
+    with atomic_target(path) as tmp:
         with h5py.File(tmp, "x", track_order=True) as h5:
             h5.attrs["format"] = FORMAT
             h5.attrs["format_version"] = np.int64(FORMAT_VERSION)
@@ -203,6 +202,19 @@ def write_result(path: str | os.PathLike, spec: Any, result: Any, *, store_solut
                 gresult.create_dataset("u", data=solution)
             h5.flush()
         _fsync(tmp)
+    return path
+
+
+@contextmanager
+def atomic_target(path: Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` on success, delete it on error.
+
+    An interrupted writer therefore never leaves a partial file under the final name.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        yield tmp
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -210,7 +222,6 @@ def write_result(path: str | os.PathLike, spec: Any, result: Any, *, store_solut
         except FileNotFoundError:
             pass
         raise
-    return path
 
 
 def _fsync(path: Path) -> None:

@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd.common import MethodOutput
-from ..dd.dual import solve_dual
+from ..dd.dual import dual_operators, solve_dual
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver
 from ..dd.substructure import Substructures
 from .interface import GlobalInterface
@@ -94,12 +94,7 @@ class FetiFetiSolver:
         B_D = sp.vstack([self.B_loc_D, B_gl_D]).tocsr()
         BT = B.T.tocsr()
 
-        def F(lam: np.ndarray) -> np.ndarray:
-            return B @ self.At.solve(BT @ lam)
-
-        def M(lam: np.ndarray) -> np.ndarray:
-            return B_D @ self._tilde_schur(B_D.T @ lam)
-
+        F, M = dual_operators(B, B_D, self.At.solve, self._tilde_schur)
         d = B @ self.d_full
         G = e = None
         if self.floating.size:

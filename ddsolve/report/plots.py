@@ -38,6 +38,15 @@ from .tables import (CONTACT_CASES, LATEX_LABELS, METHOD_LABELS, MULTIBODY_ROW_L
                      ROW_LABELS, THESIS_KEYS, THESIS_QUANTITIES)
 
 
+
+def _save(fig, path) -> None:
+    """Write ``fig`` to ``path`` (PNG, 120 dpi) and close it; nothing when ``path`` is None."""
+    if path is not None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+
 def _finite_pairs(x, y) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(x, dtype=float).ravel()
     y = np.asarray(y, dtype=float).ravel()
@@ -270,11 +279,7 @@ def plot_sweep_fits(series: Mapping[str, tuple], path: str | os.PathLike | None 
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    if path is not None:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
+    _save(fig, path)
     return fits
 
 
@@ -437,11 +442,7 @@ def plot_cond_vs_Hh(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    if path is not None:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
+    _save(fig, path)
     return fits
 
 
