@@ -1,0 +1,137 @@
+"""Model problem (3.1) in assembled form: stiffness, load, the contact operator and the KKT conditions (5.5).
+
+The primal unknown u has one value per free node copy (``sub.ndof``; nodes on
+Gamma_c have one copy per membrane). The non-penetration condition
+u^2 - u^1 >= 0 on Gamma_c is B u <= 0 with
+
+    (B u)_k = u^1(x_k) - u^2(x_k),   k = 0..n_c-1,
+
+one row per matching node pair (``gi.pairs``: a on Omega^1, b on Omega^2), so
+that the KKT conditions (5.5) read
+
+    B u <= 0,   lambda >= 0,   lambda^T B u = 0,   K u - f + B^T lambda = 0.
+
+lambda is the contact pressure (nodal force) that pushes Omega^2 up.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..dd.substructure import Substructures
+from ..multibody.interface import GlobalInterface
+
+
+@dataclass
+class KKTResiduals:
+    """Relative violations of the KKT conditions (5.5).
+
+    Attributes
+    ----------
+    feasibility : float
+        max(B u)_+ / ||u||_inf (penetration).
+    dual_feasibility : float
+        max(-lambda)_+ / ||lambda||_inf (negative contact pressure).
+    complementarity : float
+        |lambda^T B u| / (||lambda||_1 ||u||_inf).
+    stationarity : float
+        ||K u - f + B^T lambda||_2 / ||f||_2.
+    """
+
+    feasibility: float
+    dual_feasibility: float
+    complementarity: float
+    stationarity: float
+
+    @property
+    def max(self) -> float:
+        """The largest of the four (the ``kkt_residual`` of a result)."""
+        return max(self.feasibility, self.dual_feasibility, self.complementarity, self.stationarity)
+
+    def as_dict(self) -> dict[str, float]:
+        return {"kkt_feasibility": self.feasibility, "kkt_dual_feasibility": self.dual_feasibility,
+                "kkt_complementarity": self.complementarity, "kkt_stationarity": self.stationarity,
+                "kkt_residual": self.max}
+
+
+class ContactProblem:
+    """Assembled data of (3.1) on a two-body :class:`Substructures`.
+
+    Parameters
+    ----------
+    sub : Substructures
+        Layout of :func:`ddsolve.scene.contact.two_membranes` (or any scene whose
+        inter-body pairs are the contact nodes).
+    gi : GlobalInterface, optional
+        Its inter-body pairs (built if not given).
+
+    Attributes
+    ----------
+    K : scipy.sparse.csr_matrix, shape (ndof, ndof)
+        Block-diagonal (per body) stiffness; singular on the floating body.
+    f : ndarray, shape (ndof,)
+        Assembled load.
+    B : scipy.sparse.csr_matrix, shape (n_c, ndof)
+        Contact operator, (B u)_k = u^1 - u^2 at pair k.
+    n_contact : int
+        Number of contact multipliers n_c.
+    y : ndarray, shape (n_c,)
+        Position of each pair along Gamma_c.
+    """
+
+    def __init__(self, sub: Substructures, gi: GlobalInterface | None = None) -> None:
+        self.sub = sub
+        self.gi = gi if gi is not None else GlobalInterface(sub)
+        self.K = sub.global_matrix().tocsr()
+        self.f = sub.assemble_vector(sub.f_W)
+        dofs = sub.dof_of_node[self.gi.pair_nodes]
+        n = dofs.shape[0]
+        self.n_contact = int(n)
+        self.pair_dofs = dofs
+        self.B = sp.csr_matrix((np.r_[np.ones(n), -np.ones(n)], (np.r_[np.arange(n), np.arange(n)],
+                                                                 np.r_[dofs[:, 0], dofs[:, 1]])),
+                               shape=(n, sub.ndof))
+        self.y = sub.scene.coords[self.gi.pair_nodes[:, 0], 1]
+
+    @property
+    def ndof(self) -> int:
+        return self.sub.ndof
+
+    def energy(self, u: np.ndarray) -> float:
+        """J(u) = 1/2 u^T K u - f^T u, the objective of (3.1)."""
+        return float(0.5 * u @ (self.K @ u) - self.f @ u)
+
+    def gap(self, u: np.ndarray) -> np.ndarray:
+        """B u = u^1 - u^2 on Gamma_c, shape (n_c,); feasible where <= 0."""
+        return self.B @ u
+
+    def multipliers_from_residual(self, u: np.ndarray, active: np.ndarray) -> np.ndarray:
+        """lambda from stationarity, given u: least-squares solution of B_A^T lambda = f - K u.
+
+        Each active pair touches two dofs (one per body) that no other pair
+        touches, so the least-squares value is the mean of the two residual
+        entries, (f - K u)_a and -(f - K u)_b. Inactive entries are zero.
+        """
+        r = self.f - self.K @ u
+        lam = 0.5 * (r[self.pair_dofs[:, 0]] - r[self.pair_dofs[:, 1]])
+        return np.where(active, lam, 0.0)
+
+    def kkt(self, u: np.ndarray, lam: np.ndarray) -> KKTResiduals:
+        """Relative KKT residuals (5.5) of a primal-dual pair.
+
+        Parameters
+        ----------
+        u : ndarray, shape (ndof,)
+        lam : ndarray, shape (n_c,)
+        """
+        g = self.gap(u)
+        u_inf = max(float(np.abs(u).max()), 1e-300)
+        l_inf = float(np.abs(lam).max())
+        l_one = float(np.abs(lam).sum())
+        feas = max(float(g.max(initial=0.0)), 0.0) / u_inf
+        dual = max(float((-lam).max(initial=0.0)), 0.0) / l_inf if l_inf > 0 else 0.0
+        comp = abs(float(lam @ g)) / (l_one * u_inf) if l_one > 0 else 0.0
+        stat = float(np.linalg.norm(self.K @ u - self.f + self.B.T @ lam) / max(np.linalg.norm(self.f), 1e-300))
+        return KKTResiduals(feas, dual, comp, stat)

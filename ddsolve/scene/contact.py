@@ -1,0 +1,94 @@
+"""The two-membrane contact scene of model problem (3.1).
+
+Omega^1 = (0, 1)^2 is clamped on x = 0; Omega^2 = (1, 2) x (0, 1) floats. Both
+bodies are split into N x N square subdomains (1/H = N) of m x m Q1 elements
+(H/h = m), so h = 1/(N m). The contact interface Gamma_c = {1} x [0, 1] carries
+N m + 1 matching node pairs (the non-penetration condition u^2 - u^1 >= 0 acts
+at matching nodes); the free dofs number 2 (N m + 1)^2 - (N m + 1), e.g. 561 for
+N = m = 4.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .scene import Scene
+from .structured import body_grid
+
+#: Load patches of the semicoercive benchmark of Dostal et al. (the thesis's
+#: references [15, 16]): f = F1 on (0, 1) x [0.75, 1), f = F2 on (1, 2) x (0, 0.25).
+DOSTAL_LOADS = (-3.0, -1.0)
+
+
+def dostal_loads(centroids: np.ndarray, f1: float = DOSTAL_LOADS[0], f2: float = DOSTAL_LOADS[1]) -> np.ndarray:
+    """Element loads of the benchmark right-hand side.
+
+    Parameters
+    ----------
+    centroids : ndarray, shape (n_elements, 2)
+        Element centroids.
+    f1, f2 : float
+        Loads on the patches (0, 1) x [0.75, 1) and (1, 2) x (0, 0.25).
+
+    Returns
+    -------
+    ndarray, shape (n_elements,)
+        Element-wise constant f (exact whenever the patch edges y = 0.75 and
+        y = 0.25 are mesh lines, i.e. when 4 divides N m).
+    """
+    x, y = centroids[:, 0], centroids[:, 1]
+    out = np.zeros(centroids.shape[0])
+    out[(x < 1.0) & (y >= 0.75)] = f1
+    out[(x > 1.0) & (y < 0.25)] = f2
+    return out
+
+
+def two_membranes(subdomains: int, elements: int, *, f: float | np.ndarray | None = None,
+                  rho: float | np.ndarray = 1.0) -> Scene:
+    """Scene of model problem (3.1).
+
+    Parameters
+    ----------
+    subdomains : int
+        N = 1/H, subdomains per body side.
+    elements : int
+        m = H/h, Q1 elements per subdomain side.
+    f : float or ndarray of shape (n_elements,), optional
+        Right-hand side; None gives :func:`dostal_loads`.
+    rho : float or ndarray, shape (2 N^2,)
+        Coefficient per subdomain.
+
+    Returns
+    -------
+    Scene
+        Bodies 0 (Omega^1) and 1 (Omega^2); ``contact_pairs[k] = (a, b)`` with
+        a on Omega^1 and b on Omega^2, ordered by y.
+
+    Raises
+    ------
+    InputError
+        If the load on Omega^2 does not have a negative integral: the floating
+        membrane is then not pressed onto Omega^1 and (3.1) has no unique
+        solution.
+    """
+    for name, value in (("subdomains", subdomains), ("elements", elements)):
+        if int(value) != value or value < 1:
+            raise InputError(name, f"must be a positive integer, got {value!r}")
+    ns, m = int(subdomains), int(elements)
+    scene = body_grid(2, 1, ns, m, h=1.0 / (ns * m), rho=rho, dirichlet_sides=("left",))
+    centroids = scene.coords[scene.elements].mean(axis=1)
+    if f is None:
+        loads = dostal_loads(centroids)
+    else:
+        loads = np.broadcast_to(np.asarray(f, dtype=float), (scene.elements.shape[0],)).copy()
+    if not np.all(np.isfinite(loads)):
+        raise InputError("f", "must be finite on every element")
+    on2 = scene.subdomain_body[scene.element_subdomain] == 1
+    area = (1.0 / (ns * m)) ** 2
+    integral = float(loads[on2].sum() * area)
+    if not integral < 0:
+        raise InputError("f", f"the floating membrane Omega^2 needs a load with negative integral "
+                              f"(got {integral:.6g}); otherwise it is not pressed onto Omega^1 and "
+                              f"(3.1) has no unique solution")
+    scene.f = loads
+    return scene
