@@ -14,6 +14,7 @@ from .multibody.direct import solve_constrained_direct
 from .multibody.fetifeti import FetiFetiSolver
 from .result import SolveResult
 from .scene import assemble, checkerboard, structured_square
+from .scene.contact import two_membranes
 from .spec import ProblemSpec, parse_f, parse_rho
 
 log = logging.getLogger(__name__)
@@ -34,15 +35,31 @@ def _multibody_solver(method: str, sub: Substructures, gi: GlobalInterface):
 
 
 def build_scene(spec: ProblemSpec):
-    """The structured scene of a spec (coefficient pattern applied)."""
-    n_sub = spec.bodies ** 2 * spec.subdomains ** 2
+    """The structured scene of a spec (coefficient pattern applied).
+
+    Raises
+    ------
+    InputError
+        For a contact load whose integral over the floating membrane is not negative.
+    """
     kind, value = parse_rho(spec.rho)
-    scene = structured_square(spec.bodies, spec.subdomains, spec.elements, rho=1.0)
     f_kind, f_value = parse_f(spec.f)
-    if f_kind == "random":
-        scene.f = np.random.default_rng(int(f_value)).uniform(-1.0, 1.0, scene.elements.shape[0])
+    if spec.problem == "contact":
+        n_el = 2 * (spec.subdomains * spec.elements) ** 2
+        if f_kind == "dostal":
+            scene = two_membranes(spec.subdomains, spec.elements, patches=f_value)
+        elif f_kind == "random":
+            scene = two_membranes(spec.subdomains, spec.elements,
+                                  f=np.random.default_rng(int(f_value)).uniform(-1.0, 1.0, n_el))
+        else:
+            scene = two_membranes(spec.subdomains, spec.elements, f=f_value)
     else:
-        scene.f = f_value
+        scene = structured_square(spec.bodies, spec.subdomains, spec.elements, rho=1.0)
+        if f_kind == "random":
+            scene.f = np.random.default_rng(int(f_value)).uniform(-1.0, 1.0, scene.elements.shape[0])
+        else:
+            scene.f = f_value
+    n_sub = scene.n_subdomains
     scene.rho = checkerboard(scene.subdomain_grid, value) if kind == "checkerboard" else np.full(n_sub, value)
     return scene
 
@@ -93,6 +110,13 @@ def _solve(spec: ProblemSpec) -> SolveResult:
     result = SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies,
                          subdomains=spec.subdomains, elements=spec.elements, ndof=sub.ndof)
     t1 = time.perf_counter()
+    if spec.problem == "contact":
+        from .contact.run import solve_contact_spec
+        solve_contact_spec(spec, sub, result)
+        result.setup_seconds += t_assembly
+        result.extra["n_templates"] = local.n_templates
+        log.info("contact %s: %s", spec.method, result.reason)
+        return result
     reference: Callable[[], MethodOutput] = lambda: solve_direct(sub)   # noqa: E731
     if spec.problem == "multibody":
         gi = GlobalInterface(sub)

@@ -20,10 +20,13 @@ from .errors import InputError
 METHODS: dict[str, tuple[str, ...]] = {
     "poisson": ("fetidp", "feti", "bddc", "direct"),
     "multibody": ("feti-feti", "hybrid", "direct"),
+    "contact": ("active-set", "smalbe", "direct"),
 }
 #: Default right-hand side per problem: f = 1 for poisson; a generic seeded load for
 #: multibody (f = 1 is symmetric there and PCG converges unrepresentatively fast).
-DEFAULT_F: dict[str, float | str] = {"poisson": 1.0, "multibody": "random:0"}
+DEFAULT_F: dict[str, float | str] = {"poisson": 1.0, "multibody": "random:0", "contact": "dostal"}
+#: Default relative tolerance per problem (contact: the 1e-5 of Chapters 5 and 6).
+DEFAULT_RTOL: dict[str, float] = {"contact": 1e-5}
 CONTACTS = ("full", "middle")
 SCALINGS = ("rho", "multiplicity")
 
@@ -86,14 +89,21 @@ def parse_f(value: Any) -> tuple[str, float]:
         seeded by the integer SEED (a generic load that excites the whole
         spectrum, unlike f = 1 on a symmetric decomposition).
 
+        ``"dostal"`` or ``"dostal:F1,F2"`` (contact only): f = F1 on
+        (0, 1) x [0.75, 1), F2 on (1, 2) x (0, 0.25), zero elsewhere; the
+        benchmark of Dostal et al. with F1 = -3, F2 = -1 by default.
+
     Returns
     -------
     (kind, value) : tuple
-        ``("constant", f)`` or ``("random", seed)``.
+        ``("constant", f)``, ``("random", seed)`` or ``("dostal", (F1, F2))``.
     """
     if isinstance(value, str) and value.strip().lower().startswith("random"):
         _, _, rest = value.partition(":")
         return "random", _as_int("f", rest or "0", 0)
+    if isinstance(value, str) and value.strip().lower().startswith("dostal"):
+        _, _, rest = value.partition(":")
+        return "dostal", parse_dostal(rest)
     try:
         out = float(value)
     except (TypeError, ValueError):
@@ -101,6 +111,20 @@ def parse_f(value: Any) -> tuple[str, float]:
     if isinstance(value, bool) or not math.isfinite(out):
         raise InputError("f", f"must be a finite number or 'random:SEED', got {value!r}")
     return "constant", out
+
+
+def parse_dostal(rest: str) -> tuple[float, float]:
+    """The two patch loads of ``"dostal:F1,F2"`` (empty: the benchmark's (-3, -1))."""
+    if not rest.strip():
+        return (-3.0, -1.0)
+    parts = rest.split(",")
+    try:
+        values = tuple(float(v) for v in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 2 or not all(math.isfinite(v) for v in values):
+        raise InputError("f", f"'dostal:F1,F2' needs two finite numbers, got {rest!r}")
+    return values  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
@@ -113,9 +137,15 @@ class ProblemSpec:
         ``"poisson"``: -div(rho grad u) = f on the unit square, u = 0 on its
         boundary (one body). ``"multibody"``: problem (4.32), the unit square
         split into bodies x bodies square bodies tied on the active contact area.
+        ``"contact"``: model problem (3.1), two membranes (0,1)^2 (clamped at
+        x = 0) and (1,2)x(0,1) (floating) with u^2 - u^1 >= 0 on x = 1; each
+        split into subdomains x subdomains subdomains; ``bodies`` is 2.
     method : str or None
         None takes the problem's first method. Solver: ``"feti"``, ``"fetidp"``, ``"bddc"``, ``"direct"`` (poisson);
-        ``"feti-feti"``, ``"hybrid"``, ``"direct"`` (multibody).
+        ``"feti-feti"``, ``"hybrid"``, ``"direct"`` (multibody);
+        ``"active-set"`` (with the hybrid method, Chapter 5), ``"smalbe"``
+        (SMALBE/MPRGP on the FETI-DP dual, Section 6.4), ``"direct"``
+        (primal-dual active set with sparse direct solves) (contact).
     contact : str
         Active area between bodies (multibody): ``"full"`` (case I) or
         ``"middle"`` (case II, middle third of each face).
@@ -135,8 +165,9 @@ class ProblemSpec:
         ``"rho"`` (delta-dagger rho-scaling, Section 2.3) or ``"multiplicity"``.
     gamma : float
         Exponent of the rho-scaling, gamma >= 1/2.
-    rtol : float
-        Relative residual tolerance ||r_k|| / ||r_0|| < rtol.
+    rtol : float or None
+        Relative residual tolerance ||r_k|| / ||r_0|| < rtol; None takes the
+        problem's default (1e-5 for contact, 1e-6 otherwise).
     maxiter : int
         Iteration limit.
     cond : bool
@@ -155,7 +186,7 @@ class ProblemSpec:
     contact: str = "full"
     scaling: str = "rho"
     gamma: float = 1.0
-    rtol: float = 1e-6
+    rtol: float | None = None
     maxiter: int = 1000
     cond: bool = False
     check: bool = False
@@ -166,6 +197,10 @@ class ProblemSpec:
             object.__setattr__(self, "method", METHODS[self.problem][0])
         if self.f is None:
             object.__setattr__(self, "f", DEFAULT_F.get(self.problem, 1.0))
+        if self.rtol is None:
+            object.__setattr__(self, "rtol", DEFAULT_RTOL.get(self.problem, 1e-6))
+        if self.problem == "contact" and self.bodies == 1:
+            object.__setattr__(self, "bodies", 2)
 
     @classmethod
     def fields(cls) -> tuple[str, ...]:
@@ -191,6 +226,8 @@ class ProblemSpec:
         merged = {**defaults, **{k: v for k, v in data.items() if v is not None}}
         if merged["f"] is None:
             merged["f"] = DEFAULT_F.get(str(merged["problem"]).strip().lower(), 1.0)
+        if merged["rtol"] is None:
+            merged["rtol"] = DEFAULT_RTOL.get(str(merged["problem"]).strip().lower(), 1e-6)
 
         problem = str(merged["problem"]).strip().lower()
         if problem not in METHODS:
@@ -206,6 +243,11 @@ class ProblemSpec:
         elements = _as_int("elements", merged["elements"], 1)
         if problem == "poisson" and bodies != 1:
             raise InputError("bodies", f"problem 'poisson' has exactly one body, got {bodies}")
+        if problem == "contact":
+            if bodies not in (1, 2):
+                raise InputError("bodies", f"problem 'contact' has exactly two bodies (the membranes of (3.1)), "
+                                           f"got {bodies}")
+            bodies = 2
         if elements < 2:
             raise InputError("elements", f"mesh too small for the decomposition: each subdomain needs "
                                          f">= 2 elements per side to have interior nodes, got {elements}")
@@ -215,8 +257,11 @@ class ProblemSpec:
         rho = merged["rho"]
         parse_rho(rho)
         f = merged["f"]
-        if parse_f(f)[0] == "constant":
+        f_kind = parse_f(f)[0]
+        if f_kind == "constant":
             f = float(f)
+        if f_kind == "dostal" and problem != "contact":
+            raise InputError("f", f"'dostal' loads are defined for problem 'contact' only, not {problem!r}")
         scaling = str(merged["scaling"]).strip().lower()
         if scaling not in SCALINGS:
             raise InputError("scaling", f"unknown scaling {merged['scaling']!r} (choose from {', '.join(SCALINGS)})")

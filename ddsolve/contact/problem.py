@@ -37,7 +37,8 @@ class KKTResiduals:
     complementarity : float
         |lambda^T B u| / (||lambda||_1 ||u||_inf).
     stationarity : float
-        ||K u - f + B^T lambda||_2 / ||f||_2.
+        ||K u - f + B^T lambda||_2 / (||f||_2 + ||B^T lambda||_2): the force
+        balance residual relative to the applied and contact forces it balances.
     """
 
     feasibility: float
@@ -130,8 +131,10 @@ class ContactProblem:
         u_inf = max(float(np.abs(u).max()), 1e-300)
         l_inf = float(np.abs(lam).max())
         l_one = float(np.abs(lam).sum())
-        feas = max(float(g.max(initial=0.0)), 0.0) / u_inf
-        dual = max(float((-lam).max(initial=0.0)), 0.0) / l_inf if l_inf > 0 else 0.0
+        feas = max(float(g.max(initial=0.0)), 0.0) / u_inf + 0.0
+        dual = max(float((-lam).max(initial=0.0)), 0.0) / l_inf + 0.0 if l_inf > 0 else 0.0
         comp = abs(float(lam @ g)) / (l_one * u_inf) if l_one > 0 else 0.0
-        stat = float(np.linalg.norm(self.K @ u - self.f + self.B.T @ lam) / max(np.linalg.norm(self.f), 1e-300))
+        contact = self.B.T @ lam
+        scale = max(float(np.linalg.norm(self.f) + np.linalg.norm(contact)), 1e-300)
+        stat = float(np.linalg.norm(self.K @ u - self.f + contact) / scale)
         return KKTResiduals(feas, dual, comp, stat)

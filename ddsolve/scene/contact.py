@@ -44,7 +44,7 @@ def dostal_loads(centroids: np.ndarray, f1: float = DOSTAL_LOADS[0], f2: float =
 
 
 def two_membranes(subdomains: int, elements: int, *, f: float | np.ndarray | None = None,
-                  rho: float | np.ndarray = 1.0) -> Scene:
+                  rho: float | np.ndarray = 1.0, patches: tuple[float, float] = DOSTAL_LOADS) -> Scene:
     """Scene of model problem (3.1).
 
     Parameters
@@ -54,7 +54,8 @@ def two_membranes(subdomains: int, elements: int, *, f: float | np.ndarray | Non
     elements : int
         m = H/h, Q1 elements per subdomain side.
     f : float or ndarray of shape (n_elements,), optional
-        Right-hand side; None gives :func:`dostal_loads`.
+        Right-hand side; None gives :func:`dostal_loads` with the patch loads
+        ``patches``.
     rho : float or ndarray, shape (2 N^2,)
         Coefficient per subdomain.
 
@@ -78,7 +79,7 @@ def two_membranes(subdomains: int, elements: int, *, f: float | np.ndarray | Non
     scene = body_grid(2, 1, ns, m, h=1.0 / (ns * m), rho=rho, dirichlet_sides=("left",))
     centroids = scene.coords[scene.elements].mean(axis=1)
     if f is None:
-        loads = dostal_loads(centroids)
+        loads = dostal_loads(centroids, *patches)
     else:
         loads = np.broadcast_to(np.asarray(f, dtype=float), (scene.elements.shape[0],)).copy()
     if not np.all(np.isfinite(loads)):

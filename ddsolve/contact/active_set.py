@@ -1,0 +1,249 @@
+"""The active set method combined with the hybrid method (Chapter 5).
+
+Problem (5.1) on the body-continuous interface space W^_{Gamma,c}:
+
+    min 1/2 u^T S^_c u - g^_c^T u   s.t.   B^_{Gamma,c} u <= 0,
+
+with (B^ u)_k = u^1 - u^2 at contact pair k and multipliers lambda >= 0 (KKT
+conditions (5.5)). The algorithm of Chapter 5:
+
+1. **Initial guess.** Solve the dual problem (5.4),
+   min 1/2 lambda^T B^ M_BDDC^{-1} B^T lambda - d^T lambda, by PCG with the
+   preconditioner M^{-1} = B^_D S^_c B^_D^T to ``pcg_rtol`` (1e-5). The
+   membrane Omega^2 floats, so S^_c^dagger is approximated by
+   P_R M_BDDC^{-1} P_R (the generalized inverse used by the hybrid's
+   preconditioner (4.11)) and the equilibrium condition of the floating body,
+   G^T lambda = R_c^T g^_c with G = B^ R_c (the constraint of the dual (6.14)),
+   is imposed by the projection P = I - G (G^T G)^{-1} G^T exactly as in
+   one-level FETI (2.13)-(2.14). (5.3)/(5.4) as printed omit this constraint;
+   without it d^ has no information about the load that presses Omega^2 onto
+   Omega^1.
+2. **Projection in transformed coordinates (Figure 5.1).** lambda^ is the
+   projection of lambda* onto {lambda >= 0} in the metric of
+   M = (B^_D S^_c B^_D^T)^{-1}:
+   min 1/2 (lambda - lambda*)^T M (lambda - lambda*) s.t. lambda >= 0. Its dual
+   is the bound constrained QP min_{mu >= 0} 1/2 mu^T M^{-1} mu + mu^T lambda*,
+   lambda^ = lambda* + M^{-1} mu, which needs only products with the
+   preconditioner; it is solved by MPRGP (Figure 6.6) to 1e-10.
+3. **Outer iterations (Figure 6.3, the active set method applied to the
+   dual).** The face W_I fixes lambda_i = 0 for i in I; minimizing on it is the
+   equality-constrained problem (4.2) on the active set Z^k = complement of I,
+   solved by the hybrid PCR (:class:`~ddsolve.multibody.hybrid.HybridSolver`,
+   no refactorization between outer iterations) to ``rtol`` (1e-5), warm
+   started from the previous iterate (the first from (u, lambda) = (0, lambda^)).
+   If the face minimizer y^ is feasible (lambda >= 0), it is accepted and
+   I^{k+1} = B_0(x^{k+1}) = {i in I : (B^ u)_i <= 0}: pairs that penetrate
+   join the active set. Otherwise the iterate moves to the cross point of the
+   segment [x^k, y^] with {lambda >= 0} and I^{k+1} = A(x^{k+1}): the pairs
+   whose multiplier reached zero leave the active set. The iteration stops
+   when a feasible face minimizer also satisfies B^ u <= 0 (g^P = 0).
+
+Inexact face solves make "= 0" and "<= 0" tests up to a tolerance:
+``feasibility_tol`` (10 rtol by default) times ||lambda||_inf for multipliers
+and times ||u_Gamma||_inf for the gap.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import numpy as np
+
+from ..dd.operators import linear_operator
+from ..krylov import pcg
+from ..krylov.result import KrylovResult
+from ..multibody.hybrid import HybridSolver
+from ..qp import mprgp
+from ..qp.result import QPResult
+from .direct import ContactSolution
+from .problem import ContactProblem
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ActiveSetHybrid", "solve_contact_active_set"]
+
+
+class ActiveSetHybrid:
+    """Active set method with the hybrid method for (3.1) (Chapter 5).
+
+    Parameters
+    ----------
+    problem : ContactProblem
+    hybrid : HybridSolver, optional
+        Reused if given (its factorizations are shared by every outer iteration).
+
+    Attributes
+    ----------
+    hybrid : HybridSolver
+    n_contact : int
+        Number of contact multipliers.
+    """
+
+    def __init__(self, problem: ContactProblem, hybrid: HybridSolver | None = None) -> None:
+        self.problem = problem
+        self.hybrid = hybrid if hybrid is not None else HybridSolver(problem.sub, problem.gi)
+        self.n_contact = problem.n_contact
+        self._all = self.hybrid.active_set(np.ones(self.n_contact, dtype=bool))
+
+    # ------------------------------------------------------------- operators
+    def B(self, u: np.ndarray) -> np.ndarray:
+        """B^_{Gamma,c} u, shape (n_gamma,) -> (n_c,)."""
+        return self.hybrid._B(self._all, u)
+
+    def BT(self, lam: np.ndarray) -> np.ndarray:
+        """B^_{Gamma,c}^T lam, shape (n_c,) -> (n_gamma,)."""
+        return self.hybrid._BT(self._all, lam)
+
+    def S_dagger(self, r: np.ndarray) -> np.ndarray:
+        """P_R M_BDDC^{-1} P_R r, the stand-in for S^_c^dagger in (5.4), shape (n_gamma,)."""
+        h = self.hybrid
+        return h.P_R(h.M_bddc(h.P_R(r)))
+
+    def F(self, lam: np.ndarray) -> np.ndarray:
+        """Operator of (5.4): B^ P_R M_BDDC^{-1} P_R B^T lam, shape (n_c,) -> (n_c,)."""
+        return self.B(self.S_dagger(self.BT(lam)))
+
+    def preconditioner(self, lam: np.ndarray) -> np.ndarray:
+        """M^{-1} lam = B^_D S^_c B^_D^T lam (Chapter 5), shape (n_c,) -> (n_c,).
+
+        B^_D scales the entry of the Omega^1 copy by the body weight of the
+        Omega^2 copy and vice versa (``gi.weight``).
+        """
+        a, h = self._all, self.hybrid
+        n = h.gam.n
+        v = np.bincount(a.ia, weights=a.wb * lam, minlength=n) - np.bincount(a.ib, weights=a.wa * lam, minlength=n)
+        s = h.S_hat(v)
+        return a.wb * s[a.ia] - a.wa * s[a.ib]
+
+    # ---------------------------------------------------------- initial guess
+    def initial_multipliers(self, rtol: float = 1e-5, maxiter: int = 1000
+                            ) -> tuple[np.ndarray, np.ndarray, KrylovResult, QPResult]:
+        """Steps 1-2 of Chapter 5: lambda* of (5.4) and its projection lambda^.
+
+        Returns
+        -------
+        lam_star, lam_hat : ndarray, shape (n_c,)
+        pcg_result : KrylovResult
+            The projected PCG on (5.4).
+        projection : QPResult
+            MPRGP on the dual of the projection problem.
+        """
+        h, a = self.hybrid, self._all
+        n = self.n_contact
+        d = self.B(self.S_dagger(h.g_hat))
+        P_op = None
+        lam0 = np.zeros(n)
+        if h.floating.size:
+            on = h._rc_col >= 0
+            e = np.bincount(h._rc_col[on], weights=h.g_hat[on], minlength=h.floating.size)
+            lam0 = a.G @ h._GtG_solve(a, e)
+            P_op = linear_operator(n, lambda v: h._P(a, v))
+        F = linear_operator(n, self.F)
+        M = linear_operator(n, self.preconditioner)
+        b = d - self.F(lam0)
+        kr = pcg(F, b, rtol=rtol, maxiter=maxiter, M=M, P=P_op)
+        lam_star = lam0 + kr.x
+        qp = mprgp(M, -lam_star, np.zeros(n), rtol=1e-10, maxiter=50 * n + 100)
+        lam_hat = np.maximum(lam_star + self.preconditioner(qp.x), 0.0)
+        log.info("active set: PCG on (5.4) %s; projection %s", kr.reason, qp.reason)
+        return lam_star, lam_hat, kr, qp
+
+    # ------------------------------------------------------------------ solve
+    def solve(self, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5, maxiter: int = 1000, max_outer: int = 50,
+              feasibility_tol: float | None = None) -> ContactSolution:
+        """Run the active set method.
+
+        Parameters
+        ----------
+        rtol : float
+            Tolerance of each hybrid face solve (residual reduction, 1e-5 in the thesis).
+        pcg_rtol : float
+            Tolerance of the PCG on (5.4) (1e-5 in the thesis).
+        maxiter : int
+            Iteration limit of each Krylov solve.
+        max_outer : int
+            Limit of outer iterations (face solves).
+        feasibility_tol : float, optional
+            Relative tolerance of the sign tests (default 10 rtol).
+
+        Returns
+        -------
+        ContactSolution
+            ``inner_iterations``: PCR iterations of each face solve;
+            ``pcg_iterations``: PCG iterations on (5.4); ``extra`` holds
+            ``lambda_star``, ``lambda_hat``, ``initial_active``,
+            ``projection_iterations``, ``active_history``.
+        """
+        t0 = time.perf_counter()
+        tol = 10.0 * rtol if feasibility_tol is None else float(feasibility_tol)
+        h, n = self.hybrid, self.n_contact
+        lam_star, lam_hat, kr0, qp = self.initial_multipliers(pcg_rtol, maxiter)
+        active = lam_hat > tol * max(float(lam_hat.max()), 1e-300)
+        if not active.any():
+            active[int(np.argmax(lam_star))] = True
+        initial_active = active.copy()
+        lam_k = np.where(active, lam_hat, 0.0)              # x^0, feasible
+        u_k = np.zeros(h.n_gamma)
+        inner: list[int] = []
+        history = [int(active.sum())]
+        converged, reason = False, f"active set not settled after {max_outer} outer iterations"
+        out: Any = None
+        for _ in range(max_outer):
+            out = h.solve(active, rtol=rtol, maxiter=maxiter,
+                          x0={"u_gamma": u_k, "lambda": lam_k})
+            inner.append(int(out.krylov.iterations))
+            if not out.krylov.converged:
+                reason = f"face solve {len(inner)} did not converge: {out.krylov.reason}"
+                break
+            lam_y = np.zeros(n)
+            lam_y[active] = out.extra["lambda"]
+            u_y = out.extra["u_gamma"]
+            lam_scale = max(float(np.abs(lam_y).max()), 1e-300)
+            negative = active & (lam_y < -tol * lam_scale)
+            if negative.any():
+                # cross point of [x^k, y^] with {lambda >= 0}; the blocking pairs leave the face
+                ratios = lam_k[negative] / (lam_k[negative] - lam_y[negative])
+                alpha = float(np.clip(ratios.min(), 0.0, 1.0))
+                lam_k = lam_k + alpha * (lam_y - lam_k)
+                u_k = u_k + alpha * (u_y - u_k)
+                blocking = negative & (lam_k <= tol * lam_scale)
+                blocking[np.flatnonzero(negative)[int(np.argmin(ratios))]] = True
+                lam_k[blocking] = 0.0
+                active = active & ~blocking
+                if not active.any():
+                    reason = "the active set became empty (the floating membrane lost contact)"
+                    break
+            else:
+                lam_k = np.maximum(lam_y, 0.0)
+                u_k = u_y
+                gap = self.B(u_y)
+                penetrating = ~active & (gap > tol * max(float(np.abs(u_y).max()), 1e-300))
+                if not penetrating.any():
+                    converged = True
+                    reason = f"KKT conditions hold after {len(inner)} outer iteration(s)"
+                    break
+                active = active | penetrating
+            history.append(int(active.sum()))
+        u = out.u if out is not None else np.zeros(self.problem.ndof)
+        lam = lam_k if converged else np.where(active, lam_k, 0.0)
+        seconds = time.perf_counter() - t0
+        log.info("active set + hybrid: %s", reason)
+        return ContactSolution(
+            u=u, lam=lam, active=lam > 0, converged=converged, reason=reason,
+            outer_iterations=len(inner), inner_iterations=inner, pcg_iterations=int(kr0.iterations),
+            seconds=seconds, n_factorizations=int(h.n_factorizations),
+            extra={"lambda_star": lam_star, "lambda_hat": lam_hat, "initial_active": initial_active,
+                   "projection_iterations": int(qp.iterations), "active_history": history,
+                   "pcg_converged": bool(kr0.converged), "setup_seconds": float(h.setup_seconds)})
+
+
+def solve_contact_active_set(problem: ContactProblem, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5,
+                             maxiter: int = 1000, max_outer: int = 50,
+                             solver: ActiveSetHybrid | None = None) -> ContactSolution:
+    """Solve (3.1) by the active set method with the hybrid method (Chapter 5).
+
+    See :class:`ActiveSetHybrid`; ``solver`` reuses its factorizations.
+    """
+    solver = solver if solver is not None else ActiveSetHybrid(problem)
+    return solver.solve(rtol=rtol, pcg_rtol=pcg_rtol, maxiter=maxiter, max_outer=max_outer)
