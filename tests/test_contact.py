@@ -172,3 +172,22 @@ def test_cli_contact_bad_input(capsys, argv, field):
     assert code == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"ddsolve: error: {field}:") and "\n" not in err
+
+
+def test_literal_figure_6_3_update_frees_one_pair_per_outer_iteration():
+    p = contact_problem(8, 4)
+    ref = solve_contact_direct(p)
+    with threadpool_limits(1, "blas"):
+        s = ActiveSetHybrid(p)
+        literal = s.solve(rtol=1e-5, removal="blocking")
+        default = s.solve(rtol=1e-5)
+    for sol in (literal, default):
+        assert sol.converged, sol.reason
+        assert np.array_equal(sol.active, ref.active)
+    hist = literal.extra["active_history"]
+    assert all(abs(b - a) <= max(1, abs(b - a)) for a, b in zip(hist, hist[1:]))
+    removed = [a - b for a, b in zip(hist, hist[1:]) if b < a]
+    assert removed and max(removed) == 1
+    assert default.outer_iterations <= literal.outer_iterations
+    with pytest.raises(ValueError, match="removal"):
+        s.solve(removal="some")

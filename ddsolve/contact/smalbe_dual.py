@@ -1,0 +1,336 @@
+"""SMALBE with MPRGP on the FETI-DP dual of the two-membrane contact problem (3.1) (Section 6.4).
+
+Primal problem (6.13)
+---------------------
+Both membranes are split into N x N subdomains in FETI-DP fashion (all
+subdomain vertices of a body primal, :class:`~ddsolve.multibody.fetifeti.FetiFetiSolver`).
+On the space W~ of subdomain vectors with continuous primal values,
+
+    min 1/2 u^T A~ u - f_W^T u   s.t.   B_E u = 0,   B_I u <= 0,
+
+with B_E = B_loc (continuity inside each body, fully redundant at cross points)
+and B_I = B_gl (one row per contact pair k, +1 on the Omega^1 copy and -1 on
+the Omega^2 copy, so (B_I u)_k = u^1 - u^2 as in :class:`ContactProblem`).
+B = [B_loc; B_gl] has n_lambda rows (161 for N = m = 4, Table 6.1). A~ is
+singular on the floating body Omega^2; ker A~ = range R, R = constants on the
+W entries of Omega^2 (one column).
+
+Dual problem (6.14)-(6.15)
+--------------------------
+With the generalized inverse A~^+ (:attr:`PrimalConstrainedSolver.solve`, one
+dof of Omega^2 pinned),
+
+    F = B A~^+ B^T,  d~ = B A~^+ f_W,  G~ = R^T B^T  (1 x n_lambda),  e~ = R^T f_W,
+
+    min theta(lambda) = 1/2 lambda^T F lambda - lambda^T d~
+    s.t. lambda_I >= 0,  G~ lambda = e~.
+
+G~ is 0 on the local rows and -1 on every contact row; e~ = integral of the
+load on Omega^2 < 0 (the scene guarantees it). Orthonormalization of the single
+row: T = 1 / ||G~|| = 1 / sqrt(n_c), G = T G~, e = T e~.
+
+Homogenization (Lemma 6.4.1, (6.16))
+------------------------------------
+lambda~ = 0 on local rows and lambda~_I = -e~ / n_c > 0 (uniform contact
+pressure carrying the load of Omega^2) satisfies G lambda~ = e and
+lambda~_I >= 0. With lambda = lambda_full - lambda~:
+
+    d = d~ - F lambda~ = B A~^+ (f_W - B^T lambda~)
+
+(f_W - B^T lambda~ is in range A~ = (ker A~)^perp, so d does not depend on the
+choice of generalized inverse), bounds lb_I = -lambda~_I, lb_E = -inf, and the
+homogeneous equality G lambda = 0.
+
+Problem solved (6.17)
+---------------------
+With Q = G^T G and P = I - Q,
+
+    min 1/2 lambda^T (P F P + rho_bar Q) lambda - lambda^T P d
+    s.t. lambda_I >= -lambda~_I,  G lambda = 0,
+
+which has the same solution as (6.16) (on ker G, P lambda = lambda). (Read
+with the homogenized data: the printed (6.17) keeps the bounds and the right
+hand side of (6.15).) P F P + rho_bar Q is symmetric positive definite; F is
+applied with one A~^+ solve (the factorizations of ``solver`` are reused,
+nothing is refactored per iteration), P and Q with the dense row G.
+
+It is solved by :func:`ddsolve.qp.smalbe` (Figure 6.7) for the equality
+G lambda = 0 with MPRGP inner solves (Figure 6.6), M = 1, rho_0 = 30,
+Gamma = 1, eps = 1e-5 and the stopping rule of Section 6.4,
+||g^P|| <= eps ||b|| and ||G lambda|| <= eps ||b||, b = P d. Choices not
+stated in the thesis:
+
+* rho_bar = ||P F P|| (default; ``rho_bar=`` overrides), estimated by ARPACK
+  Lanczos (``eigsh``, seeded start, tol 1e-6). P F P and Q act on orthogonal
+  complements, so ||P F P + rho_bar Q|| = max(||P F P||, rho_bar) and the
+  inner Hessian P F P + (rho_bar + rho) Q of SMALBE has norm
+  max(||P F P||, rho_bar + rho) <= max(||P F P||, rho_bar) + rho, which is
+  what SMALBE's steplength 1.9 / (||A|| + rho ||G||^2) uses
+  (``norm_A = (1 + 1e-3) max(||P F P||, rho_bar)``, ``norm_BE = 1``); for the
+  default rho_bar the bound is attained, alpha = 1.9 / ||Hessian|| (up to the
+  0.1 % safety), inside (0, 2/||Hessian||]. Without bounds the equality part
+  of an outer iteration contracts G lambda by rho_bar / (rho_bar + rho), so a
+  smaller rho_bar (e.g. 1) needs fewer outer iterations (3-4 instead of
+  5-12 on the Table 6.1 grids); the default follows the usual choice
+  rho_bar ~ ||P F P||, which leaves the spectrum of the Hessian inside that
+  of P F P.
+* eta = 0.1 ||b|| and beta = 10 (the defaults of :func:`smalbe`); the start is
+  lambda^0 = 0, i.e. lambda_full = lambda~ (uniform pressure); mu^0 = 0.
+
+Primal recovery
+---------------
+SMALBE returns lambda with ||G lambda|| <= eps ||b|| only. The raw
+lambda + lambda~ is not balanced: R^T (f_W - B^T (lambda + lambda~)) =
+-||G~|| G lambda != 0, and A~^+ (pinned generalized inverse) would dump this
+force imbalance onto the pinned dof. The recovery therefore uses the balanced
+multiplier of (6.17), whose F part only sees P lambda,
+
+    lambda_bal = P lambda + lambda~       (G~ lambda_bal = e~ exactly),
+    u~ = A~^+ (f_W - B^T lambda_bal) + R alpha,
+
+an exact solution of A~ u~ = f_W - B^T lambda_bal. Since B A~^+ B^T P lambda -
+d = -B u0 differs from the SMALBE gradient only by a multiple of G^T = B R / ||G~||,
+the rigid amplitude alpha can make B u~ = -g: jumps and gaps are bounded by
+the final projected gradient. alpha minimizes ||B_A u~|| over the active pairs
+A (with one floating body B_A R = -1: alpha = mean over A of (B u0)_k).
+u~ is mapped to the assembled dofs by the delta-weighted average
+:meth:`Substructures.average`.
+
+Active set and returned multipliers: A = the contact rows that are off their
+bound in the SMALBE iterate (lambda_k > -lambda~_k; MPRGP keeps the others
+exactly at the bound) and have lambda_bal_k > 0; ``lam = lambda_bal`` on A and
+0 elsewhere. P shifts every contact entry by the same
+kappa = -G_c (G lambda) = O(eps ||b|| / sqrt(n_c)) (``extra["equality_defect"]``
+is G lambda), so zeroing the inactive entries is an O(kappa) force error.
+Alternatives that keep the multiplier exactly balanced *and* sign-feasible
+(scaling the contact part by -e~ / sum_k lambda_k, or shifting only the active
+entries) perturb P lambda by a self-balanced O(||G lambda||) vector, which F
+amplifies by ~||P F P|| into interface jumps; on the tested grids they gave
+4-50 times larger stationarity residuals.
+
+Attainable accuracy
+-------------------
+The stopping rule bounds the dual gradient (displacement jumps and gaps) and
+||G lambda|| by eps ||b||, b = P d. The primal force residual
+K u - f + B^T lam is K times the jumps of u~ plus the O(kappa) force error of
+the zeroed inactive entries, and relative to the forces (about h times the
+load density) it is eps times a factor ~ ||K|| ||b|| / ||f|| that grows like
+1/h: with the KKT measure of :meth:`ContactProblem.kkt` about 3-8 eps for
+N m <= 16 and 20-90 eps for N m = 32..80 (tests/test_contact_smalbe.py and
+the Table 6.1 runs), while feasibility, complementarity, ||u - u_ref|| and
+the energy error stay at or below eps.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..multibody.fetifeti import FetiFetiSolver
+from ..qp import smalbe
+from .direct import ContactSolution
+from .problem import ContactProblem
+
+log = logging.getLogger(__name__)
+
+#: Safety factor on the Lanczos estimate of ||P F P|| passed as ``norm_A`` to SMALBE.
+NORM_SAFETY = 1.0 + 1e-3
+
+
+def _norm_estimate(op: spla.LinearOperator, n: int, seed: int = 0) -> tuple[float, int]:
+    """Largest eigenvalue of a symmetric positive semidefinite operator (deterministic).
+
+    ARPACK Lanczos from a seeded start vector; for ``n <= 50`` a dense eigensolve of
+    the operator's columns.
+
+    Returns
+    -------
+    norm : float
+        Estimate of ``||op||_2``.
+    n_matvec : int
+        Multiplications by ``op`` used.
+    """
+    count = [0]
+
+    def mv(v: np.ndarray) -> np.ndarray:
+        count[0] += 1
+        return op.matvec(np.ravel(v))
+
+    wrapped = spla.LinearOperator((n, n), matvec=mv, dtype=np.float64)
+    v0 = np.random.default_rng(seed).standard_normal(n)
+    if n <= 50:
+        dense = np.column_stack([mv(e) for e in np.eye(n)])
+        return float(np.abs(np.linalg.eigvalsh(0.5 * (dense + dense.T))).max()), count[0]
+    ev = spla.eigsh(wrapped, k=1, which="LA", v0=v0, tol=1e-6, return_eigenvectors=False,
+                    ncv=min(n, 20), maxiter=100 * n)
+    return float(ev[0]), count[0]
+
+
+def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float = 1.0, rho0: float = 30.0,
+                         Gamma: float = 1.0, maxiter: int | None = None,
+                         solver: FetiFetiSolver | None = None, rho_bar: float | None = None) -> ContactSolution:
+    """Solve (3.1) by SMALBE/MPRGP on the FETI-DP dual (6.17) (thesis Section 6.4).
+
+    See the module docstring for the formulation (6.13)-(6.17) and the choices made.
+
+    Parameters
+    ----------
+    problem : ContactProblem
+        Assembled two-membrane problem (one clamped and one floating body).
+    eps : float
+        Relative tolerance of the outer stopping rule ``||g^P|| <= eps ||b||`` and
+        ``||G lambda|| <= eps ||b||`` with ``b = P d`` (Section 6.4: 1e-5).
+    M, rho0, Gamma : float
+        SMALBE precision control constant, initial penalty and MPRGP proportioning
+        parameter (Section 6.4: 1, 30, 1).
+    maxiter : int, optional
+        Maximum total number of MPRGP steps (default of :func:`ddsolve.qp.smalbe`,
+        ``max(200, 20 n_lambda)``).
+    solver : FetiFetiSolver, optional
+        Prebuilt FETI-FETI operators of ``problem.sub`` / ``problem.gi`` (their
+        factorizations are reused); built here when not given.
+    rho_bar : float, optional
+        The constant rho_bar > 0 of (6.17); default the estimate of ||P F P||.
+
+    Returns
+    -------
+    ContactSolution
+        ``u`` (ndof,); ``lam`` (n_c,), the contact multipliers in ``problem.gi`` pair
+        order (>= 0; 0 off the active set); ``active`` (n_c,), the contact rows off
+        their bound in the SMALBE iterate with positive balanced multiplier (so
+        ``active == (lam > 0)``); ``outer_iterations`` (SMALBE outer iterations);
+        ``inner_iterations`` (MPRGP steps per outer iteration); ``seconds`` (wall
+        time of the call, FETI-FETI setup included when built here);
+        ``n_factorizations`` (of the solver built here; 0 when ``solver`` is passed);
+        ``extra``: ``nlambda, n_local, n_contact`` (row counts of B), ``n_hessian,
+        n_cg, n_expansion, n_proportioning`` (SMALBE counters), ``n_Fmult`` (all
+        products with F, norm estimate included), ``n_norm_estimate``, ``penalty``
+        (final rho), ``rho_bar``, ``norm_PFP``, ``alpha`` (last MPRGP steplength),
+        ``lambda_tilde`` (uniform homogenization pressure), ``mu`` (SMALBE multiplier
+        of G lambda = 0), ``lambda`` (n_lambda,) the balanced P lambda + lambda~,
+        ``equality_defect`` (G lambda), ``rigid_alpha``, ``local_jump``
+        (||B_loc u~||_2), ``norm_b`` (||P d||), ``gradient_norms``,
+        ``constraint_norms`` (per outer iteration), ``setup_seconds``, ``qp_seconds``.
+        Non-convergence gives ``converged=False`` and a reason; nothing is raised
+        for it.
+    """
+    t0 = time.perf_counter()
+    sub, gi = problem.sub, problem.gi
+    new_factorizations = solver is None
+    if solver is None:
+        solver = FetiFetiSolver(sub, gi)
+    if solver.floating.size != 1:
+        return _failure(problem, t0, f"expected exactly one floating body (Omega^2), "
+                                     f"found {solver.floating.size}")
+    B_gl, _ = gi.operators(None)
+    B = sp.vstack([solver.B_loc, B_gl]).tocsr()
+    BT = B.T.tocsr()
+    n_loc, n_c = solver.B_loc.shape[0], B_gl.shape[0]
+    n = n_loc + n_c
+    f_W = sub.f_W
+    R = solver.R.toarray().ravel()                           # (n_W,) constants on Omega^2
+
+    # (6.14): G~ = R^T B^T (one row), e~ = R^T f_W; orthonormalization T = 1/||G~||
+    G_t = np.asarray(B @ R).ravel()                          # (n_lambda,)
+    e_t = float(R @ f_W)
+    norm_Gt = float(np.linalg.norm(G_t))
+    if norm_Gt == 0.0 or not e_t < 0.0:
+        return _failure(problem, t0, f"the floating body is not pressed onto the contact interface "
+                                     f"(R^T f_W = {e_t:.3g}, ||G~|| = {norm_Gt:.3g})")
+    G = G_t / norm_Gt                                        # (n_lambda,), ||G|| = 1
+    e = e_t / norm_Gt
+    # Lemma 6.4.1: uniform pressure on the contact rows (G~ = -1 there, 0 on local rows)
+    lam_tilde = np.zeros(n)
+    lam_tilde[n_loc:] = -e_t / n_c
+    if not np.isclose(G @ lam_tilde, e, rtol=1e-12, atol=0.0):
+        return _failure(problem, t0, "G~ is not -1 on the contact rows and 0 on the local rows")
+
+    n_F = [0]
+
+    def F(v: np.ndarray) -> np.ndarray:
+        """F v = B A~^+ B^T v, shape (n_lambda,)."""
+        n_F[0] += 1
+        return B @ solver.At.solve(BT @ v)
+
+    def P(v: np.ndarray) -> np.ndarray:
+        return v - G * (G @ v)
+
+    # (6.16): d = B A~^+ (f_W - B^T lambda~)
+    d = B @ solver.At.solve(f_W - BT @ lam_tilde)
+    b = P(d)
+    lb = np.full(n, -np.inf)
+    lb[n_loc:] = -lam_tilde[n_loc:]
+
+    PFP = spla.LinearOperator((n, n), matvec=lambda v: P(F(P(np.ravel(v)))), dtype=np.float64)
+    norm_PFP, n_est = _norm_estimate(PFP, n)
+    if rho_bar is None:
+        rho_bar = norm_PFP
+    elif not (math.isfinite(rho_bar) and rho_bar > 0.0):
+        return _failure(problem, t0, f"rho_bar must be a positive number, got {rho_bar!r}")
+    rho_bar = float(rho_bar)
+
+    def A(v: np.ndarray) -> np.ndarray:
+        """(P F P + rho_bar Q) v of (6.17)."""
+        v = np.ravel(v)
+        Gv = G @ v
+        return P(F(v - G * Gv)) + rho_bar * G * Gv
+
+    opA = spla.LinearOperator((n, n), matvec=A, rmatvec=A, dtype=np.float64)
+    opG = sp.csr_matrix(G[None, :])
+    setup = time.perf_counter() - t0
+    log.info("SMALBE dual setup: n_lambda = %d (%d local + %d contact), ||PFP|| = %.4g (%d F-mults), "
+             "lambda~ = %.4g", n, n_loc, n_c, norm_PFP, n_est, lam_tilde[-1])
+
+    try:
+        res = smalbe(opA, b, lb, opG, None, None, M=M, rho0=rho0, Gamma=Gamma, eps=eps, maxiter=maxiter,
+                     norm_A=NORM_SAFETY * max(norm_PFP, rho_bar), norm_BE=1.0)
+    except ValueError as exc:                                # invalid parameters: report, do not raise
+        return _failure(problem, t0, f"invalid SMALBE input: {exc}")
+
+    # primal recovery from the balanced multiplier P lambda + lambda~ (G~ (P lambda + lambda~) = e~, so
+    # f_W - B^T lambda_bal lies in range A~ and u0 + R alpha solves A~ u = f_W - B^T lambda_bal exactly)
+    x = res.x
+    Gx = float(G @ x)
+    lam_bal = P(x) + lam_tilde
+    free = x[n_loc:] > lb[n_loc:]                              # contact rows off their bound in SMALBE
+    active = free & (lam_bal[n_loc:] > 0.0)
+    lam_c = np.where(active, lam_bal[n_loc:], 0.0)
+    u0 = solver.At.solve(f_W - BT @ lam_bal)
+    Bu0 = B_gl @ u0
+    BR = np.asarray(B_gl @ R).ravel()                         # -1 on every contact row
+    rows = active if active.any() else np.ones(n_c, dtype=bool)
+    alpha_rb = -float(BR[rows] @ Bu0[rows]) / float(BR[rows] @ BR[rows])
+    u_W = u0 + alpha_rb * R
+    u = sub.average(u_W)
+    seconds = time.perf_counter() - t0
+    log.info("SMALBE dual (3.1): %s; %d outer, inner %s, %d active pairs of %d, %.3f s",
+             res.reason, res.outer_iterations, res.inner_iterations, int(active.sum()), n_c, seconds)
+    extra = {
+        "nlambda": n, "n_local": n_loc, "n_contact": n_c,
+        "n_hessian": res.n_hessian, "n_cg": res.n_cg, "n_expansion": res.n_expansion,
+        "n_proportioning": res.n_proportioning, "n_Fmult": n_F[0], "n_norm_estimate": n_est,
+        "penalty": res.penalty, "rho_bar": rho_bar, "norm_PFP": norm_PFP, "alpha": res.alpha,
+        "lambda_tilde": float(lam_tilde[-1]), "mu": res.mu, "rigid_alpha": alpha_rb,
+        "norm_b": float(np.linalg.norm(b)), "gradient_norms": res.gradient_norms,
+        "constraint_norms": res.constraint_norms,
+        "local_jump": float(np.linalg.norm(solver.B_loc @ u_W)),
+        "equality_defect": Gx, "setup_seconds": setup, "qp_seconds": res.seconds,
+        "lambda": lam_bal,
+    }
+    return ContactSolution(u=u, lam=lam_c, active=active, converged=bool(res.converged), reason=res.reason,
+                           outer_iterations=res.outer_iterations, inner_iterations=list(res.inner_iterations),
+                           seconds=seconds,
+                           n_factorizations=solver.n_factorizations if new_factorizations else 0,
+                           extra=extra)
+
+
+def _failure(problem: ContactProblem, t0: float, reason: str) -> ContactSolution:
+    """Non-converged result with zero iterates (data that (6.17) cannot handle)."""
+    log.warning("SMALBE dual (3.1) not run: %s", reason)
+    return ContactSolution(u=np.zeros(problem.ndof), lam=np.zeros(problem.n_contact),
+                           active=np.zeros(problem.n_contact, dtype=bool), converged=False, reason=reason,
+                           seconds=time.perf_counter() - t0)
