@@ -154,6 +154,12 @@ class PrimalConstrainedSolver:
         self.coarse = spla.splu(self.S_PiPi, permc_spec="MMD_AT_PLUS_A") if self.n_primal else None
         self.n_factorizations = self.rr.n_new_factorizations + (1 if self.n_primal else 0)
         self._entry_cols = self.coarse_cols[sub.sub_of_W] if p_max else np.zeros((sub.n_W, 0), dtype=int)
+        # Psi as one sparse (n_W, n_primal) matrix: column c of entry e goes to its coarse dof
+        ok = self._entry_cols >= 0
+        rows = np.broadcast_to(np.arange(sub.n_W)[:, None], ok.shape)[ok]
+        self._Psi_global = sp.csr_matrix((self.Psi[ok], (rows, self._entry_cols[ok])),
+                                         shape=(sub.n_W, self.n_primal))
+        self._Psi_global_T = self._Psi_global.T.tocsr()
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """x = A~^{-1} b for a W vector b; primal copies of b are summed (assembled).
@@ -166,13 +172,10 @@ class PrimalConstrainedSolver:
         if self.n_primal == 0:
             return x
         b_pi = np.bincount(self.coarse_of_W[self.primal], weights=b[self.primal], minlength=self.n_primal)
-        proj = np.add.reduceat(self.Psi * br[:, None], sub.offsets[:-1], axis=0)   # (n_sub, p_max)
-        ok = self.coarse_cols >= 0
-        b_pi -= np.bincount(self.coarse_cols[ok], weights=proj[ok], minlength=self.n_primal)
+        b_pi -= self._Psi_global_T @ br                 # assembled Psi^T b_r
         b_pi[self.pinned] = 0.0
         u_pi = self.coarse.solve(b_pi)
-        u_cols = np.where(self._entry_cols >= 0, u_pi[np.maximum(self._entry_cols, 0)], 0.0)
-        x -= np.einsum("ij,ij->i", self.Psi, u_cols)
+        x -= self._Psi_global @ u_pi
         x[self.primal] = u_pi[self.coarse_of_W[self.primal]]
         return x
 
