@@ -45,7 +45,8 @@ def test_table_4_config_validates():
     sweeps = config["sweeps"]
     assert sweeps[0]["bodies"] == [2, 4, 6, 8, 10, 12]
     assert sweeps[1]["subdomains"] == list(range(4, 19, 2))
-    assert sweeps[2]["elements"] == [4, 8, 16, 32, 64, 128]
+    assert sweeps[2] == {"bodies": 2, "subdomains": [24, 32, 48], "elements": 2}  # beyond the thesis
+    assert sweeps[3]["elements"] == [4, 8, 16, 32, 64, 128]
 
 
 MULTIBODY = {"study": "m", "problem": "multibody", "methods": ["feti-feti"], "contacts": ["full"],
@@ -175,6 +176,99 @@ def test_plot_multibody_sweep(tmp_path):
     assert (tmp_path / "hyb.png").is_file()
 
 
+def hbhs_runs() -> pd.DataFrame:
+    """Synthetic H_b/H_s sweep from (2, 2, 2): FETI-FETI cond = 2.5 x - 3, iterations = 2 + 4 sqrt(x),
+    hybrid iterations = 10 + 4 log(2 x), both contacts; x = 24 is beyond the thesis's tables."""
+    rows = []
+    for contact in ("full", "middle"):
+        for x in (2, 4, 8, 16, 24):
+            rows.append({"method": "feti-feti", "contact": contact, "bodies": 2, "subdomains": x,
+                         "elements": 2, "cond": 2.5 * x - 3, "iterations": 2 + 4 * math.sqrt(x),
+                         "converged": True})
+            rows.append({"method": "hybrid", "contact": contact, "bodies": 2, "subdomains": x,
+                         "elements": 2, "cond": math.nan, "iterations": 10 + 4 * math.log(2 * x),
+                         "converged": x != 24})
+    rows.append({"method": "hybrid", "contact": "full", "bodies": 4, "subdomains": 4, "elements": 2,
+                 "cond": math.nan, "iterations": 99, "converged": True})  # not on the sweep
+    return pd.DataFrame(rows)
+
+
+def test_fit_sqrt_linear():
+    a, b, r2 = plots.fit_sqrt_linear([1, 4, 9, 16], [5, 7, 9, 11])
+    assert (a, b, r2) == (pytest.approx(3), pytest.approx(2), pytest.approx(1))
+    assert all(math.isnan(v) for v in plots.fit_sqrt_linear([4], [1]))
+    with pytest.raises(ValueError):
+        plots.fit_sqrt_linear([-1, 4], [1, 2])
+
+
+def test_hbhs_growth_laws_ratios_and_crossing():
+    growth = plots.hbhs_growth(hbhs_runs(), base=(2, 2, 2))
+    assert list(growth["case"]) == ["(I)"] * 3 + ["(II)"] * 3
+    g = growth.set_index(["case", "method", "quantity"])
+    cond = g.loc[("(I)", "feti-feti", "cond")]
+    assert (cond["from"], cond["to"]) == (4, 24)
+    assert cond["at_from"] == 7 and cond["at_to"] == 57 and cond["ratio"] == pytest.approx(57 / 7)
+    assert (cond["a"], cond["b"], cond["r2"]) == (pytest.approx(-3), pytest.approx(2.5), pytest.approx(1))
+    it = g.loc[("(II)", "feti-feti", "iterations")]
+    assert (it["a"], it["b"]) == (pytest.approx(2), pytest.approx(4))
+    hyb = g.loc[("(I)", "hybrid", "iterations")]  # the law is in H_b/h = 2 H_b/H_s
+    assert (hyb["a"], hyb["b"], hyb["r2"]) == (pytest.approx(10), pytest.approx(4), pytest.approx(1))
+    # 2 + 4 sqrt(x) = 10 + 4 log(2x) at x ~ 36.4 (found numerically)
+    x = hyb["crossing"]
+    assert 2 + 4 * math.sqrt(x) == pytest.approx(10 + 4 * math.log(2 * x), abs=1e-3)
+    assert math.isnan(cond["crossing"])
+    # without FETI-FETI runs: hybrid rows only, no crossing; a missing start falls back to the smallest
+    only = plots.hbhs_growth(hbhs_runs().query("method == 'hybrid'"), base=(2, 2, 2), contacts=["full"],
+                             start=3, end=16)
+    assert len(only) == 1 and (only.at[0, "from"], only.at[0, "to"]) == (2, 16)
+    assert math.isnan(only.at[0, "crossing"])
+    text = tables.to_markdown(tables.growth_table(growth))
+    assert "4 → 24" in text and "7.00 → 57.00" in text and "a + b·√(H_b/H_s)" in text
+    assert "a + b·log(H_b/h)" in text and f"{x:.0f}" in text and "×8.14" in text
+
+
+def test_hbhs_sweep_table_marks_rows_beyond_the_thesis():
+    df = hbhs_runs()
+    thesis = {"feti-feti": THESIS_4_1, "hybrid": THESIS_4_2}
+    table = tables.hbhs_sweep_table(df, thesis, base=(2, 2, 2))
+    assert list(table.index) == [2, 4, 8, 16, 24] and table.index.name == "H_b/H_s"
+    assert list(table.columns[:6]) == [("(I) FETI-FETI", q) for q in
+                                       ("cond", "cond_thesis", "iterations", "iterations_thesis")] + [
+        ("(I) hybrid", "iterations"), ("(I) hybrid", "iterations_thesis")]
+    assert table.at[4, ("(II) FETI-FETI", "cond_thesis")] == 4.9790
+    assert table.at[4, ("(I) hybrid", "iterations_thesis")] == 10
+    text = tables.to_markdown(table)
+    assert "(I) FETI-FETI cond thesis" in text and "(II) hybrid iter" in text
+    assert "57.0000†" in text and "† beyond the thesis's table" in text
+    assert "8* |" not in text and "*†" in text and "* not converged" in text  # 24: both marks
+    assert "\\multicolumn{4}{c}{(I) FETI-FETI}" in tables.to_latex(table)
+    assert tables.hbhs_sweep_table(df[df.method == "none"], thesis, base=(2, 2, 2)).empty
+
+
+def test_mark_beyond_thesis_on_table_4_layout():
+    table = tables.multibody_table(runs(), THESIS_4_1, method="feti-feti")
+    assert tables.mark_beyond_thesis(table) == [(2, 2, 256)]
+    text = tables.to_markdown(table)
+    assert " 40*† |" in text and "30.0000† |" in text and "† beyond the thesis's table" in text
+    assert tables.mark_beyond_thesis(tables.multibody_table(runs(), None, method="feti-feti")) == []
+
+
+def test_plot_iterations_vs_HbHs(tmp_path):
+    out = tmp_path / "growth.png"
+    fits = plots.plot_iterations_vs_HbHs(hbhs_runs(), {"feti-feti": THESIS_4_1, "hybrid": THESIS_4_2},
+                                         out, base=(2, 2, 2))
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert set(fits) == {(c, m) for c in ("(I)", "(II)") for m in ("feti-feti", "hybrid")}
+    (a, b), r2 = fits[("(I)", "feti-feti")]
+    assert (a, b, r2) == (pytest.approx(2), pytest.approx(4), pytest.approx(1))
+    (a, b), _ = fits[("(II)", "hybrid")]
+    assert (a, b) == (pytest.approx(10), pytest.approx(4))
+    # no thesis, one contact, no FETI-FETI runs
+    fits = plots.plot_iterations_vs_HbHs(hbhs_runs().query("method == 'hybrid'"), None,
+                                         tmp_path / "h.png", base=(2, 2, 2), contacts=["middle"])
+    assert set(fits) == {("(II)", "hybrid")} and (tmp_path / "h.png").is_file()
+
+
 # --- the pipeline ----------------------------------------------------------------------------
 
 TINY = """\
@@ -205,16 +299,19 @@ def test_dry_run_table_4(workdir):
     (workdir / "thesis.yaml").write_text(f"thesis_tables: {thesis_dir()}\n")
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "thesis.yaml")
     text = proc.stdout + proc.stderr
-    assert planned(proc)["solve_case"] == 20 * 2 * 2
+    assert planned(proc)["solve_case"] == 23 * 2 * 2
     assert "results/table_4/feti-feti/middle/Nb2_Ns18_m2.h5" in text
     assert "results/table_4/hybrid/full/Nb12_Ns2_m2.h5" in text
+    assert "results/table_4/hybrid/middle/Nb2_Ns48_m2.h5" in text  # beyond the thesis's table
     assert "reports/table_4/table_4_2.md" in text and "reports/table_4/figure_hybrid_iterations.png" in text
+    assert "reports/table_4/table_4_growth.md" in text and "figure_iterations_vs_HbHs.png" in text
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "thesis.yaml",
                      "--config", "methods=[feti-feti]")
     text = proc.stdout + proc.stderr
-    assert planned(proc)["solve_case"] == 40
+    assert planned(proc)["solve_case"] == 46
     assert "table_4_1.md" in text and "figure_4_3.png" in text
     assert "table_4_2" not in text and "figure_hybrid_iterations" not in text
+    assert "table_4_growth" not in text and "figure_iterations_vs_HbHs" not in text
 
 
 @pytest.mark.skipif(not (thesis_dir() / "table_4_1.csv").is_file(), reason="thesis transcriptions not found")
@@ -243,6 +340,54 @@ def test_tiny_multibody_study_end_to_end(workdir):
     (workdir / "rtol.yaml").write_text("rtol: 1.0e-8\n")
     rerun = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "tiny.yaml", "rtol.yaml"))
     assert rerun["solve_case"] == 2
+
+
+def run_script(name: str, **attrs) -> None:
+    """Run a workflow script in-process with a stand-in ``snakemake`` object (fast; the rule
+    wiring is checked by the dry runs). The scripts redirect stdout/stderr to their log."""
+    import sys
+    from types import SimpleNamespace
+
+    sm = SimpleNamespace(**{k: SimpleNamespace(**v) if isinstance(v, dict) else v for k, v in attrs.items()})
+    path = ROOT / "workflows" / "scripts" / name
+    stdout, stderr = sys.stdout, sys.stderr
+    try:
+        exec(compile(path.read_text(), str(path), "exec"), {"snakemake": sm, "__name__": "__main__"})
+    finally:
+        sys.stdout, sys.stderr = stdout, stderr
+
+
+def test_scripts_render_reports_beyond_the_thesis(tmp_path):
+    summary = tmp_path / "summary.csv"
+    hbhs_runs().to_csv(summary, index=False)
+    thesis = []
+    for name, frame in (("table_4_1", THESIS_4_1), ("table_4_2", THESIS_4_2)):
+        thesis.append(str(tmp_path / f"{name}.csv"))
+        frame.to_csv(thesis[-1], index=False)
+    common = {"wildcards": {"study": "s"}, "input": {"summary": str(summary), "thesis": thesis}}
+    growth = {"method": "hybrid", "kind": "growth", "start": 4, "title": "Beyond"}
+    out = {"md": str(tmp_path / "g.md"), "tex": str(tmp_path / "g.tex")}
+    run_script("make_table_4.py", **common, output=out, log=[str(tmp_path / "g.log")],
+               params={"table": growth, "contacts": ["full", "middle"], "cases": [], "base": [2, 2, 2]})
+    text = Path(out["md"]).read_text()
+    assert text.startswith("# Beyond (study `s`)") and "Rows marked † (8, 16, 24)" in text
+    assert "## Growth in H_b/H_s" in text and "4 → 24" in text and "(II) hybrid iter thesis" in text
+    assert "\\multicolumn{4}{c}{(II) FETI-FETI}" in Path(out["tex"]).read_text()
+
+    table_4_2 = {"method": "hybrid", "quantities": ["iterations"], "title": "Table 4.2"}
+    run_script("make_table_4.py", **{**common, "input": {"summary": str(summary), "thesis": thesis[1]}},
+               output=out, log=[str(tmp_path / "t.log")],
+               params={"table": table_4_2, "contacts": ["full"], "cases": [[2, 2, 2]], "base": [2, 2, 2]})
+    text = Path(out["md"]).read_text()
+    assert "Rows marked † ((2, 8, 2); (2, 16, 2); (2, 24, 2); (4, 4, 2)) go beyond" in text
+    assert "99.0000† |" in text and "25.4848*† |" in text and "value). " not in text
+
+    figure = {"method": "hybrid", "kind": "growth", "title": "Iterations"}
+    png = tmp_path / "f.png"
+    run_script("plot_figure_4.py", **common, output=[str(png)], log=[str(tmp_path / "f.log")],
+               params={"figure": figure, "contacts": ["full", "middle"], "base": [2, 2, 2]})
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert "(II) hybrid: a, b = (10.0, 4.0) R2=1.0000" in (tmp_path / "f.log").read_text()
 
 
 def test_poisson_study_with_several_bodies_is_rejected(workdir):

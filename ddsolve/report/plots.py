@@ -17,6 +17,12 @@ markers with a dotted one, using one of the :data:`FIT_MODELS`: ``linear``
 :func:`fit_log_squared_affine`). :func:`multibody_sweep` and
 :func:`thesis_sweep` pick such series from the runs and from a thesis
 transcription; :func:`plot_multibody_sweep` does both.
+:func:`plot_iterations_vs_HbHs` puts both methods' iterations against H_b/H_s
+on one figure (per contact case) with the laws the theory suggests: FETI-FETI
+a + b sqrt(H_b/H_s) (its condition number grows linearly in H_b/H_s, so CG needs
+O(sqrt(cond)) steps) and the hybrid method a + b log(H_b/h) (the log(H_b/h)
+factor of Theorem 4.3.6 with H_s/h fixed); :func:`hbhs_growth` gives the same
+fits and the growth between two H_b/H_s values as a table.
 
 Uses the non-interactive Agg backend.
 """
@@ -164,6 +170,24 @@ def fit_log_linear(x, y) -> tuple[float, float, float]:
     return intercept, slope, r2
 
 
+def fit_sqrt_linear(x, y) -> tuple[float, float, float]:
+    """Least-squares fit of ``y ~ a + b sqrt(x)``.
+
+    CG iterations for a condition number growing linearly in x grow like
+    sqrt(x) (the FETI-FETI iterations against H_b/H_s).
+
+    Returns
+    -------
+    (a, b, r2) : tuple of float
+        NaN with fewer than two distinct x values.
+    """
+    x, y = _finite_pairs(x, y)
+    if np.any(x < 0):
+        raise ValueError("x must be non-negative")
+    slope, intercept, r2 = fit_linear(np.sqrt(x), y)
+    return intercept, slope, r2
+
+
 def _fit_linear_model(x, y):
     slope, intercept, r2 = fit_linear(x, y)
     return (slope, intercept), r2
@@ -171,6 +195,11 @@ def _fit_linear_model(x, y):
 
 def _fit_log_linear_model(x, y):
     a, b, r2 = fit_log_linear(x, y)
+    return (a, b), r2
+
+
+def _fit_sqrt_linear_model(x, y):
+    a, b, r2 = fit_sqrt_linear(x, y)
     return (a, b), r2
 
 
@@ -188,6 +217,9 @@ FIT_MODELS: dict[str, tuple[Callable, Callable, Callable]] = {
     "log_linear": (_fit_log_linear_model,
                    lambda p, x: p[0] + p[1] * np.log(np.asarray(x, dtype=float)),
                    lambda p: f"{_fmt(p[0], '.3g')} {_signed(p[1])} log x"),
+    "sqrt_linear": (_fit_sqrt_linear_model,
+                    lambda p, x: p[0] + p[1] * np.sqrt(np.asarray(x, dtype=float)),
+                    lambda p: f"{_fmt(p[0], '.3g')} {_signed(p[1])} √x"),
     "log_squared_affine": (_fit_log_squared_affine_model,
                            lambda p, x: p[0] + p[1] * log_squared(x),
                            lambda p: f"$C_1$={_fmt(p[0], '.3g')}, $C_2$={_fmt(p[1], '.3g')}"),
@@ -196,6 +228,7 @@ FIT_MODELS: dict[str, tuple[Callable, Callable, Callable]] = {
 FIT_FORMULAS: dict[str, str] = {
     "linear": "fit a x + b",
     "log_linear": "fit a + b log x",
+    "sqrt_linear": "fit a + b √x",
     "log_squared_affine": "fit $C_1 + C_2 (1 + \\log x)^2$",
 }
 
@@ -357,6 +390,184 @@ def plot_multibody_sweep(df: pd.DataFrame, thesis: pd.DataFrame | None, path: st
     full_title = f"{title}\n({fixed})" if title else f"{METHOD_LABELS.get(method, method)} ({fixed})"
     return plot_sweep_fits(series, path, model=model, reference=reference,
                            xlabel=math_label(x), ylabel=ylabel, title=full_title, logx=logx)
+
+
+#: The laws of :func:`plot_iterations_vs_HbHs` / :func:`hbhs_growth`: (method, quantity) ->
+#: (model, variable, legend text). The variable is H_b/H_s (``"x"``) or H_b/h = H_b/H_s * H_s/h
+#: (``"Hb_over_h"``).
+HBHS_LAWS: dict[tuple[str, str], tuple[str, str, str]] = {
+    ("feti-feti", "cond"): ("linear", "x", "a + b·(H_b/H_s)"),
+    ("feti-feti", "iterations"): ("sqrt_linear", "x", "a + b·√(H_b/H_s)"),
+    ("hybrid", "iterations"): ("log_linear", "Hb_over_h", "a + b·log(H_b/h)"),
+}
+
+
+def _law_fit(model: str, variable: str, x, y, elements: int):
+    """Fit one :data:`HBHS_LAWS` law: ``(a, b), r2`` of y ~ a + b g(v), v = x or x * elements."""
+    v = np.asarray(x, dtype=float) * (elements if variable == "Hb_over_h" else 1)
+    if model == "linear":
+        (slope, intercept), r2 = _fit_linear_model(v, y)
+        return (intercept, slope), r2
+    return FIT_MODELS[model][0](v, y)
+
+
+def _law_curve(model: str, variable: str, params, x, elements: int) -> np.ndarray:
+    v = np.asarray(x, dtype=float) * (elements if variable == "Hb_over_h" else 1)
+    g = {"linear": v, "sqrt_linear": np.sqrt(v), "log_linear": np.log(v)}[model]
+    return params[0] + params[1] * g
+
+
+def _crossing(feti: tuple, hybrid: tuple, elements: int, lo: float, hi: float = 1e6) -> float:
+    """Smallest x in [lo, hi] where the fitted FETI-FETI iterations reach the hybrid's (NaN: none)."""
+    xs = np.geomspace(lo, hi, 4001)
+    diff = (_law_curve("sqrt_linear", "x", feti, xs, elements)
+            - _law_curve("log_linear", "Hb_over_h", hybrid, xs, elements))
+    above = np.flatnonzero(diff >= 0)
+    if above.size == 0:
+        return math.nan
+    i = int(above[0])
+    if i == 0:
+        return float(xs[0])
+    x0, x1, d0, d1 = xs[i - 1], xs[i], diff[i - 1], diff[i]
+    return float(x0 + (x1 - x0) * (-d0) / (d1 - d0))
+
+
+def hbhs_growth(df: pd.DataFrame, *, base: Sequence[int], contacts: Sequence[str] = ("full", "middle"),
+                start: int = 4, end: int | None = None) -> pd.DataFrame:
+    """Growth in H_b/H_s of FETI-FETI's cond and iterations and the hybrid's iterations.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Aggregated runs (method, contact, bodies, subdomains, elements, cond, iterations).
+    base : (bodies, subdomains, elements)
+        The sweep varies H_b/H_s (``subdomains``) with 1/H_b and H_s/h fixed at ``base``.
+    start, end : int
+        The H_b/H_s values compared (default end: the largest run); a missing
+        ``start`` falls back to the smallest run.
+
+    Returns
+    -------
+    DataFrame
+        One row per (contact case, method, quantity) of :data:`HBHS_LAWS` with runs:
+        ``case``, ``method``, ``quantity``, ``from``, ``to`` (the H_b/H_s values),
+        ``at_from``, ``at_to``, ``ratio`` = at_to / at_from, ``law`` (the fitted
+        law), ``a``, ``b``, ``r2`` (least squares over the whole sweep) and
+        ``crossing``: on the hybrid rows, the H_b/H_s where the fitted FETI-FETI
+        iterations reach the fitted hybrid iterations (NaN if beyond 1e6 or
+        no FETI-FETI runs).
+    """
+    elements = int(base[2])
+    rows = []
+    for contact in contacts:
+        case = f"({CONTACT_CASES[contact]})"
+        fitted = {}
+        for (method, quantity), (model, variable, law) in HBHS_LAWS.items():
+            series = multibody_sweep(df, method=method, x="subdomains", y=quantity, base=base,
+                                     contacts=[contact]).get(case)
+            if series is None:
+                continue
+            x, y = _finite_pairs(*series)
+            if x.size == 0:
+                continue
+            lo = float(start) if start in x else float(x.min())
+            hi = float(end) if end is not None and end in x else float(x.max())
+            params, r2 = _law_fit(model, variable, x, y, elements)
+            fitted[method, quantity] = params
+            at_from, at_to = float(y[x == lo][0]), float(y[x == hi][0])
+            rows.append({"case": case, "method": method, "quantity": quantity, "from": int(lo),
+                         "to": int(hi), "at_from": at_from, "at_to": at_to,
+                         "ratio": at_to / at_from if at_from else math.nan, "law": law,
+                         "a": params[0], "b": params[1], "r2": r2, "crossing": math.nan})
+        pair = (fitted.get(("feti-feti", "iterations")), fitted.get(("hybrid", "iterations")))
+        if all(p is not None and all(math.isfinite(v) for v in p) for p in pair):
+            lo = min(r["from"] for r in rows if r["case"] == case)
+            rows[-1]["crossing"] = _crossing(pair[0], pair[1], elements, lo)
+    columns = ["case", "method", "quantity", "from", "to", "at_from", "at_to", "ratio", "law",
+               "a", "b", "r2", "crossing"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None] | None = None,
+                            path: str | os.PathLike | None = None, *, base: Sequence[int],
+                            contacts: Sequence[str] = ("full", "middle"), title: str | None = None) -> dict:
+    """FETI-FETI and hybrid iterations against H_b/H_s, one panel per contact case.
+
+    Our iterations are filled markers with the fitted law of :data:`HBHS_LAWS`
+    (dashed; FETI-FETI a + b sqrt(H_b/H_s), hybrid a + b log(H_b/h) with
+    H_b/h = H_b/H_s * H_s/h); the thesis's (``theses = {"feti-feti": table 4.1,
+    "hybrid": table 4.2}``) are open markers. A dotted vertical line marks the
+    largest H_b/H_s of the thesis's tables: points to its right are ours only.
+
+    Returns
+    -------
+    dict
+        ``{(case, method): ((a, b), r2)}`` of our fits.
+    """
+    theses = dict(theses or {})
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    styles = {"feti-feti": (colors[0], "o"), "hybrid": (colors[1], "s")}
+    elements = int(base[2])
+    fig, axes = plt.subplots(1, max(len(contacts), 1), figsize=(6.0 * max(len(contacts), 1), 4.8),
+                             sharey=True, squeeze=False)
+    fits: dict[tuple[str, str], tuple[tuple[float, float], float]] = {}
+    for ax, contact in zip(axes[0], contacts):
+        case = f"({CONTACT_CASES[contact]})"
+        xticks: set[float] = set()
+        thesis_max = math.nan
+        for method in ("feti-feti", "hybrid"):
+            model, variable, law = HBHS_LAWS[(method, "iterations")]
+            color, marker = styles[method]
+            name = METHOD_LABELS.get(method, method)
+            series = multibody_sweep(df, method=method, x="subdomains", y="iterations", base=base,
+                                     contacts=[contact]).get(case)
+            if series is not None:
+                x, y = _finite_pairs(*series)
+                if x.size:
+                    xticks.update(x.tolist())
+                    params, r2 = _law_fit(model, variable, x, y, elements)
+                    fits[(case, method)] = (params, r2)
+                    text = (f"{name} ours: {law}, a={_fmt(params[0], '.3g')}, b={_fmt(params[1], '.3g')}, "
+                            f"$R^2$={_fmt(r2, '.3f')}")
+                    ax.plot(x, y, linestyle="none", marker=marker, color=color, label=text)
+                    if all(math.isfinite(v) for v in params) and x.max() > x.min():
+                        xs = np.linspace(x.min(), x.max(), 300)
+                        ax.plot(xs, _law_curve(model, variable, params, xs, elements), linestyle="--",
+                                color=color, linewidth=1)
+            thesis = theses.get(method)
+            if thesis is not None:
+                ref = thesis_sweep(thesis, x="subdomains", y="iterations", base=base,
+                                   contacts=[contact]).get(case)
+                if ref is not None:
+                    x, y = _finite_pairs(*ref)
+                    if x.size:
+                        xticks.update(x.tolist())
+                        thesis_max = float(np.nanmax([thesis_max, x.max()]))
+                        ax.plot(x, y, linestyle="none", marker=marker, color=color, markerfacecolor="none",
+                                markersize=8, label=f"{name} thesis (Table {'4.1' if method == 'feti-feti' else '4.2'})")
+        if math.isfinite(thesis_max) and xticks and max(xticks) > thesis_max:
+            ax.axvline(thesis_max, color="0.5", linestyle=":", linewidth=1)
+            ax.text(thesis_max, 0.02, " end of the thesis's table →", transform=ax.get_xaxis_transform(),
+                    fontsize="x-small", color="0.4", va="bottom")
+        ticks = sorted(xticks)
+        if ticks:
+            ax.set_xticks(ticks)
+            ax.set_xticklabels([_plain_number(t) if t in (2, 4, 8, 12, 16, 18) or t > 18 else ""
+                                for t in ticks])
+        ax.set_title(f"case {case}: {'whole interface' if contact == 'full' else 'middle third'}")
+        ax.set_xlabel("$H_b/H_s$")
+        ax.grid(True, alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize="x-small", loc="upper left")
+        else:
+            ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
+    axes[0][0].set_ylabel("iterations")
+    fixed = f"$1/H_b$ = {int(base[0])}, $H_s/h$ = {elements}, $H_b/h = {elements}\\,H_b/H_s$"
+    fig.suptitle(f"{title}\n({fixed})" if title else f"Iterations against $H_b/H_s$ ({fixed})",
+                 fontsize="medium")
+    fig.tight_layout()
+    _save(fig, path)
+    return fits
 
 
 def _fmt(value: float, spec: str) -> str:

@@ -15,7 +15,10 @@ columns, adding ``<col>_thesis`` and ``<col>_dev`` = (ours - thesis) / |thesis|.
 Multibody studies (problem (4.32)) are shown like Tables 4.1 / 4.2 by
 :func:`multibody_table`: rows (1/H_b, H_b/H_s, H_s/h), one column group per
 contact case ((I) = ``full``, (II) = ``middle``), and beside each of our values
-the thesis's value and the relative deviation.
+the thesis's value and the relative deviation. Rows beyond the thesis's table
+(no thesis value) can be marked with :func:`mark_beyond_thesis`;
+:func:`hbhs_sweep_table` shows both methods along the H_b/H_s sweep and
+:func:`growth_table` renders the fits of :func:`ddsolve.report.plots.hbhs_growth`.
 """
 from __future__ import annotations
 
@@ -324,6 +327,121 @@ def multibody_table(df: pd.DataFrame, thesis: pd.DataFrame | None = None, *, met
     out.attrs["marks"] = [(tuple(key), (f"({col[0]})", col[1]), mark) for key, col, mark in marks]
     out.attrs["notes"] = notes
     return out
+
+
+BEYOND_MARK = "†"
+BEYOND_NOTE = "beyond the thesis's table: no thesis value to compare with"
+
+
+def mark_beyond_thesis(table: pd.DataFrame, mark: str = BEYOND_MARK, note: str = BEYOND_NOTE) -> list:
+    """Mark our values in the rows of a :func:`multibody_table`-like table without any thesis value.
+
+    A row counts as beyond the thesis's table when the table has ``*_thesis``
+    columns and all of them are missing in that row; our value cells (not
+    ``*_thesis`` / ``*_dev``) of such rows get ``mark`` (appended to a mark
+    already there), and ``note`` is added to ``table.attrs["notes"]``. Changes
+    ``table.attrs`` in place.
+
+    Returns
+    -------
+    list
+        The index keys of the marked rows (empty without thesis columns).
+    """
+    thesis_cols = [c for c in table.columns if str(c[-1] if isinstance(c, tuple) else c).endswith("_thesis")]
+    if not thesis_cols:
+        return []
+    ours = [c for c in table.columns
+            if not str(c[-1] if isinstance(c, tuple) else c).endswith(("_thesis", "_dev"))]
+    beyond = table[thesis_cols].isna().all(axis=1)
+    keys = [key for key, flag in zip(table.index, beyond) if flag]
+    marks = {(key, col): m for key, col, m in table.attrs.get("marks", [])}
+    for key in keys:
+        for col in ours:
+            if not _is_missing(table.at[key, col]):
+                marks[(key, col)] = marks.get((key, col), "") + mark
+    table.attrs["marks"] = [(key, col, m) for (key, col), m in marks.items()]
+    if keys:
+        table.attrs["notes"] = {**table.attrs.get("notes", {}), mark: note}
+    return keys
+
+
+def hbhs_sweep_table(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None], *,
+                     base: Sequence[int], contacts: Sequence[str] = ("full", "middle"),
+                     quantities: Mapping[str, Sequence[str]] | None = None) -> pd.DataFrame:
+    """Both methods along the H_b/H_s sweep from ``base``, our values beside the thesis's.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Aggregated runs (see :func:`multibody_table`).
+    theses : mapping
+        ``{method: thesis transcription or None}``, e.g. ``{"feti-feti": table 4.1,
+        "hybrid": table 4.2}``; the methods shown, in this order.
+    base : (bodies, subdomains, elements)
+        1/H_b and H_s/h are fixed at ``base``; all our H_b/H_s values are rows.
+    quantities : mapping, optional
+        ``{method: quantities}``; default cond and iterations for FETI-FETI,
+        iterations otherwise.
+
+    Returns
+    -------
+    DataFrame
+        Index H_b/H_s; columns ``("(I) FETI-FETI", "cond")``, ``(..., "cond_thesis")``,
+        ``("(I) hybrid", "iterations")``, ... (no dev. columns). Rows beyond the
+        thesis's tables are marked by :func:`mark_beyond_thesis`; not converged
+        counts as in :func:`condition_table`.
+    """
+    quantities = dict(quantities or {})
+    data = df[(pd.to_numeric(df["bodies"]) == int(base[0])) & (pd.to_numeric(df["elements"]) == int(base[2]))]
+    parts, marks = [], []
+    for method, thesis in theses.items():
+        qs = list(quantities.get(method, ["cond", "iterations"] if method == "feti-feti" else ["iterations"]))
+        if data[data["method"] == method].empty:
+            continue
+        table = multibody_table(data, thesis, method=method, quantities=qs, contacts=contacts)
+        label = METHOD_LABELS.get(method, method)
+        marks += [(key[1], (f"{col[0]} {label}", col[1]), mark) for key, col, mark in table.attrs["marks"]]
+        table = table[[c for c in table.columns if not c[1].endswith("_dev")]]
+        table.columns = pd.MultiIndex.from_tuples([(f"{case} {label}", q) for case, q in table.columns],
+                                                  names=["case", "quantity"])
+        table.index = pd.Index(table.index.get_level_values("H_b/H_s"), name="H_b/H_s")
+        parts.append(table)
+    if not parts:
+        return pd.DataFrame()
+    out = pd.concat(parts, axis=1)
+    out = out[[c for case in contacts for c in out.columns
+               if c[0].startswith(f"({CONTACT_CASES[case]}) ")]].sort_index()
+    out.attrs = {"marks": marks, "notes": {NOT_CONVERGED_MARK: NOT_CONVERGED_NOTE} if marks else {}}
+    mark_beyond_thesis(out)
+    return out
+
+
+def growth_table(growth: pd.DataFrame) -> pd.DataFrame:
+    """Display frame of :func:`ddsolve.report.plots.hbhs_growth` (render with :func:`to_markdown`).
+
+    Columns: case, method, quantity, the two H_b/H_s values compared with the
+    values there and their ratio, the fitted law and its a, b, R^2 (least
+    squares over the whole sweep), and on the hybrid rows the H_b/H_s where the
+    fitted FETI-FETI iterations reach the fitted hybrid iterations.
+    """
+    rows = []
+    for _, r in growth.iterrows():
+        cond = r["quantity"] == "cond"
+        value = (lambda v: "-" if _is_missing(v) else (f"{v:.2f}" if cond else f"{v:.0f}"))
+        rows.append({
+            "case": r["case"], "method": METHOD_LABELS.get(r["method"], r["method"]),
+            "quantity": QUANTITY_LABELS.get(r["quantity"], r["quantity"]),
+            "H_b/H_s": f"{int(r['from'])} → {int(r['to'])}",
+            "values": f"{value(r['at_from'])} → {value(r['at_to'])}",
+            "ratio": "-" if _is_missing(r["ratio"]) else f"×{r['ratio']:.2f}",
+            "fitted law": r["law"],
+            "a": "-" if _is_missing(r["a"]) else f"{r['a']:.3g}",
+            "b": "-" if _is_missing(r["b"]) else f"{r['b']:.3g}",
+            "R²": "-" if _is_missing(r["r2"]) else f"{r['r2']:.3f}",
+            "fits cross at H_b/H_s": "-" if _is_missing(r["crossing"]) else f"{r['crossing']:.0f}",
+        })
+    return pd.DataFrame(rows, columns=["case", "method", "quantity", "H_b/H_s", "values", "ratio",
+                                       "fitted law", "a", "b", "R²", "fits cross at H_b/H_s"])
 
 
 def describe_constants(df: pd.DataFrame, params: Iterable[str] = DESCRIBED_PARAMS) -> str:

@@ -3,11 +3,30 @@
 # listed in common.smk (TABLES_4, FIGURES_4); rule all asks for those whose method is
 # in the config (report_files), so a study without hybrid runs has no table 4.2.
 
+# Reports beyond the thesis's tables: both methods along the H_b/H_s sweep (the thesis
+# stops at 18; config/table_4.yaml goes on to 48), with the growth of FETI-FETI's cond
+# and iterations and of the hybrid iterations and the fitted laws (kind "growth").
+# Registered here, before the rules, so that rule all (report_files) asks for them and
+# the rules' wildcard constraints include them; "method" gates them on hybrid runs,
+# "thesis" names the transcriptions read (table 4.1 for FETI-FETI, 4.2 for the hybrid).
+TABLES_4["table_4_growth"] = {
+    "method": "hybrid", "kind": "growth", "start": 4, "thesis": ["table_4_1", "table_4_2"],
+    "title": "Beyond Tables 4.1/4.2: FETI-FETI and hybrid along H_b/H_s, growth and fitted laws"}
+FIGURES_4["figure_iterations_vs_HbHs"] = {
+    "method": "hybrid", "kind": "growth", "thesis": ["table_4_1", "table_4_2"],
+    "title": "FETI-FETI (PCG) and hybrid (PCR) iterations against $H_b/H_s$"}
+
+
+def thesis_inputs(entry, default):
+    """The thesis transcriptions of a TABLES_4 / FIGURES_4 entry ("thesis": a name or a list)."""
+    names = entry.get("thesis", default)
+    return [thesis_table(name) for name in ([names] if isinstance(names, str) else names)]
+
 
 rule table_4:
     input:
         summary="results/{study}/summary.csv",
-        thesis=lambda wc: thesis_table(wc.table),
+        thesis=lambda wc: thesis_inputs(TABLES_4[wc.table], wc.table),
     output:
         md="reports/{study}/{table}.md",
         tex="reports/{study}/{table}.tex",
@@ -17,6 +36,7 @@ rule table_4:
         table=lambda wc: TABLES_4[wc.table],
         contacts=CONTACTS,
         cases=[list(case) for case in CASES],
+        base=list(CASES[0]),
     log:
         "logs/{study}/{table}.log",
     script:
@@ -26,7 +46,7 @@ rule table_4:
 rule figure_4:
     input:
         summary="results/{study}/summary.csv",
-        thesis=lambda wc: thesis_table(FIGURES_4[wc.figure]["thesis"]),
+        thesis=lambda wc: thesis_inputs(FIGURES_4[wc.figure], None),
     output:
         "reports/{study}/{figure}.png",
     wildcard_constraints:

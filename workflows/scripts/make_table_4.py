@@ -1,8 +1,9 @@
-"""Snakemake script of rule table_4: summary CSV + thesis transcription -> <table>.md and .tex.
+"""Snakemake script of rule table_4: summary CSV + thesis transcriptions -> <table>.md and .tex.
 
-Inputs from Snakemake: input.summary, input.thesis, output.md, output.tex,
-params.table (TABLES_4 entry: method, quantities, title), params.contacts,
-params.cases (row order), log[0].
+Inputs from Snakemake: input.summary, input.thesis (one path or a list), output.md,
+output.tex, params.table (TABLES_4 entry: method, quantities, title; kind "growth"
+for the H_b/H_s growth table beyond the thesis, with thesis = [table 4.1, table 4.2]),
+params.contacts, params.cases (row order), params.base (the base case), log[0].
 """
 import sys
 from pathlib import Path
@@ -11,24 +12,66 @@ with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stdout = sys.stderr = log
     import pandas as pd
 
-    from ddsolve.report.tables import describe_constants, multibody_table, to_latex, to_markdown
+    from ddsolve.report.plots import hbhs_growth
+    from ddsolve.report.tables import (describe_constants, growth_table,
+                                       hbhs_sweep_table, mark_beyond_thesis, multibody_table, to_latex,
+                                       to_markdown)
 
     sm = snakemake  # noqa: F821
     spec = sm.params.table
     df = pd.read_csv(sm.input.summary)
-    thesis = pd.read_csv(sm.input.thesis)
-    table = multibody_table(df, thesis, method=spec["method"], quantities=spec["quantities"],
-                            contacts=sm.params.contacts, order=sm.params.cases)
-    runs = df[df["method"] == spec["method"]]
-    heading = (
-        f"# {spec['title']} (study `{sm.wildcards.study}`)\n\n"
+    thesis_paths = [sm.input.thesis] if isinstance(sm.input.thesis, str) else list(sm.input.thesis)
+    theses = [pd.read_csv(path) for path in thesis_paths]
+    names = ", ".join(Path(path).name for path in thesis_paths)
+    legend = (
         "Problem (4.32): 1/H_b bodies per side, H_b/H_s subdomains per body side, H_s/h "
         "elements per subdomain side. Contact (I): continuity on the whole interface between "
         "bodies; (II): only on the middle third of each face between two bodies (cross points "
         "of bodies meeting at a corner inactive). cond: Lanczos estimate of the condition number; "
         "iter: Krylov iterations (stopping rule ||r_n||_2/||r_0||_2 < rtol); thesis: the value "
-        f"printed in the thesis ({Path(sm.input.thesis).name}); dev.: (ours - thesis)/|thesis|. "
-        f"{describe_constants(runs)}.\n\n")
-    Path(sm.output.md).write_text(heading + to_markdown(table))
-    Path(sm.output.tex).write_text(to_latex(table))
-    print(to_markdown(table))
+        f"printed in the thesis ({names})")
+
+    def constants(runs):
+        text = describe_constants(runs)
+        return f" {text}." if text else ""
+
+    if spec.get("kind") == "growth":
+        base = [int(v) for v in sm.params.base]
+        runs = df[df["method"].isin(["feti-feti", "hybrid"])]
+        table = hbhs_sweep_table(df, dict(zip(["feti-feti", "hybrid"], theses)), base=base,
+                                 contacts=sm.params.contacts)
+        growth = hbhs_growth(df, base=base, contacts=sm.params.contacts, start=int(spec.get("start", 4)))
+        shown = growth_table(growth)
+        beyond = [int(k) for k in table.index
+                  if all(pd.isna(table.at[k, c]) for c in table.columns if c[1].endswith("_thesis"))]
+        heading = (
+            f"# {spec['title']} (study `{sm.wildcards.study}`)\n\n"
+            f"H_b/H_s varies with 1/H_b = {base[0]} and H_s/h = {base[2]} fixed (H_b/h = "
+            f"{base[2]} H_b/H_s). {legend}. Rows marked † ({', '.join(map(str, beyond)) or 'none'}) "
+            f"go beyond the thesis's tables.{constants(runs)}\n\n")
+        fits = (
+            "\n## Growth in H_b/H_s\n\n"
+            "values: ours at the two H_b/H_s values, ratio: their quotient. Fitted laws (least "
+            "squares over the whole H_b/H_s sweep, natural log): FETI-FETI cond a + b H_b/H_s "
+            "(linear, as Figure 4.2), FETI-FETI iterations a + b sqrt(H_b/H_s) (CG needs "
+            "O(sqrt(cond)) steps), hybrid iterations a + b log(H_b/h) (the log(H_b/h) factor of "
+            "Theorem 4.3.6 with H_s/h fixed). fits cross at: the H_b/H_s where the fitted "
+            "FETI-FETI iterations reach the fitted hybrid iterations (extrapolated beyond the "
+            "largest run).\n\n")
+        Path(sm.output.md).write_text(heading + to_markdown(table) + fits + to_markdown(shown))
+        Path(sm.output.tex).write_text(to_latex(table) + "\n" + to_latex(shown))
+        print(to_markdown(table) + fits + to_markdown(shown))
+    else:
+        table = multibody_table(df, theses[0], method=spec["method"], quantities=spec["quantities"],
+                                contacts=sm.params.contacts, order=sm.params.cases)
+        beyond = mark_beyond_thesis(table)
+        rows = "; ".join("(" + ", ".join(str(v) for v in key) + ")" for key in beyond)
+        extra = (f" Rows marked † ({rows}) go beyond the thesis's table (no thesis value)."
+                 if beyond else "")
+        runs = df[df["method"] == spec["method"]]
+        heading = (
+            f"# {spec['title']} (study `{sm.wildcards.study}`)\n\n"
+            f"{legend}; dev.: (ours - thesis)/|thesis|.{extra}{constants(runs)}\n\n")
+        Path(sm.output.md).write_text(heading + to_markdown(table))
+        Path(sm.output.tex).write_text(to_latex(table))
+        print(to_markdown(table))
