@@ -6,14 +6,16 @@ scalar result keys (:data:`ddsolve.result.SCALAR_KEYS`), method-specific
 extras in order of first appearance, and ``file`` (the path each row was read
 from). In the CSV written by :func:`write_table`, list-valued cells (e.g.
 ``inner_iterations``) are space-separated integers, ``"16 16"``, like the
-thesis transcriptions in ``tables/*.csv``; missing values are empty cells.
+thesis transcriptions in ``config/thesis_tables/*.csv``; missing values are
+empty cells. :func:`parse_list` turns such a cell back into a list.
 """
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable
 
+import numpy as np
 import pandas as pd
 
 from .hdf5 import atomic_target, read_result
@@ -68,5 +70,37 @@ def write_table(df: pd.DataFrame, path: str | os.PathLike) -> Path:
 
 
 def read_table(path: str | os.PathLike) -> pd.DataFrame:
-    """Read a table written by :func:`write_table` (list cells stay strings)."""
+    """Read a table written by :func:`write_table` (list cells stay strings, see :func:`parse_list`)."""
     return pd.read_csv(path)
+
+
+def parse_list(cell: Any) -> list[int | float]:
+    """A list cell of the summary CSV (or of a thesis transcription) as a list of numbers.
+
+    Parameters
+    ----------
+    cell : str, number, list or missing
+        ``"16 16"`` (the CSV form of a list-valued extra such as
+        ``inner_iterations``), a single number (pandas reads a one-element list
+        ``"25"`` as 25), a list (as returned by :func:`collect`), or a missing
+        value (empty cell, NaN, None).
+
+    Returns
+    -------
+    list of int or float
+        Integers where the values are integral, else floats; ``[]`` for a
+        missing value or an empty string.
+    """
+    if isinstance(cell, str):
+        items: list[Any] = cell.split()
+    elif isinstance(cell, (list, tuple, np.ndarray)):
+        items = list(cell)
+    elif cell is None or pd.isna(cell):
+        return []
+    else:
+        items = [cell]
+    out: list[int | float] = []
+    for item in items:
+        value = float(item)
+        out.append(int(value) if value.is_integer() else value)
+    return out

@@ -7,6 +7,7 @@ import re
 
 STUDY = config["study"]
 MULTIBODY = config.get("problem", "poisson") == "multibody"
+CONTACT = config.get("problem", "poisson") == "contact"
 
 #: Config keys shared by every case, passed unchanged to ddsolve.spec.ProblemSpec
 #: (a multibody case overrides `bodies` with its own value and adds `contact`).
@@ -38,7 +39,9 @@ def study_cases():
                                  _as_list(sweep["subdomains"]), _as_list(sweep["elements"]))
         cases.update(dict.fromkeys(tuple(int(v) for v in case) for case in grid))
     cases = list(cases)
-    if not MULTIBODY and any(b != 1 for b, _, _ in cases):
+    if CONTACT:  # two membranes, not a grid axis (the case paths have no bodies)
+        cases = list(dict.fromkeys((1, s, m) for _, s, m in cases))
+    elif not MULTIBODY and any(b != 1 for b, _, _ in cases):
         raise ValueError("config: problem 'poisson' has exactly one body; set problem: multibody "
                          "to sweep over bodies")
     return cases
@@ -65,7 +68,7 @@ def case_spec(wildcards):
     if MULTIBODY:
         spec.update(bodies=int(wildcards.bodies), contact=wildcards.contact)
     else:
-        spec["bodies"] = 1
+        spec["bodies"] = 2 if CONTACT else 1   # contact: the two membranes of (3.1)
     return spec
 
 
@@ -109,6 +112,8 @@ def thesis_table(name):
 
 def report_files():
     """The reports of the configured study (targets of rule all)."""
+    if CONTACT:
+        return contact_report_files()  # workflows/rules/contact.smk
     if not MULTIBODY:
         return [f"reports/{STUDY}/table.md", f"reports/{STUDY}/table.tex",
                 f"reports/{STUDY}/cond_vs_Hh.png"]

@@ -1,0 +1,22 @@
+"""Snakemake script of rule contact_comparison: summary CSV -> comparison.md, .tex and .png.
+
+Inputs from Snakemake: input.summary, input.table_5_1, input.table_6_1 (thesis
+transcriptions), output.md, output.tex, output.png, log[0].
+"""
+import sys
+from pathlib import Path
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stdout = sys.stderr = log
+    import pandas as pd
+
+    from ddsolve.report.contact_plots import plot_method_comparison
+    from ddsolve.report.contact_tables import render_comparison
+
+    sm = snakemake  # noqa: F821
+    theses = {"active-set": pd.read_csv(sm.input.table_5_1), "smalbe": pd.read_csv(sm.input.table_6_1)}
+    md, tex, table, caption = render_comparison(pd.read_csv(sm.input.summary), theses)
+    Path(sm.output.md).write_text(md)
+    Path(sm.output.tex).write_text(tex)
+    plot_method_comparison(table, sm.output.png, caption=caption)
+    print(md)

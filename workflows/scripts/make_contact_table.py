@@ -1,0 +1,20 @@
+"""Snakemake script of rule contact_table: summary CSV + thesis transcription -> <table>.md and .tex.
+
+Inputs from Snakemake: input.summary, input.thesis, output.md, output.tex,
+wildcards.table (table_5_1 or table_6_1), log[0].
+"""
+import sys
+from pathlib import Path
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stdout = sys.stderr = log
+    import pandas as pd
+
+    from ddsolve.report.contact_tables import render_contact_table
+
+    sm = snakemake  # noqa: F821
+    md, tex = render_contact_table(pd.read_csv(sm.input.summary), pd.read_csv(sm.input.thesis),
+                                   sm.wildcards.table)
+    Path(sm.output.md).write_text(md)
+    Path(sm.output.tex).write_text(tex)
+    print(md)
