@@ -18,6 +18,9 @@ from .structured import body_grid
 #: Load patches of the semicoercive benchmark of Dostal et al. (the thesis's
 #: references [15, 16]): f = F1 on (0, 1) x [0.75, 1), f = F2 on (1, 2) x (0, 0.25).
 DOSTAL_LOADS = (-3.0, -1.0)
+#: The net load on Omega^2 must be below -NET_LOAD_FLOOR times the integral of |f| there:
+#: a net force at round-off level cannot be resolved by any solver (direct included).
+NET_LOAD_FLOOR = 1e-10
 
 
 def dostal_loads(centroids: np.ndarray, f1: float = DOSTAL_LOADS[0], f2: float = DOSTAL_LOADS[1]) -> np.ndarray:
@@ -68,9 +71,10 @@ def two_membranes(subdomains: int, elements: int, *, f: float | np.ndarray | Non
     Raises
     ------
     InputError
-        If the load on Omega^2 does not have a negative integral: the floating
-        membrane is then not pressed onto Omega^1 and (3.1) has no unique
-        solution.
+        If the load on Omega^2 does not have a negative integral (below
+        -:data:`NET_LOAD_FLOOR` times the integral of |f| on Omega^2): the
+        floating membrane is then not pressed onto Omega^1 and (3.1) has no
+        unique solution.
     """
     for name, value in (("subdomains", subdomains), ("elements", elements)):
         if int(value) != value or value < 1:
@@ -87,9 +91,11 @@ def two_membranes(subdomains: int, elements: int, *, f: float | np.ndarray | Non
     on2 = scene.subdomain_body[scene.element_subdomain] == 1
     area = (1.0 / (ns * m)) ** 2
     integral = float(loads[on2].sum() * area)
-    if not integral < 0:
+    magnitude = float(np.abs(loads[on2]).sum() * area)
+    if not integral < -NET_LOAD_FLOOR * magnitude:
         raise InputError("f", f"the floating membrane Omega^2 needs a load with negative integral "
-                              f"(got {integral:.6g}); otherwise it is not pressed onto Omega^1 and "
-                              f"(3.1) has no unique solution")
+                              f"(got {integral:.6g}, need < -{NET_LOAD_FLOOR:g} x integral of |f| = "
+                              f"{-NET_LOAD_FLOOR * magnitude:.3g}); otherwise it is not pressed onto Omega^1 "
+                              f"(or only by a round-off-sized force) and (3.1) has no unique solution")
     scene.f = loads
     return scene
