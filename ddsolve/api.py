@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
 from typing import Any, Callable
 
@@ -9,6 +10,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, Substructures, solve_bddc, solve_direct, solve_feti, solve_fetidp
+from .errors import InputError
+from .krylov import KrylovResult
 from .multibody import GlobalInterface
 from .multibody.direct import solve_constrained_direct
 from .multibody.fetifeti import FetiFetiSolver
@@ -60,8 +63,70 @@ def build_scene(spec: ProblemSpec):
         else:
             scene.f = f_value
     n_sub = scene.n_subdomains
-    scene.rho = checkerboard(scene.subdomain_grid, value) if kind == "checkerboard" else np.full(n_sub, value)
+    if kind == "checkerboard":
+        scene.rho = checkerboard(scene.subdomain_grid, value)
+    elif kind == "body-checkerboard":
+        # (column, row) of each subdomain's body: every body has subdomains x subdomains subdomains
+        scene.rho = checkerboard(scene.subdomain_grid // spec.subdomains, value)
+    else:
+        scene.rho = np.full(n_sub, value)
     return scene
+
+
+def check_decomposition(spec: ProblemSpec) -> None:
+    """Reject decompositions that a substructuring method cannot handle.
+
+    Raises
+    ------
+    InputError
+        ``subdomains``: a DD method on one subdomain per body side where that
+        leaves nothing to iterate on (poisson: no interface) or a floating body
+        without a primal vertex (multibody with 1/H_b >= 3, whose inner bodies
+        float; contact, whose Omega^2 floats): the generalized inverse of a
+        floating body pins one of its primal vertices.
+    """
+    if spec.method == "direct" or spec.subdomains != 1:
+        return
+    if spec.problem == "poisson":
+        raise InputError("subdomains", f"method {spec.method!r} needs at least 2 subdomains per side "
+                                       f"(one subdomain has no interface); use method 'direct'")
+    if spec.problem == "contact" or (spec.problem == "multibody" and spec.bodies >= 3):
+        raise InputError("subdomains", f"method {spec.method!r} needs at least 2 subdomains per body side "
+                                       f"when a body floats (a floating body pins one of its primal "
+                                       f"vertices, and a one-subdomain body has none); use method 'direct'")
+
+
+#: A Krylov solve counts as converged only if the residual recomputed from its
+#: final iterate is within this factor of the tolerance rtol ||r_0||.
+TRUE_RESIDUAL_FACTOR = 10.0
+
+
+def attained(kr: KrylovResult, rtol: float) -> tuple[bool, str]:
+    """Whether a converged Krylov solve also meets ``rtol`` by its recomputed residual.
+
+    At a tolerance below the attainable accuracy (round-off, e.g. ``rtol =
+    1e-20``) the recursively updated residual of PCG keeps decreasing while the
+    true residual ``||P (b - A x)||`` stagnates; the solve must then not report
+    convergence.
+
+    Returns
+    -------
+    ok : bool
+        False if ``kr.converged`` but ``kr.true_residual > TRUE_RESIDUAL_FACTOR
+        rtol ||r_0||``.
+    reason : str
+        ``kr.reason``, extended by why the solve was not accepted.
+    """
+    if not kr.converged or kr.true_residual is None or kr.residuals.size == 0:
+        return kr.converged, kr.reason
+    r0 = float(kr.residuals[0])
+    if kr.true_residual <= TRUE_RESIDUAL_FACTOR * rtol * r0:
+        return True, kr.reason
+    rel = kr.true_residual / r0 if r0 > 0 else math.inf
+    rec = float(kr.residuals[-1]) / r0 if r0 > 0 else math.inf
+    return False, (f"tolerance not attained: recomputed ||r||/||r0|| = {rel:.1e} > "
+                   f"{TRUE_RESIDUAL_FACTOR:g} rtol = {TRUE_RESIDUAL_FACTOR * rtol:.1e} although the recursive "
+                   f"residual reached {rec:.1e} (rtol below the attainable accuracy)")
 
 
 def energy_error(A, u: np.ndarray, u_ref: np.ndarray) -> float:
@@ -101,6 +166,7 @@ def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
 
 
 def _solve(spec: ProblemSpec) -> SolveResult:
+    check_decomposition(spec)
     t0 = time.perf_counter()
     scene = build_scene(spec)
     local = assemble(scene)
@@ -148,8 +214,9 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         result.converged, result.reason, result.iterations = True, "direct solve", 0
     else:
         kr = out.krylov
-        result.converged, result.reason, result.iterations = kr.converged, kr.reason, kr.iterations
+        (result.converged, result.reason), result.iterations = attained(kr, spec.rtol), kr.iterations
         result.residuals = np.asarray(kr.residuals, dtype=float)
+        result.true_residual = kr.true_residual
         if spec.cond and kr.cond is not None:
             result.cond, result.lambda_min, result.lambda_max = kr.cond, kr.lambda_min, kr.lambda_max
     if spec.check:

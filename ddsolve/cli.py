@@ -30,15 +30,17 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     s = commands.add_parser("solve", help="solve one scene and report iterations, condition estimate, timings")
     s.add_argument("scene", nargs="?", help="YAML scene file (flags override its fields)")
-    s.add_argument("--problem", help="poisson (default) or multibody")
+    s.add_argument("--problem", help="poisson (default), multibody or contact")
     s.add_argument("--method", help="poisson: fetidp (default), feti, bddc, direct; "
-                                    "multibody: feti-feti, hybrid, direct")
+                                    "multibody: feti-feti, hybrid, direct; contact: active-set, smalbe, direct")
     s.add_argument("--contact", help="multibody active area: full (case I, default) or middle (case II)")
     s.add_argument("--bodies", help="bodies per side, 1/H_b")
     s.add_argument("--subdomains", help="subdomains per body side, H_b/H_s")
     s.add_argument("--elements", help="Q1 elements per subdomain side, H_s/h")
-    s.add_argument("--rho", help="coefficient: a positive number or checkerboard:V")
-    s.add_argument("--f", help="right-hand side: a constant or random:SEED (default: 1 for poisson, random:0 for multibody)")
+    s.add_argument("--rho", help="coefficient: a positive number, checkerboard:V (across subdomains) "
+                                 "or body-checkerboard:V (across bodies)")
+    s.add_argument("--f", help="right-hand side: a constant or random:SEED (default: 1 for poisson, random:0 for "
+                               "multibody); contact: dostal (default) or dostal:F1,F2")
     s.add_argument("--scaling", help="rho (default) or multiplicity")
     s.add_argument("--gamma", help="exponent of the rho-scaling (default 1)")
     s.add_argument("--rtol", help="relative residual tolerance (default 1e-6)")

@@ -10,7 +10,7 @@ import numpy as np
 #: Keys of :meth:`SolveResult.to_dict`, in output order (the JSON of ``ddsolve solve --json``).
 SCALAR_KEYS: tuple[str, ...] = (
     "problem", "method", "bodies", "subdomains", "elements", "ndof", "nlambda",
-    "converged", "reason", "iterations", "cond", "lambda_min", "lambda_max",
+    "converged", "reason", "iterations", "true_residual", "cond", "lambda_min", "lambda_max",
     "error_vs_direct", "setup_seconds", "solve_seconds", "n_factorizations",
 )
 
@@ -46,13 +46,21 @@ class SolveResult:
     nlambda : int
         Number of Lagrange multipliers (0 for primal and direct methods).
     converged : bool
-        Whether the stopping rule ||r_k|| / ||r_0|| < rtol was met.
+        Whether the stopping rule ||r_k|| / ||r_0|| < rtol was met (for the
+        Krylov methods also by the recomputed residual, up to a factor 10:
+        :func:`ddsolve.api.attained`).
     reason : str
         Why the iteration stopped (human readable, one line).
     iterations : int
         Krylov iterations.
     residuals : ndarray, shape (iterations + 1,)
-        Residual norms ||r_k||_2, k = 0..iterations.
+        Residual norms ||r_k||_2, k = 0..iterations (recursively updated by
+        the Krylov method).
+    true_residual : float or None
+        The Krylov residual recomputed from the final iterate, ||P (b - A x)||_2
+        (:attr:`ddsolve.krylov.KrylovResult.true_residual`), in the units of
+        ``residuals``: compare it with ``residuals[-1]``. None for direct and
+        contact solves.
     cond, lambda_min, lambda_max : float or None
         Lanczos estimates (only with ``cond=True``).
     error_vs_direct : float or None
@@ -87,6 +95,7 @@ class SolveResult:
     n_factorizations: int = 0
     u: np.ndarray | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    true_residual: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable scalar summary (keys :data:`SCALAR_KEYS` plus ``extra``)."""

@@ -61,15 +61,22 @@ def parse_rho(value: Any) -> tuple[str, float]:
     Parameters
     ----------
     value : float or str
-        A positive number (constant coefficient) or ``"checkerboard:V"`` (rho
+        A positive number (constant coefficient), ``"checkerboard:V"`` (rho
         alternates between 1 and V > 0 across subdomains, like the colours of a
-        chess board).
+        chess board; for several bodies the board runs across the subdomains
+        of all bodies) or ``"body-checkerboard:V"`` (rho constant on each body,
+        alternating between 1 and V across bodies: jumps between bodies only).
 
     Returns
     -------
     (kind, value) : tuple
-        ``("constant", rho)`` or ``("checkerboard", V)``.
+        ``("constant", rho)``, ``("checkerboard", V)`` or ``("body-checkerboard", V)``.
     """
+    if isinstance(value, str) and value.strip().lower().startswith("body-checkerboard"):
+        _, _, rest = value.partition(":")
+        if not rest:
+            raise InputError("rho", f"body-checkerboard needs a value, e.g. 'body-checkerboard:100', got {value!r}")
+        return "body-checkerboard", _as_positive_float("rho", rest)
     if isinstance(value, str) and value.strip().lower().startswith("checkerboard"):
         _, _, rest = value.partition(":")
         if not rest:
@@ -157,7 +164,8 @@ class ProblemSpec:
         Q1 elements per subdomain side, H_s/h (at least 2, so that every
         subdomain has interior nodes).
     rho : float or str
-        Coefficient: a positive number, or ``"checkerboard:V"``.
+        Coefficient: a positive number, ``"checkerboard:V"`` (across subdomains)
+        or ``"body-checkerboard:V"`` (across bodies), see :func:`parse_rho`.
     f : float or str or None
         Right-hand side: a constant, or ``"random:SEED"`` (see :func:`parse_f`);
         None takes the problem's default (:data:`DEFAULT_F`).
