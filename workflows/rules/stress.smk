@@ -1,0 +1,64 @@
+# Numerical stability stress study (config/stress.yaml): coefficient jumps, tight
+# tolerances, many subdomains / large H/h / many floating bodies, contact extremes and
+# degenerate input, each case judged PASS/FAIL against the criterion it states.
+#
+# Active only for a study whose name starts with "stress" (other studies see no new
+# rule targets). The cases are the catalog of ddsolve.report.stress (tier "quick" for
+# a study named "stress_quick", the test-suite sizes; tier "study" otherwise): the
+# config schema admits no case lists, so the catalog lives in code. Each series job
+# gets its cases in `params`, so a changed case reruns its series.
+#
+#   results/<study>/cases/<series>.json   one JSON list of case records per series (rule stress_series)
+#   results/<study>/stress.csv            every case with its outcome (rule stress_report)
+#   reports/<study>/stress.md             one row per case: claim, iterations, cond, true vs
+#                                         recursive residual, error vs direct, PASS/FAIL
+#   logs/<study>/cases/<series>.log, logs/<study>/stress_report.log
+
+if STUDY.startswith("stress"):
+    import sys as _sys
+
+    if workflow.basedir not in _sys.path:      # the repository's ddsolve, also without installing it
+        _sys.path.insert(0, workflow.basedir)
+    from dataclasses import asdict as _asdict
+
+    from ddsolve.report.stress import catalog as _stress_catalog
+
+    STRESS_TIER = "quick" if STUDY == "stress_quick" else "study"
+    STRESS_CASES = _stress_catalog(STRESS_TIER)
+    STRESS_SERIES = list(dict.fromkeys(case.series for case in STRESS_CASES))
+
+    def stress_series_cases(wildcards):
+        """The cases of one series as plain dicts (a params value: a changed case reruns its series)."""
+        return [_asdict(case) for case in STRESS_CASES if case.series == wildcards.series]
+
+    #: Wall-clock limit of one case (seconds); a case past it is recorded as a FAIL (timeout).
+    STRESS_CASE_TIMEOUT = 240
+
+    def report_files():
+        """The stress study's targets (replaces the poisson/multibody reports of rule all)."""
+        return [f"reports/{STUDY}/stress.md", f"results/{STUDY}/stress.csv"]
+
+    rule stress_series:
+        output:
+            f"results/{STUDY}/cases/{{series}}.json",
+        params:
+            cases=stress_series_cases,
+            timeout=STRESS_CASE_TIMEOUT,
+        wildcard_constraints:
+            series="|".join(re.escape(s) for s in STRESS_SERIES),
+        log:
+            f"logs/{STUDY}/cases/{{series}}.log",
+        threads: 1
+        script:
+            "../scripts/stress_series.py"
+
+    rule stress_report:
+        input:
+            expand(f"results/{STUDY}/cases/{{series}}.json", series=STRESS_SERIES),
+        output:
+            md=f"reports/{STUDY}/stress.md",
+            csv=f"results/{STUDY}/stress.csv",
+        log:
+            f"logs/{STUDY}/stress_report.log",
+        script:
+            "../scripts/stress_report.py"
