@@ -5,6 +5,7 @@ from snakemake.utils import validate
 
 
 configfile: "config/default.yaml"
+include: "workflows/rules/bench.smk"
 
 
 validate(config, "workflows/schemas/config.schema.yaml")

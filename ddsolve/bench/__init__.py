@@ -1,0 +1,30 @@
+"""Work-precision benchmarks of the substructuring methods against peer solvers.
+
+- :mod:`~ddsolve.bench.peers`: direct factorizations (MKL PARDISO, NGSolve,
+  CHOLMOD, SuperLU) behind :func:`direct_solver`, and pyamg + CG
+  (:func:`pyamg_cg`);
+- :mod:`~ddsolve.bench.problems`: assembled benchmark problems
+  (:data:`PROBLEMS`, :func:`build_problem`) with refinement-consistent loads;
+- :mod:`~ddsolve.bench.refine`: the exact energy-norm total error against the
+  2x refined solution;
+- :mod:`~ddsolve.bench.methods`: the registry of benchmarked methods
+  (:data:`METHODS`, :func:`register_method`);
+- :mod:`~ddsolve.bench.case`: one measured case (:func:`run_case`) and the
+  references (:func:`compute_reference`);
+- :mod:`~ddsolve.bench.store`, :mod:`~ddsolve.bench.report`: files, summary
+  table and the work-precision plot.
+
+The Snakemake study is ``workflows/rules/bench.smk`` with ``config/bench.yaml``.
+"""
+from __future__ import annotations
+
+from .case import CaseRecord, Reference, compute_reference, run_case
+from .methods import METHODS, MethodRun, RunOptions, register_method
+from .peers import DEFAULT_DIRECT, DIRECT_SOLVERS, BackendUnavailable, direct_solver, pyamg_cg
+from .problems import PROBLEMS, BenchProblem, build_problem, register_problem
+
+__all__ = [
+    "BackendUnavailable", "BenchProblem", "CaseRecord", "DEFAULT_DIRECT", "DIRECT_SOLVERS", "METHODS",
+    "MethodRun", "PROBLEMS", "Reference", "RunOptions", "build_problem", "compute_reference",
+    "direct_solver", "pyamg_cg", "register_method", "register_problem", "run_case",
+]

@@ -1,0 +1,13 @@
+"""Snakemake script of rule bench_plot: work_precision.csv -> work_precision.png (params.time: wall or cpu)."""
+import sys
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stdout = sys.stderr = log
+    import pandas as pd
+
+    from ddsolve.bench.report import plot_work_precision
+
+    sm = snakemake  # noqa: F821
+    df = pd.read_csv(sm.input[0])
+    plot_work_precision(df, sm.output[0], time=sm.params.time)
+    print(f"{len(df)} cases -> {sm.output[0]}")
