@@ -6,6 +6,7 @@ from snakemake.utils import validate
 
 configfile: "config/default.yaml"
 include: "workflows/rules/bench.smk"
+include: "workflows/rules/scaling.smk"
 
 
 validate(config, "workflows/schemas/config.schema.yaml")

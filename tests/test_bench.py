@@ -159,3 +159,46 @@ def test_files_summary_and_plot(poisson, tmp_path):
     for time in ("wall", "cpu"):
         plot_work_precision(table, tmp_path / f"wp_{time}.png", time=time)
         assert (tmp_path / f"wp_{time}.png").stat().st_size > 0
+
+
+CONTACT = {"problem": "contact", "subdomains": 2, "elements": 4}
+
+
+@pytest.fixture(scope="module")
+def contact():
+    problem = build_problem(CONTACT)
+    return problem, compute_reference(problem)
+
+
+def test_contact_reference_is_consistent(contact):
+    problem, ref = contact
+    assert problem.kind == "contact" and problem.baseline == "pdas"
+    assert ref.info["galerkin_defect"] < 1e-12             # P^T K_{h/2} P = K_h body by body
+    assert 0 < ref.discretization_error < 1
+    assert ref.vectors["lambda"].shape == (problem.context["contact"].n_contact,)
+    assert ref.vectors["lambda"].min() >= 0 and ref.vectors["lambda"].max() > 0
+
+
+@pytest.mark.parametrize("method", ["active-set", "smalbe", "pdas"])
+def test_contact_case_fields(contact, method):
+    problem, ref = contact
+    options = RunOptions(maxiter=500, direct="superlu")
+    rec = run_case(problem, method, 1e-8, ref, options, repeats=1).to_dict()
+    assert rec["problem"] == "contact" and rec["method"] == method and rec["converged"] is True
+    assert rec["peer"] is (method == "pdas")
+    assert rec["direct_seconds"] > 0 and rec["time_ratio"] == pytest.approx(rec["wall_seconds"] / rec["direct_seconds"])
+    assert rec["algebraic_error"] < 1e-5 and rec["l2_error"] < 1e-5 and rec["lambda_error"] < 1e-4
+    assert rec["kkt_residual"] < 1e-5
+    assert rec["total_error"] == pytest.approx(ref.discretization_error, rel=1e-3)
+    if method == "pdas":
+        assert rec["algebraic_error"] < 1e-12 and rec["iterations"] == rec["n_factorizations"]
+
+
+def test_contact_error_decreases_with_rtol_and_reference_roundtrip(contact, tmp_path):
+    problem, ref = contact
+    write_reference(tmp_path / "ref.h5", problem.spec.to_dict(), ref)
+    back = read_reference(tmp_path / "ref.h5")
+    np.testing.assert_array_equal(back.vectors["lambda"], ref.vectors["lambda"])
+    errors = [run_case(problem, "active-set", rtol, back, OPTIONS, repeats=1).to_dict()["lambda_error"]
+              for rtol in (1e-2, 1e-8)]
+    assert errors[0] > errors[1]

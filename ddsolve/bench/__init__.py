@@ -12,12 +12,18 @@
 - :mod:`~ddsolve.bench.case`: one measured case (:func:`run_case`) and the
   references (:func:`compute_reference`);
 - :mod:`~ddsolve.bench.store`, :mod:`~ddsolve.bench.report`: files, summary
-  table and the work-precision plot.
+  table and the work-precision plot;
+- :mod:`~ddsolve.bench.contact`: the contact problem (3.1) and its methods
+  (``active-set``, ``smalbe``, the ``pdas`` peer), registered on import;
+- :mod:`~ddsolve.bench.scaling`: the scaling study of the contact solvers
+  (time against dofs, exponent fits, profile).
 
-The Snakemake study is ``workflows/rules/bench.smk`` with ``config/bench.yaml``.
+The Snakemake studies are ``workflows/rules/bench.smk`` with ``config/bench.yaml``
+and ``workflows/rules/scaling.smk`` with ``config/scaling.yaml``.
 """
 from __future__ import annotations
 
+from . import contact  # noqa: F401  (registers problem "contact" and its methods)
 from .case import CaseRecord, Reference, compute_reference, run_case
 from .methods import METHODS, MethodRun, RunOptions, register_method
 from .peers import DEFAULT_DIRECT, DIRECT_SOLVERS, BackendUnavailable, direct_solver, pyamg_cg

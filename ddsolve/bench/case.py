@@ -19,7 +19,9 @@ method at one rtol on the same problem and returns a :class:`CaseRecord`:
   direct solve (:func:`ddsolve.api.energy_error`);
 * ``total_error``: ||u_{h/2} - P u||_{A_{h/2}} / ||u_{h/2}||_{A_{h/2}}
   against the 2x refined solution (:mod:`ddsolve.bench.refine`);
-* ``mem_mb`` / ``peak_rss_mb``: see :mod:`ddsolve.bench.memory`.
+* ``mem_mb`` / ``peak_rss_mb``: see :mod:`ddsolve.bench.memory`;
+* problem-specific measures of :attr:`BenchProblem.case_errors` (contact:
+  ``l2_error``, ``lambda_error``, ``kkt_residual``; :mod:`ddsolve.bench.contact`).
 """
 from __future__ import annotations
 
@@ -58,12 +60,16 @@ class Reference:
     info : dict
         Sizes, timings and the Galerkin check ``galerkin_defect`` =
         max |P^T A_{h/2} P - A_h| / max |A_h| (round-off for nested meshes).
+    vectors : dict of str to ndarray
+        Further vectors of the reference solve
+        (:attr:`BenchProblem.reference_vectors`, e.g. ``lambda`` for contact).
     """
 
     u_direct: np.ndarray
     fine: FineReference
     discretization_error: float
     info: dict[str, Any] = field(default_factory=dict)
+    vectors: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def compute_reference(problem: BenchProblem, factor: int = 2) -> Reference:
@@ -73,6 +79,7 @@ def compute_reference(problem: BenchProblem, factor: int = 2) -> Reference:
     spec = problem.spec
     t0 = time.perf_counter()
     u_h = problem.reference()
+    vectors = dict(problem.reference_vectors()) if problem.reference_vectors is not None else {}
     fine = build_problem(refined_spec(spec, factor), load_cells=problem.load_cells)
     u_fine = fine.reference()
     P = prolongation(problem.sub.scene, problem.sub.dof_of_node, fine.sub.scene, fine.sub.dof_of_node)
@@ -82,18 +89,23 @@ def compute_reference(problem: BenchProblem, factor: int = 2) -> Reference:
     disc = ref.total_error(problem.A, u_h)
     log.info("%s reference: ndof %d, fine ndof %d, discretization error %.3e, Galerkin defect %.1e",
              spec.problem, problem.ndof, fine.ndof, disc, defect)
-    return Reference(u_direct=u_h, fine=ref, discretization_error=disc,
+    return Reference(u_direct=u_h, fine=ref, discretization_error=disc, vectors=vectors,
                      info={"ndof": problem.ndof, "fine_ndof": fine.ndof, "galerkin_defect": defect,
                            "seconds": time.perf_counter() - t0})
 
 
 def time_direct(problem: BenchProblem, options: RunOptions, repeats: int = 3) -> tuple[float, float]:
-    """Best wall and best CPU time of ``repeats`` direct solves (the ``direct`` runner) of ``problem``."""
+    """Best wall and best CPU time of ``repeats`` baseline solves of ``problem``.
+
+    The baseline is the runner of ``problem.baseline``: the ``direct`` peer
+    (factor and solve the reduced system), for contact the ``pdas`` peer.
+    """
+    runner = run_direct if problem.baseline == "direct" else get_method(problem.baseline, problem.kind).run
     wall = cpu = math.inf
     with threadpool_limits(limits=options.threads, user_api="blas"):
         for _ in range(max(int(repeats), 1)):
             t0, c0 = time.perf_counter(), time.process_time()
-            run_direct(problem, None, options)
+            runner(problem, None, options)
             wall, cpu = min(wall, time.perf_counter() - t0), min(cpu, time.process_time() - c0)
     return wall, cpu
 
@@ -187,6 +199,8 @@ def run_case(problem: BenchProblem, method: str, rtol: float | None, reference: 
         "mem_mb": max(peak - rss_start, 0.0), "peak_rss_mb": peak,
         "direct_backend": options.direct, "threads": options.threads, "peer": entry.peer,
     }
+    if problem.case_errors is not None:
+        values.update(problem.case_errors(problem, run, reference))
     values.update({k: v for k, v in extra.items() if k not in values and np.isscalar(v)})
     log.info("%s %s rtol=%s: %.3f s (x%.2f direct), algebraic %.2e, total %.2e", problem.kind, method,
              rtol, wall, values["time_ratio"], values["algebraic_error"], values["total_error"])

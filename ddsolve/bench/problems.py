@@ -5,8 +5,8 @@ A :class:`BenchProblem` bundles what every benchmarked method needs: the
 (for the energy-norm errors), the reduced SPD system ``K x = r`` with
 ``u = T x`` that the peer solvers factor, and problem-specific context. The
 builders in :data:`PROBLEMS` make one from a :class:`~ddsolve.spec.ProblemSpec`;
-a new problem kind (e.g. the contact problems) is added with
-:func:`register_problem`.
+a new problem kind is added with :func:`register_problem` (the contact
+problem (3.1) is registered by :mod:`ddsolve.bench.contact`).
 
 Loads are refinement-consistent: ``f = "random:SEED"`` is a piecewise constant
 load, uniform in [-1, 1], on a grid of ``load_cells`` x ``load_cells`` cells of
@@ -58,6 +58,16 @@ class BenchProblem:
     load_cells : int or None
         Cells per side of the random load grid (None: the element grid, or a
         constant load).
+    baseline : str
+        Registered method whose time is the case's ``direct_seconds`` (the
+        ``direct`` peer; ``pdas`` for contact).
+    reference_vectors : callable or None
+        ``reference_vectors() -> {name: ndarray}``: further vectors of the
+        reference solve (called after ``reference()``), stored with the
+        reference, e.g. the contact multipliers.
+    case_errors : callable or None
+        ``case_errors(problem, run, reference) -> {name: scalar}``: further
+        error measures of a case (e.g. contact: l2 and multiplier errors).
     """
 
     kind: str
@@ -71,6 +81,9 @@ class BenchProblem:
     reference: Callable[[], np.ndarray]
     context: dict[str, Any] = field(default_factory=dict)
     load_cells: int | None = None
+    baseline: str = "direct"
+    reference_vectors: Callable[[], dict[str, np.ndarray]] | None = None
+    case_errors: Callable[..., dict[str, Any]] | None = None
 
     @property
     def ndof(self) -> int:

@@ -29,12 +29,13 @@ SUMMARY_COLUMNS: tuple[str, ...] = (
     "setup_seconds", "direct_seconds", "time_ratio", "cpu_seconds", "direct_cpu_seconds", "cpu_ratio",
     "algebraic_error", "total_error",
     "discretization_error", "mem_mb", "peak_rss_mb", "direct_backend",
+    "l2_error", "lambda_error", "kkt_residual",
 )
 
 #: Floor for errors that are exactly zero on a log axis.
 ERROR_FLOOR = 1e-16
 
-_MARKERS = {"poisson": "o", "multibody": "s"}
+_MARKERS = {"poisson": "o", "multibody": "s", "contact": "D"}
 
 
 def summary_table(df: pd.DataFrame) -> pd.DataFrame:

@@ -11,7 +11,9 @@ solvers), plus ``repeats``; ``/result`` holds the scalars of
 Reference files (``format = "ddsolve-bench-reference"``, version 1) hold the
 spec as root attributes ``spec_<field>``, the scalars ``energy_fine``,
 ``discretization_error`` and the :attr:`Reference.info` entries, and the
-datasets ``u_direct`` and ``g_fine``; both writers are atomic.
+datasets ``u_direct``, ``g_fine`` and one ``vector_<name>`` per entry of
+:attr:`Reference.vectors` (e.g. ``vector_lambda`` for contact); both writers
+are atomic.
 """
 from __future__ import annotations
 
@@ -53,6 +55,8 @@ def write_reference(path: str | os.PathLike, spec: Mapping[str, Any], ref: Refer
                 h5.attrs[key] = val
             h5.create_dataset("u_direct", data=np.asarray(ref.u_direct, dtype=np.float64))
             h5.create_dataset("g_fine", data=np.asarray(ref.fine.g, dtype=np.float64))
+            for key, vec in ref.vectors.items():
+                h5.create_dataset(f"vector_{key}", data=np.asarray(vec, dtype=np.float64))
         _fsync(tmp)
     return path
 
@@ -71,9 +75,11 @@ def read_reference(path: str | os.PathLike) -> Reference:
         skip = {"format", "format_version", "energy_fine", "discretization_error"}
         info = {k: v.item() if hasattr(v, "item") else v for k, v in h5.attrs.items()
                 if k not in skip and not k.startswith("spec_")}
+        vectors = {name[len("vector_"):]: np.asarray(h5[name][()]) for name in h5 if name.startswith("vector_")}
         return Reference(u_direct=np.asarray(h5["u_direct"][()]),
                          fine=FineReference(energy=float(h5.attrs["energy_fine"]), g=np.asarray(h5["g_fine"][()])),
-                         discretization_error=float(h5.attrs["discretization_error"]), info=info)
+                         discretization_error=float(h5.attrs["discretization_error"]), info=info,
+                         vectors=vectors)
 
 
 def write_case(path: str | os.PathLike, spec: Mapping[str, Any], method: str, rtol: float | None,

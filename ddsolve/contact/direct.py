@@ -10,20 +10,32 @@ recovers lambda from stationarity, and updates
 (the semismooth Newton form of the complementarity condition, c = mean of
 diag K). It stops when A repeats; the result satisfies the KKT conditions (5.5)
 up to round-off.
+
+The sparse factorization of each face is pluggable: ``factorize(A)`` takes the
+merged SPD matrix (CSR) and returns a solve function. The default is SciPy's
+SuperLU (:func:`superlu_factorize`); the work-precision and scaling studies pass
+MKL PARDISO (``ddsolve.bench.peers.direct_solver("mkl-pardiso", A).solve``).
 """
 from __future__ import annotations
 
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..multibody.direct import merge_matrix
 from .problem import ContactProblem
 
 log = logging.getLogger(__name__)
+
+#: A solve function of a factored matrix: b (n,) -> x (n,).
+FaceSolve = Callable[[np.ndarray], np.ndarray]
+#: A sparse factorization: SPD matrix (CSR, both triangles) -> its solve function.
+Factorize = Callable[[sp.csr_matrix], FaceSolve]
 
 
 @dataclass
@@ -68,28 +80,83 @@ class ContactSolution:
         return int(sum(self.inner_iterations))
 
 
-def solve_face_direct(problem: ContactProblem, active: np.ndarray) -> np.ndarray:
+def superlu_factorize(A: sp.spmatrix) -> FaceSolve:
+    """SciPy SuperLU (MMD on A^T + A, symmetric mode): the default factorization of the face solves.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix, shape (n, n)
+        The merged face matrix T^T K T.
+
+    Returns
+    -------
+    callable
+        ``solve(b) -> x``.
+
+    Raises
+    ------
+    ValueError
+        If a pivot is below 1e-12 max |diag A| (the floating membrane is not
+        tied to the clamped one).
+    """
+    A = sp.csc_matrix(A)
+    lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+    if np.any(np.abs(lu.U.diagonal()) < 1e-12 * abs(A.diagonal()).max()):
+        raise ValueError("the floating membrane is not tied to the clamped one: empty active set")
+    return lu.solve
+
+
+def solve_face_direct(problem: ContactProblem, active: np.ndarray,
+                      factorize: Factorize | None = None) -> np.ndarray:
     """u of the equality-constrained problem on the face ``active`` (sparse direct solve).
+
+    Parameters
+    ----------
+    problem : ContactProblem
+    active : ndarray of bool, shape (n_c,)
+        Pairs tied together.
+    factorize : callable, optional
+        ``factorize(A) -> solve`` for the merged SPD matrix A = T^T K T (CSR);
+        default :func:`superlu_factorize`.
 
     Raises
     ------
     ValueError
         If ``active`` is empty while a body floats (singular problem).
     """
-    T = merge_matrix(problem.sub, problem.gi, np.asarray(active, dtype=bool))
-    A = (T.T @ problem.K @ T).tocsc()
-    lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
-    if np.any(np.abs(lu.U.diagonal()) < 1e-12 * abs(A.diagonal()).max()):
-        raise ValueError("the floating membrane is not tied to the clamped one: empty active set")
-    return T @ lu.solve(T.T @ problem.f)
+    active = np.asarray(active, dtype=bool)
+    T = merge_matrix(problem.sub, problem.gi, active)
+    A = (T.T @ problem.K @ T).tocsr()
+    if factorize is None:
+        solve = superlu_factorize(A)
+    else:
+        if not active.any():
+            # the factorization may not detect the singular matrix (e.g. pivot perturbation)
+            raise ValueError("the floating membrane is not tied to the clamped one: empty active set")
+        solve = factorize(A)
+    x = np.asarray(solve(T.T @ problem.f), dtype=float).reshape(-1)
+    if not np.all(np.isfinite(x)):
+        raise ValueError("the face solve returned non-finite values (singular face matrix?)")
+    return T @ x
 
 
-def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100) -> ContactSolution:
+def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
+                         factorize: Factorize | None = None) -> ContactSolution:
     """Primal-dual active set method with sparse direct face solves.
 
     Starts from full contact (every pair active). If an update empties the
     active set (a floating body would be free), the pair with the largest
     lambda_k + c (B u)_k is kept.
+
+    Parameters
+    ----------
+    problem : ContactProblem
+    maxiter : int
+        Limit of active set updates (face solves).
+    factorize : callable, optional
+        ``factorize(A) -> solve`` for each face matrix A = T^T K T (scipy CSR,
+        SPD, both triangles); default SciPy SuperLU (:func:`superlu_factorize`).
+        E.g. ``lambda A: ddsolve.bench.peers.direct_solver("mkl-pardiso", A).solve``.
 
     Returns
     -------
@@ -103,7 +170,7 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100) -> Cont
     seen: set[bytes] = set()
     converged, reason = False, f"active set still changing after {maxiter} updates"
     for it in range(1, maxiter + 1):
-        u = solve_face_direct(problem, active)
+        u = solve_face_direct(problem, active, factorize)
         lam = problem.multipliers_from_residual(u, active)
         score = lam + c * problem.gap(u)
         scale = max(float(np.abs(lam).max()), c * float(np.abs(u).max()), 1e-300)

@@ -1,0 +1,135 @@
+"""The contact scaling study (ddsolve.bench.scaling) and the pluggable PDAS factorization. No timings are checked."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ddsolve.bench.contact import backend_factorize
+from ddsolve.bench.peers import available_direct_solvers
+from ddsolve.bench.scaling import (build_contact, case_params, contact_spec, fit_exponent, plot_scaling,
+                                   profile_case, run_scaling_case, scaling_summary, summary_markdown)
+from ddsolve.contact import solve_contact_direct
+from ddsolve.io.aggregate import collect
+from ddsolve.io.hdf5 import write_result
+
+
+@pytest.fixture(scope="module")
+def small_contact():
+    problem, _ = build_contact(contact_spec(4, 4))
+    return problem
+
+
+@pytest.mark.parametrize("backend", [b for b in ("mkl-pardiso", "superlu") if b in available_direct_solvers()])
+def test_pluggable_factorization_matches_superlu(small_contact, backend):
+    default = solve_contact_direct(small_contact)
+    calls = []
+
+    def factorize(A):
+        calls.append(A.shape)
+        return backend_factorize(backend)(A)
+
+    plugged = solve_contact_direct(small_contact, factorize=factorize)
+    assert default.converged and plugged.converged
+    assert len(calls) == plugged.n_factorizations == default.n_factorizations
+    np.testing.assert_array_equal(plugged.active, default.active)
+    np.testing.assert_allclose(plugged.u, default.u, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(plugged.lam, default.lam, rtol=1e-9, atol=1e-12)
+
+
+def test_pluggable_factorization_rejects_empty_active_set(small_contact):
+    from ddsolve.contact.direct import solve_face_direct
+
+    with pytest.raises(ValueError, match="not tied"):
+        solve_face_direct(small_contact, np.zeros(small_contact.n_contact, dtype=bool),
+                          factorize=backend_factorize("superlu"))
+
+
+def test_fit_exponent_recovers_synthetic_power_law():
+    n = np.array([1e4, 5e4, 1e5, 3e5, 1e6])
+    fit = fit_exponent(n, 2e-5 * n ** 1.3)
+    assert fit.exponent == pytest.approx(1.3, abs=1e-12)
+    assert fit.prefactor == pytest.approx(2e-5, rel=1e-9)
+    assert fit.r2 == pytest.approx(1.0) and fit.n_points == 5
+    noisy = 3e-4 * n * np.exp(np.random.default_rng(0).normal(0, 0.05, n.size))
+    assert fit_exponent(n, noisy).exponent == pytest.approx(1.0, abs=0.1)
+    assert fit_exponent([1e3, 1e4, np.nan], [1.0, 10.0, 5.0]).n_points == 2      # non-finite pair dropped
+    with pytest.raises(ValueError):
+        fit_exponent([1e3, 1e3], [1.0, 2.0])
+
+
+def _synthetic(ratio_small: float, ratio_large: float, power: float = 1.1) -> pd.DataFrame:
+    rows = []
+    for m, n in ((4, 13041), (20, 321201), (40, 1282401)):
+        t_direct = 1e-5 * n ** power
+        ratio = ratio_small if n < 1e6 else ratio_large
+        for method, t in (("active-set", ratio * t_direct), ("pdas", t_direct)):
+            rows.append({"method": method, "subdomains": 20, "elements": m, "ndof": n, "wall_seconds": t,
+                         "cpu_seconds": t, "iterations": 10, "outer_iterations": 2, "converged": True,
+                         "direct_backend": "mkl-pardiso", "direct_threads": 1})
+    return pd.DataFrame(rows)
+
+
+def test_summary_targets_and_plot(tmp_path):
+    summary = scaling_summary(_synthetic(1.2, 0.8))
+    assert summary["fits"]["pdas"].exponent == pytest.approx(1.1)
+    assert summary["ratio_at"] == pytest.approx(1.2) and summary["ratio_largest"] == pytest.approx(0.8)
+    assert [met for _, _, met in summary["targets"]] == [True, True, True]
+    text = summary_markdown(summary)
+    assert "| 20 | 40 | 1,282,401 |" in text and "dofs^" in text
+    bad = scaling_summary(_synthetic(3.0, 3.0, power=1.3))
+    assert bad["fits"]["active-set"].exponent == pytest.approx(1.3)
+    assert [met for _, _, met in bad["targets"]] == [False, False, False]
+    plot_scaling(_synthetic(1.2, 0.8), tmp_path / "scaling.png")
+    assert (tmp_path / "scaling.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("method", ["active-set", "pdas"])
+def test_scaling_case_writes_a_result_file(tmp_path, method):
+    record = run_scaling_case(2, 4, method, repeats=2, repeat_budget=0.0)
+    values = record.to_dict()
+    assert values["ndof"] == 2 * 9 ** 2 - 9 and values["converged"] is True
+    assert values["repeats_done"] == 1                        # the budget stops after one solve
+    assert values["wall_seconds"] > 0 and values["kkt_residual"] < 1e-4
+    assert values["blas_threads"] == 1 and values["threads"] == 1
+    path = write_result(tmp_path / f"{method}.h5", case_params(2, 4, method, rtol=1e-5, maxiter=1000, repeats=2),
+                        record)
+    row = collect([path]).iloc[0]
+    assert row["method"] == method and row["ndof"] == values["ndof"]
+    assert math.isnan(row["rtol"]) is (method == "pdas")
+
+
+def test_profile_lists_functions():
+    text = profile_case(2, 4, "active-set", top=5)
+    assert "cProfile of active-set" in text and "tottime" in text and "ncalls" in text
+
+
+def test_scaling_workflow_dry_run(tmp_path):
+    """config/scaling.yaml plans one job per (method, H/h), the summary, plot and profile, and is the default target."""
+    import re
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    pytest.importorskip("snakemake")
+    root = Path(__file__).resolve().parents[1]
+    shutil.copy(root / "Snakefile", tmp_path / "Snakefile")
+    shutil.copytree(root / "workflows", tmp_path / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(root / "config", tmp_path / "config")
+    env = {**__import__("os").environ, "PYTHONPATH": str(root)}
+    proc = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--cores", "2", "--configfile",
+                           "config/scaling.yaml", "--config", "scaling=multiplicity"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    text = proc.stdout + proc.stderr
+    import yaml
+
+    cfg = yaml.safe_load((root / "config" / "scaling.yaml").read_text())["contact_scaling"]
+    expected = len(cfg["methods"]) * len(cfg["elements"])
+    assert int(re.search(r"^scaling_case\s+(\d+)\s*$", text, re.MULTILINE).group(1)) == expected
+    for rule in ("scaling_summary", "scaling_plot", "scaling_profile", "scaling"):
+        assert re.search(rf"^{rule}\s+1\s*$", text, re.MULTILINE), rule
+    assert not re.search(r"^solve_case\s", text, re.MULTILINE)       # not the default study

@@ -1,0 +1,30 @@
+"""Snakemake script of rule scaling_case: time one contact solver on one mesh, write its HDF5 file.
+
+Inputs from Snakemake: wildcards.method, wildcards.N, wildcards.m, params.options (rtol, maxiter,
+direct, direct_threads, repeats, repeat_budget), output[0], log[0].
+"""
+import os
+import sys
+
+# ddsolve's solvers run with one BLAS thread (threadpoolctl, as ddsolve.solve); the job reserves
+# all of Snakemake's cores only so that no other case runs beside it.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stdout = sys.stderr = log
+    import logging
+
+    logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    from ddsolve.bench.scaling import case_params, run_scaling_case
+    from ddsolve.io.hdf5 import write_result
+
+    sm = snakemake  # noqa: F821
+    opts = dict(sm.params.options)
+    N, m, method = int(sm.wildcards.N), int(sm.wildcards.m), sm.wildcards.method
+    record = run_scaling_case(N, m, method, rtol=float(opts["rtol"]), maxiter=int(opts["maxiter"]),
+                              direct=opts["direct"], direct_threads=int(opts["direct_threads"]),
+                              repeats=int(opts["repeats"]), repeat_budget=float(opts["repeat_budget"]))
+    print("result:", record.to_dict(), flush=True)
+    write_result(sm.output[0], case_params(N, m, method, rtol=float(opts["rtol"]), maxiter=int(opts["maxiter"]),
+                                           repeats=int(opts["repeats"])), record)

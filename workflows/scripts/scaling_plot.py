@@ -1,0 +1,13 @@
+"""Snakemake script of rule scaling_plot: results/<study>/summary.csv -> reports/<study>/scaling.png."""
+import sys
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stdout = sys.stderr = log
+    import pandas as pd
+
+    from ddsolve.bench.scaling import plot_scaling
+
+    sm = snakemake  # noqa: F821
+    df = pd.read_csv(sm.input[0])
+    plot_scaling(df, sm.output[0])
+    print(f"{len(df)} cases -> {sm.output[0]}")

@@ -1,0 +1,28 @@
+"""Snakemake script of rule scaling_profile: cProfile of one contact solve -> profile.txt (+ raw .prof).
+
+Inputs from Snakemake: params.subdomains, params.elements, params.method, params.top, params.options,
+output.text, output.stats, log[0].
+"""
+import os
+import sys
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stdout = sys.stderr = log
+    import logging
+    from pathlib import Path
+
+    logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    from ddsolve.bench.scaling import profile_case
+
+    sm = snakemake  # noqa: F821
+    opts = dict(sm.params.options)
+    text = profile_case(int(sm.params.subdomains), int(sm.params.elements), sm.params.method,
+                        rtol=float(opts["rtol"]), maxiter=int(opts["maxiter"]), direct=opts["direct"],
+                        direct_threads=int(opts["direct_threads"]), top=int(sm.params.top),
+                        stats_path=sm.output.stats)
+    Path(sm.output.text).parent.mkdir(parents=True, exist_ok=True)
+    Path(sm.output.text).write_text(text)
+    print(text, flush=True)

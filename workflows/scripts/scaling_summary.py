@@ -1,0 +1,19 @@
+"""Snakemake script of rule scaling_summary: case files -> summary.csv, scaling.csv (table) and scaling.md
+(table, exponent fits, targets). params.targets: see ddsolve.bench.scaling.scaling_summary."""
+import sys
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stdout = sys.stderr = log
+    from pathlib import Path
+
+    from ddsolve.bench.scaling import scaling_summary, summary_markdown
+    from ddsolve.io.aggregate import collect, write_table
+
+    sm = snakemake  # noqa: F821
+    df = collect(sm.input)
+    write_table(df, sm.output.summary)
+    summary = scaling_summary(df, dict(sm.params.targets))
+    write_table(summary["table"], sm.output.table)
+    text = summary_markdown(summary)
+    Path(sm.output.markdown).write_text(text)
+    print(text, flush=True)
