@@ -24,20 +24,12 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from ..io.hdf5 import atomic_target, write_result
+from ..io.hdf5 import _fsync, atomic_target, write_result
 from .case import CaseRecord, Reference
 from .refine import FineReference
 
 REFERENCE_FORMAT = "ddsolve-bench-reference"
 REFERENCE_VERSION = 1
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def write_reference(path: str | os.PathLike, spec: Mapping[str, Any], ref: Reference) -> Path:
