@@ -14,7 +14,6 @@ Uses the non-interactive Agg backend.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import matplotlib
 
@@ -22,6 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from ..report.plots import _save
 
 #: Columns of the summary, in order.
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -110,9 +110,5 @@ def plot_work_precision(df: pd.DataFrame, path: str | os.PathLike | None, *, tim
     kind = "CPU" if time == "cpu" else "wall"
     fig.suptitle(title or f"Work-precision: {kind} time (setup + solve) against error, one point per rtol")
     fig.tight_layout()
-    if path is not None:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
+    _save(fig, path)
     return fig

@@ -25,7 +25,6 @@ import os
 import pstats
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -35,6 +34,7 @@ from threadpoolctl import threadpool_limits
 from ..api import build_scene
 from ..contact import ContactProblem
 from ..dd import Substructures
+from ..report.plots import _save
 from ..scene import assemble
 from ..spec import ProblemSpec
 from .case import CaseRecord
@@ -391,11 +391,7 @@ def plot_scaling(df: pd.DataFrame, path: str | os.PathLike | None, *, title: str
     ax.legend(fontsize=8, loc="upper left")
     ax.set_title(title or "Contact problem (3.1), N = 20 subdomains per membrane side")
     fig.tight_layout()
-    if path is not None:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
+    _save(fig, path)
     return fig
 
 
