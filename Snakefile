@@ -1,26 +1,33 @@
-# ddsolve studies: one job per case, then a summary table and plots.
-# Usage: snakemake --cores 4 [--configfile config/quick.yaml | config/table_4.yaml | config/table_5_6.yaml]
-# Layout of results/ and reports/: README.md, "Running studies".
-from snakemake.utils import validate
-
-
+# ddsolve studies. Layout of results/ and reports/: README.md, "Running studies".
+#   snakemake --cores 2                                   every study of config/default.yaml (the reproduction)
+#   snakemake --cores 2 --configfile config/quick.yaml    the same studies, small (a smoke test)
+#   snakemake --cores 2 --configfile config/table_4.yaml  one study (any single-study config)
+#   snakemake --report reports/report.html                the HTML report of the last run, with captions
 configfile: "config/default.yaml"
-include: "workflows/rules/bench.smk"
-include: "workflows/rules/scaling.smk"
 
 
-validate(config, "workflows/schemas/config.schema.yaml")
+report: "workflows/report/workflow.rst"
 
 
-include: "workflows/rules/common.smk"
-include: "workflows/rules/solve.smk"
-include: "workflows/rules/aggregate.smk"
-include: "workflows/rules/report.smk"
-include: "workflows/rules/multibody.smk"
-include: "workflows/rules/stress.smk"
-include: "workflows/rules/contact.smk"
+#: Keys that make a config one study. Without them, `studies` lists the studies to run,
+#: each a module of this workflow with its own config (workflows/rules/reproduce.smk).
+ONE_STUDY_KEYS = ("study", "bench", "contact_scaling")
+
+
+include: "workflows/rules/validate.smk"
+
+
+if any(key in config for key in ONE_STUDY_KEYS):
+    config.pop("studies", None)  # inherited from config/default.yaml by --configfile
+
+    include: "workflows/rules/study.smk"
+
+else:
+
+    include: "workflows/rules/reproduce.smk"
 
 
 rule all:
     input:
-        report_files(),
+        targets(),
+    default_target: True

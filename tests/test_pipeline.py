@@ -1,7 +1,7 @@
 """The Snakemake pipeline, run on a copy of the workflow in a temporary directory.
 
-The dry runs need only Snakemake; the real run of the tiny ``quick`` study
-(config/quick.yaml) needs the solvers (``ddsolve.api``) and is skipped without them.
+The dry runs need only Snakemake; the real run of a tiny Poisson study
+(config/poisson.yaml on a 2 x 2 grid) needs the solvers (``ddsolve.api``) and is skipped without them.
 """
 from __future__ import annotations
 
@@ -28,6 +28,10 @@ def has_api() -> bool:
         return False
 
 
+#: A tiny Poisson study: config/poisson.yaml with these keys replaced.
+TINY = "study: quick\nsubdomains: [2]\nelements: [2, 4]\n"
+
+
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory):
     """A copy of Snakefile, workflows/ and config/ (outputs never touch the repository)."""
@@ -35,6 +39,7 @@ def workdir(tmp_path_factory):
     shutil.copy(ROOT / "Snakefile", wd / "Snakefile")
     shutil.copytree(ROOT / "workflows", wd / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copytree(ROOT / "config", wd / "config")
+    (wd / "tiny.yaml").write_text(TINY)
     return wd
 
 
@@ -58,24 +63,25 @@ def planned(proc: subprocess.CompletedProcess) -> dict[str, int]:
     return counts
 
 
-def test_dry_run_default_and_quick(workdir):
-    default = planned(snakemake(workdir, "-n", "--cores", "1"))
-    assert default["solve_case"] == 3 * 3 * 4 and default["aggregate"] == 1
-    quick = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/quick.yaml"))
-    assert quick == {"solve_case": 6, "aggregate": 1, "table": 1, "plot_cond": 1, "table_4": 0,
-                     "figure_4": 0, "all": 1}
+def test_dry_run_poisson_study(workdir):
+    poisson = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/poisson.yaml"))
+    assert poisson == {"solve_case": 3 * 3 * 4, "aggregate": 1, "table": 1, "plot_cond": 1, "table_4": 0,
+                       "figure_4": 0, "all": 1}
+    tiny = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/poisson.yaml", "tiny.yaml"))
+    assert tiny == {"solve_case": 6, "aggregate": 1, "table": 1, "plot_cond": 1, "table_4": 0,
+                    "figure_4": 0, "all": 1}
 
 
 def test_bad_config_is_rejected(workdir):
-    (workdir / "bad.yaml").write_text("methods: [feti, newton]\n")
+    (workdir / "bad.yaml").write_text("study: bad\nmethods: [feti, newton]\nsubdomains: [2]\nelements: [2]\n")
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "bad.yaml", check=False)
     assert proc.returncode != 0
-    assert "newton" in proc.stdout + proc.stderr
+    assert "invalid config (config.schema.yaml): methods/1: 'newton' is not one of" in proc.stdout + proc.stderr
 
 
 @pytest.mark.skipif(not has_api(), reason="ddsolve.api (the solvers) not available yet")
 def test_quick_study_end_to_end(workdir):
-    snakemake(workdir, "--cores", "2", "--configfile", "config/quick.yaml")
+    snakemake(workdir, "--cores", "2", "--configfile", "config/poisson.yaml", "tiny.yaml")
     results = workdir / "results" / "quick"
     reports = workdir / "reports" / "quick"
     for method in ("feti", "fetidp", "bddc"):
@@ -90,19 +96,19 @@ def test_quick_study_end_to_end(workdir):
     assert "\\begin{tabular}" in (reports / "table.tex").read_text()
     assert (reports / "cond_vs_Hh.png").read_bytes()[:4] == b"\x89PNG"
     assert not list(results.rglob("*.tmp"))
-    # the default study's outputs are separate and untouched
-    assert not (workdir / "results" / "default").exists()
+    # the full study's outputs are separate and untouched
+    assert not (workdir / "results" / "poisson").exists()
 
     # finished cases are never rerun ...
-    again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/quick.yaml")
+    again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/poisson.yaml", "tiny.yaml")
     assert "Nothing to be done" in again.stdout + again.stderr
     # ... a new H/h adds only its cases ...
     (workdir / "more.yaml").write_text("elements: [2, 4, 8]\n")
-    more = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/quick.yaml",
-                             "more.yaml"))
+    more = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/poisson.yaml",
+                             "tiny.yaml", "more.yaml"))
     assert more["solve_case"] == 3 and more["aggregate"] == 1
     # ... and a changed parameter reruns the cases it affects (params rerun-trigger)
     (workdir / "rtol.yaml").write_text("rtol: 1.0e-8\n")
-    rerun = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/quick.yaml",
-                              "rtol.yaml"))
+    rerun = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/poisson.yaml",
+                              "tiny.yaml", "rtol.yaml"))
     assert rerun["solve_case"] == 6

@@ -107,7 +107,7 @@ def test_profile_lists_functions():
 
 
 def test_scaling_workflow_dry_run(tmp_path):
-    """config/scaling.yaml plans one job per (method, H/h), the summary, plot and profile, and is the default target."""
+    """config/scaling.yaml plans one job per (method, H/h), the summary, plot and profile, and nothing else."""
     import re
     import shutil
     import subprocess
@@ -130,6 +130,6 @@ def test_scaling_workflow_dry_run(tmp_path):
     cfg = yaml.safe_load((root / "config" / "scaling.yaml").read_text())["contact_scaling"]
     expected = len(cfg["methods"]) * len(cfg["elements"])
     assert int(re.search(r"^scaling_case\s+(\d+)\s*$", text, re.MULTILINE).group(1)) == expected
-    for rule in ("scaling_summary", "scaling_plot", "scaling_profile", "scaling"):
+    for rule in ("scaling_summary", "scaling_plot", "scaling_profile", "all"):
         assert re.search(rf"^{rule}\s+1\s*$", text, re.MULTILINE), rule
     assert not re.search(r"^solve_case\s", text, re.MULTILINE)       # not the default study

@@ -17,8 +17,8 @@ SCHEMA = ROOT / "workflows" / "schemas" / "config.schema.yaml"
 
 
 def load_config(*names: str) -> dict:
-    """config/default.yaml updated by the given files, as Snakemake merges them."""
-    config = yaml.safe_load((ROOT / "config" / "default.yaml").read_text())
+    """The given single-study config files, merged as Snakemake merges them (top-level keys)."""
+    config = {}
     for name in names:
         config.update(yaml.safe_load((ROOT / "config" / name).read_text()))
     return config
@@ -393,6 +393,7 @@ def test_scripts_render_reports_beyond_the_thesis(tmp_path):
 def test_poisson_study_with_several_bodies_is_rejected(workdir):
     from test_pipeline import snakemake
 
-    (workdir / "bodies.yaml").write_text("study: b\nsweeps: [{bodies: [1, 2], subdomains: 2, elements: 4}]\n")
+    (workdir / "bodies.yaml").write_text("study: b\nmethods: [bddc]\n"
+                                         "sweeps: [{bodies: [1, 2], subdomains: 2, elements: 4}]\n")
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "bodies.yaml", check=False)
     assert proc.returncode != 0 and "exactly one body" in proc.stdout + proc.stderr

@@ -1,12 +1,12 @@
 # Work-precision benchmark (config/bench.yaml):
 #   snakemake --cores 2 --configfile config/bench.yaml
 # All its settings live under the config key `bench`. This file is included
-# before the Snakefile validates the study config: it takes `bench` out of the
-# config (so the default study's schema never sees it), validates it against
-# workflows/schemas/bench.schema.yaml and, only then, defines its rules and
-# makes `bench` the default target. Without a `bench` key it defines nothing
-# and `rule all` stays the default. (`snakemake ... bench` names the target
-# explicitly; put it before --configfile, which takes several files.)
+# before the study config is validated: it takes `bench` out of the config (so
+# the study schema never sees it), validates it against
+# workflows/schemas/bench.schema.yaml and, only then, defines its rules;
+# `bench_targets()` is then part of rule all (workflows/rules/study.smk).
+# Without a `bench` key it defines nothing. (`snakemake bench ...` names the
+# target alone.)
 #
 # Jobs: per problem kind, one reference (direct solves of the problem and of
 # its 2x refinement), then one job per (method, rtol) and per peer (the direct
@@ -18,7 +18,7 @@
 BENCH = config.pop("bench", None)
 
 if BENCH is not None:
-    validate(BENCH, "../schemas/bench.schema.yaml")
+    validate_config(BENCH, "bench", key="config key bench")
 
     import re as _bench_re
     import sys as _bench_sys
@@ -59,10 +59,13 @@ if BENCH is not None:
     def bench_case_files(wildcards=None):
         return [f"results/{BENCH_STUDY}/{kind}/{solver}/{tol}.h5" for kind, solver, tol in BENCH_CASES]
 
+    def bench_targets():
+        """The benchmark's reports (part of rule all)."""
+        return [f"reports/{BENCH_STUDY}/work_precision.png", f"reports/{BENCH_STUDY}/work_precision.csv"]
+
     rule bench:
         input:
-            f"reports/{BENCH_STUDY}/work_precision.png",
-            f"reports/{BENCH_STUDY}/work_precision.csv",
+            bench_targets(),
 
     rule bench_reference:
         output:
@@ -103,7 +106,8 @@ if BENCH is not None:
             bench_case_files(),
         output:
             summary=f"results/{BENCH_STUDY}/summary.csv",
-            table=f"reports/{BENCH_STUDY}/work_precision.csv",
+            table=report(f"reports/{BENCH_STUDY}/work_precision.csv", caption="../report/bench_table.rst",
+                         category="Work-precision benchmark"),
         log:
             f"logs/{BENCH_STUDY}/summary.log",
         script:
@@ -113,23 +117,11 @@ if BENCH is not None:
         input:
             f"reports/{BENCH_STUDY}/work_precision.csv",
         output:
-            f"reports/{BENCH_STUDY}/work_precision.png",
+            report(f"reports/{BENCH_STUDY}/work_precision.png", caption="../report/bench_plot.rst",
+                   category="Work-precision benchmark"),
         params:
             time=BENCH["plot_time"],
         log:
             f"logs/{BENCH_STUDY}/plot.log",
         script:
             "../scripts/bench_plot.py"
-
-    # Snakemake restores the default target at the end of every include, so a
-    # rule of an included file cannot stay the default; re-assert `bench` after
-    # each later include of the Snakefile, which keeps `rule all` (defined after
-    # them) from becoming the default of a bench run.
-    _bench_include = workflow.include
-
-    def _include_keeping_bench_default(*args, **kwargs):
-        out = _bench_include(*args, **kwargs)
-        workflow.default_target = "bench"
-        return out
-
-    workflow.include = _include_keeping_bench_default

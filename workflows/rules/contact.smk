@@ -35,7 +35,8 @@ rule contact_table:
         summary="results/{study}/summary.csv",
         thesis=lambda wc: thesis_table(wc.table),
     output:
-        md="reports/{study}/{table}.md",
+        md=report("reports/{study}/{table}.md", caption="../report/contact_table.rst",
+                  category="Chapters 5 and 6: contact"),
         tex="reports/{study}/{table}.tex",
     wildcard_constraints:
         table="|".join(CONTACT_TABLE_METHODS),
@@ -51,9 +52,11 @@ rule contact_comparison:
         table_5_1=thesis_table("table_5_1") if "thesis_tables" in config else [],
         table_6_1=thesis_table("table_6_1") if "thesis_tables" in config else [],
     output:
-        md="reports/{study}/comparison.md",
+        md=report("reports/{study}/comparison.md", caption="../report/contact_comparison.rst",
+                  category="Chapters 5 and 6: contact"),
         tex="reports/{study}/comparison.tex",
-        png="reports/{study}/comparison.png",
+        png=report("reports/{study}/comparison.png", caption="../report/contact_comparison.rst",
+                   category="Chapters 5 and 6: contact"),
     log:
         "logs/{study}/comparison.log",
     script:
@@ -62,8 +65,10 @@ rule contact_comparison:
 
 rule figure_5_2:
     output:
-        surface="reports/{study}/figure_5_2_surface.png",
-        contact="reports/{study}/figure_5_2_contact.png",
+        surface=report("reports/{study}/figure_5_2_surface.png", caption="../report/figure_5_2.rst",
+                       category="Chapters 5 and 6: contact"),
+        contact=report("reports/{study}/figure_5_2_contact.png", caption="../report/contact_plot.rst",
+                       category="Chapters 5 and 6: contact"),
         csv="reports/{study}/figure_5_2_contact.csv",
     params:
         spec=figure_5_2_spec(),

@@ -28,7 +28,7 @@ rule table_4:
         summary="results/{study}/summary.csv",
         thesis=lambda wc: thesis_inputs(TABLES_4[wc.table], wc.table),
     output:
-        md="reports/{study}/{table}.md",
+        md=report("reports/{study}/{table}.md", caption="../report/table_4.rst", category="Chapter 4: multibody"),
         tex="reports/{study}/{table}.tex",
     wildcard_constraints:
         table="|".join(TABLES_4),
@@ -48,7 +48,7 @@ rule figure_4:
         summary="results/{study}/summary.csv",
         thesis=lambda wc: thesis_inputs(FIGURES_4[wc.figure], None),
     output:
-        "reports/{study}/{figure}.png",
+        report("reports/{study}/{figure}.png", caption="../report/figure_4.rst", category="Chapter 4: multibody"),
     wildcard_constraints:
         figure="|".join(FIGURES_4),
     params:

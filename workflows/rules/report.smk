@@ -5,7 +5,7 @@ rule table:
     input:
         "results/{study}/summary.csv",
     output:
-        md="reports/{study}/table.md",
+        md=report("reports/{study}/table.md", caption="../report/poisson_table.rst", category="Poisson"),
         tex="reports/{study}/table.tex",
     params:
         methods=config["methods"],
@@ -19,7 +19,7 @@ rule plot_cond:
     input:
         "results/{study}/summary.csv",
     output:
-        "reports/{study}/cond_vs_Hh.png",
+        report("reports/{study}/cond_vs_Hh.png", caption="../report/poisson_cond.rst", category="Poisson"),
     params:
         methods=config["methods"],
     log:

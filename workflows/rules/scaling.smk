@@ -4,10 +4,9 @@
 # the studies' interface scaling). Like bench.smk, this file is included before
 # the Snakefile validates the study config: it takes `contact_scaling` out of
 # the config, validates it against workflows/schemas/scaling.schema.yaml and
-# only then defines its rules and
-# makes `scaling` the default target (unless a `bench` config is also given;
-# then name the target: `snakemake scaling ...`). Without a `contact_scaling`
-# key it defines nothing.
+# only then defines its rules; `scaling_targets()` is then part of rule all
+# (workflows/rules/study.smk; `snakemake scaling ...` names the target alone).
+# Without a `contact_scaling` key it defines nothing.
 #
 # Jobs: one per (method, H/h), each taking all the cores given to Snakemake so
 # that cases run one at a time (BLAS is still limited to 1 thread inside, the
@@ -21,12 +20,20 @@
 SCALING = config.pop("contact_scaling", None)
 
 if SCALING is not None:
-    validate(SCALING, "../schemas/scaling.schema.yaml")
+    validate_config(SCALING, "scaling", key="config key contact_scaling")
 
     SCALING_STUDY = SCALING.get("study", "scaling")
     SCALING_N = int(SCALING["subdomains"])
     SCALING_PROFILE = dict(SCALING.get("profile") or {})
     SCALING_PROFILE.setdefault("elements", max(SCALING["elements"]))
+
+    def scaling_threads(wildcards):
+        """All the cores given to Snakemake, so that the timed cases run one at a time
+        (1 where no --cores is given, as for --report)."""
+        try:
+            return workflow.cores
+        except WorkflowError:
+            return 1
 
     def scaling_case_files(wildcards=None):
         return [f"results/{SCALING_STUDY}/{method}/N{SCALING_N}_m{m}.h5"
@@ -37,12 +44,14 @@ if SCALING is not None:
                 (("rtol", 1e-5), ("maxiter", 1000), ("direct", "mkl-pardiso"), ("direct_threads", 1),
                  ("repeats", 1), ("repeat_budget", 30.0))}
 
+    def scaling_targets():
+        """The scaling study's reports (part of rule all)."""
+        return [f"reports/{SCALING_STUDY}/{name}" for name in ("scaling.png", "scaling.csv", "scaling.md",
+                                                              "profile.txt")]
+
     rule scaling:
         input:
-            f"reports/{SCALING_STUDY}/scaling.png",
-            f"reports/{SCALING_STUDY}/scaling.csv",
-            f"reports/{SCALING_STUDY}/scaling.md",
-            f"reports/{SCALING_STUDY}/profile.txt",
+            scaling_targets(),
 
     rule scaling_case:
         output:
@@ -55,7 +64,7 @@ if SCALING is not None:
             options=scaling_options,
         log:
             f"logs/{SCALING_STUDY}/{{method}}/N{{N}}_m{{m}}.log",
-        threads: workflow.cores
+        threads: scaling_threads
         script:
             "../scripts/scaling_case.py"
 
@@ -65,7 +74,8 @@ if SCALING is not None:
         output:
             summary=f"results/{SCALING_STUDY}/summary.csv",
             table=f"reports/{SCALING_STUDY}/scaling.csv",
-            markdown=f"reports/{SCALING_STUDY}/scaling.md",
+            markdown=report(f"reports/{SCALING_STUDY}/scaling.md", caption="../report/scaling_table.rst",
+                            category="Contact scaling"),
         params:
             targets=SCALING.get("targets", {}),
         log:
@@ -77,7 +87,8 @@ if SCALING is not None:
         input:
             f"results/{SCALING_STUDY}/summary.csv",
         output:
-            f"reports/{SCALING_STUDY}/scaling.png",
+            report(f"reports/{SCALING_STUDY}/scaling.png", caption="../report/scaling_plot.rst",
+                   category="Contact scaling"),
         log:
             f"logs/{SCALING_STUDY}/plot.log",
         script:
@@ -88,7 +99,8 @@ if SCALING is not None:
             # after the timed cases, so that it does not run beside one of them
             scaling_case_files(),
         output:
-            text=f"reports/{SCALING_STUDY}/profile.txt",
+            text=report(f"reports/{SCALING_STUDY}/profile.txt", caption="../report/scaling_profile.rst",
+                        category="Contact scaling"),
             stats=f"results/{SCALING_STUDY}/profile.prof",
         params:
             subdomains=SCALING_N,
@@ -98,17 +110,6 @@ if SCALING is not None:
             options=scaling_options,
         log:
             f"logs/{SCALING_STUDY}/profile.log",
-        threads: workflow.cores
+        threads: scaling_threads
         script:
             "../scripts/scaling_profile.py"
-
-    if BENCH is None:
-        # as in bench.smk: keep `scaling` the default target through the later includes
-        _scaling_include = workflow.include
-
-        def _include_keeping_scaling_default(*args, **kwargs):
-            out = _scaling_include(*args, **kwargs)
-            workflow.default_target = "scaling"
-            return out
-
-        workflow.include = _include_keeping_scaling_default

@@ -1,8 +1,8 @@
 """Snakemake script of rule aggregate: result files (input) -> summary CSV (output[0])."""
-import sys
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     from ddsolve.io.aggregate import collect, write_table
 
     df = collect(snakemake.input)  # noqa: F821

@@ -1,8 +1,8 @@
 """Snakemake script of rule bench_plot: work_precision.csv -> work_precision.png (params.time: wall or cpu)."""
-import sys
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddsolve.bench.report import plot_work_precision

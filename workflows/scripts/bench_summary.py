@@ -1,8 +1,8 @@
 """Snakemake script of rule bench_summary: case files (input) -> summary.csv and work_precision.csv."""
-import sys
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     from ddsolve.bench.report import summary_table
     from ddsolve.io.aggregate import collect, write_table
 

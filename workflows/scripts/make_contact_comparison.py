@@ -3,11 +3,11 @@
 Inputs from Snakemake: input.summary, input.table_5_1, input.table_6_1 (thesis
 transcriptions), output.md, output.tex, output.png, log[0].
 """
-import sys
 from pathlib import Path
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddsolve.report.contact_plots import plot_method_comparison

@@ -3,11 +3,11 @@
 Inputs from Snakemake: input.summary, input.thesis, output.md, output.tex,
 wildcards.table (table_5_1 or table_6_1), log[0].
 """
-import sys
 from pathlib import Path
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddsolve.report.contact_tables import render_contact_table

@@ -1,9 +1,9 @@
 """Snakemake script of rule table: summary CSV -> table.md and table.tex."""
-import sys
 from pathlib import Path
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddsolve.report.tables import condition_table, describe_constants, to_latex, to_markdown

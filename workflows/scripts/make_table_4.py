@@ -5,11 +5,11 @@ output.tex, params.table (TABLES_4 entry: method, quantities, title; kind "growt
 for the H_b/H_s growth table beyond the thesis, with thesis = [table 4.1, table 4.2]),
 params.contacts, params.cases (row order), params.base (the base case), log[0].
 """
-import sys
 from pathlib import Path
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddsolve.report.plots import hbhs_growth

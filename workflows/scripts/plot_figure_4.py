@@ -5,10 +5,10 @@ params.figure (FIGURES_4 entry: method, x, y, model, logx, title; kind "growth" 
 the FETI-FETI / hybrid iterations against H_b/H_s, with thesis = [table 4.1, table 4.2]),
 params.contacts, params.base (the base case the sweep starts from), log[0].
 """
-import sys
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddsolve.report.plots import plot_iterations_vs_HbHs, plot_multibody_sweep

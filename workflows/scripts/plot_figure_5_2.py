@@ -4,13 +4,13 @@ Inputs from Snakemake: params.spec (the ProblemSpec mapping), output.surface,
 output.contact (PNG), output.csv (u^1, u^2, lambda along Gamma_c), log[0], threads.
 """
 import os
-import sys
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = str(snakemake.threads)  # noqa: F821
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     from ddsolve.report.contact_plots import (contact_line, membrane_surfaces, plot_contact_line,
                                               plot_membranes, solve_contact_case)
 

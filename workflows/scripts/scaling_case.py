@@ -4,15 +4,15 @@ Inputs from Snakemake: wildcards.method, wildcards.N, wildcards.m, params.option
 direct, direct_threads, repeats, repeat_budget), output[0], log[0].
 """
 import os
-import sys
 
 # ddsolve's solvers run with one BLAS thread (threadpoolctl, as ddsolve.solve); the job reserves
 # all of Snakemake's cores only so that no other case runs beside it.
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import logging
 
     logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")

@@ -1,8 +1,8 @@
 """Snakemake script of rule scaling_plot: results/<study>/summary.csv -> reports/<study>/scaling.png."""
-import sys
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddsolve.bench.scaling import plot_scaling

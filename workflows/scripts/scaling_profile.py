@@ -4,13 +4,13 @@ Inputs from Snakemake: params.subdomains, params.elements, params.method, params
 output.text, output.stats, log[0].
 """
 import os
-import sys
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import logging
     from pathlib import Path
 

@@ -1,9 +1,9 @@
 """Snakemake script of rule scaling_summary: case files -> summary.csv, scaling.csv (table) and scaling.md
 (table, exponent fits, targets). params.targets: see ddsolve.bench.scaling.scaling_summary."""
-import sys
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     from pathlib import Path
 
     from ddsolve.bench.scaling import scaling_summary, summary_markdown

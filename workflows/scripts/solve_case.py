@@ -3,14 +3,14 @@
 Inputs from Snakemake: params.spec (the ProblemSpec mapping), output[0], log[0], threads.
 """
 import os
-import sys
 
 # Keep BLAS/OpenMP inside the job's thread budget (set before numpy is imported).
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = str(snakemake.threads)  # noqa: F821
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     from ddsolve.api import solve
     from ddsolve.io.hdf5 import write_result
     from ddsolve.spec import ProblemSpec

@@ -2,10 +2,10 @@
 
 Inputs from Snakemake: input (the series JSON files), output.md, output.csv, log[0].
 """
-import sys
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddsolve.io.hdf5 import atomic_target

@@ -7,14 +7,14 @@ job itself only fails if the records cannot be written.
 """
 import logging
 import os
-import sys
 
 # Keep BLAS/OpenMP inside the job's thread budget (set before numpy is imported).
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = str(snakemake.threads)  # noqa: F821
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stdout = sys.stderr = log
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
     logging.basicConfig(stream=log, level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     from ddsolve.report.stress import StressCase, run_case, write_records
 

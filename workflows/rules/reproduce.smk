@@ -1,0 +1,46 @@
+# The reproduction: every study listed under `studies` (config/default.yaml: the
+# thesis's Tables 4.1, 4.2, 5.1, 6.1 and Figures 4.2, 4.3, 5.2, then the
+# work-precision, scaling and stress studies; config/quick.yaml: the same, small).
+#
+# Each entry names a single-study config file and, under `set`, keys that override
+# it (merged as Snakemake merges several --configfile: mappings key by key, any
+# other value replaced). The study then runs as a Snakemake module of this very
+# workflow with that config, so its rules, paths, validation and reruns are those
+# of `snakemake --configfile <that file>`: a study finished by either command is
+# not rerun by the other. The module's rules are prefixed with the entry's name
+# (`table_4_solve_case`, ...). The module and use-rule statements are written as
+# the calls Snakemake compiles them to, so that the list of studies comes from the
+# config.
+import yaml
+from snakemake.utils import update_config
+
+validate_config(config, "studies")
+
+
+def study_config(entry):
+    """The config of one `studies` entry: its configfile updated by its `set` mapping."""
+    path = os.path.join(workflow.basedir, entry["configfile"])
+    try:
+        with open(path) as stream:
+            study = yaml.safe_load(stream) or {}
+    except OSError as err:
+        raise WorkflowError(f"studies: {entry['name']}: cannot read configfile {entry['configfile']}: "
+                            f"{err.strerror}")
+    update_config(study, entry.get("set") or {})
+    return study
+
+
+STUDIES = [entry["name"] for entry in config["studies"]]
+if len(set(STUDIES)) != len(STUDIES):
+    raise WorkflowError(f"studies: names must be unique, got {STUDIES}")
+
+for entry in config["studies"]:
+    # module <name>: snakefile: "Snakefile"; config: study_config(entry)
+    # use rule * from <name> as <name>_*
+    workflow.module(entry["name"], snakefile=workflow.main_snakefile, config=study_config(entry))
+    workflow.userule(rules=["*"], from_module=entry["name"], name_modifier=f"{entry['name']}_*")(lambda: None)
+
+
+def targets():
+    """The reports of every listed study (the inputs of their `all` rules)."""
+    return [path for name in STUDIES for path in getattr(rules, f"{name}_all").input]
