@@ -35,8 +35,10 @@ def solve_contact_spec(spec: ProblemSpec, sub: Substructures, result: SolveResul
     ``result.iterations`` is the total of the inner iterations; ``extra`` gets
     ``outer_iterations``, ``inner_iterations`` (list), ``pcg_iterations``,
     ``total_iterations``, ``n_active``, ``n_contact``, ``energy``,
-    ``kkt_residual`` and its four parts. With ``check``, ``error_vs_direct``
-    is the relative l2 error of u against the primal-dual active set reference
+    ``kkt_residual`` and its four parts (SMALBE also its counters, ``penalty``,
+    ``rho_bar`` and ``force_error`` = |sum(lambda) - net load| / net load). With
+    ``check``, ``error_vs_direct`` is the relative l2 error of u against the
+    primal-dual active set reference
     (the stiffness is singular on the floating membrane, so the energy norm
     would not see a rigid shift of it) and ``lambda_error_vs_direct`` that of
     the multipliers.
@@ -64,7 +66,7 @@ def solve_contact_spec(spec: ProblemSpec, sub: Substructures, result: SolveResul
         "energy": problem.energy(sol.u),
         **kkt.as_dict(),
     })
-    for key in ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty"):
+    for key in ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty", "rho_bar", "force_error"):
         if key in sol.extra:
             result.extra[key] = sol.extra[key]
     if spec.check:

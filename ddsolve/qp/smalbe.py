@@ -24,7 +24,8 @@ Outer iteration k (Figure 6.7):
    ``||g^P(x^k, mu^k, rho_k)|| <= min(M ||B_E x^k - c||, eta)``, or stop early when the
    outer stopping rule below already holds;
 2. stop if ``||g^P(x^k, mu^k, rho_k)|| <= eps ||b||`` and ``||B_E x^k - c|| <= eps ||b||``
-   (the stopping criterion of Section 6.4);
+   (the stopping criterion of Section 6.4; ``feas_tol`` replaces the second bound, e.g.
+   by a smaller one relative to the size of ``c`` or of what the constraint carries);
 3. ``mu^{k+1} = mu^k + rho_k (B_E x^k - c)``;
 4. if ``k > 0`` and ``L(x^k, mu^k, rho_k) < L(x^{k-1}, mu^{k-1}, rho_{k-1})
    + rho_k/2 ||B_E x^k - c||^2`` then ``rho_{k+1} = beta rho_k`` else ``rho_{k+1} = rho_k``.
@@ -55,7 +56,7 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
            M: float = 1.0, rho0: float = 30.0, eta: float | None = None, beta: float = 10.0,
            Gamma: float = 1.0, eps: float = 1e-5, atol: float = 0.0, maxiter: int | None = None,
            max_outer: int = 100, norm_A: float | None = None, norm_BE: float | None = None,
-           mu0: Any = None, halfstep: bool = True) -> QPResult:
+           mu0: Any = None, halfstep: bool = True, feas_tol: float | None = None) -> QPResult:
     """Solve ``min 1/2 x^T A x - b^T x  s.t.  x >= lb, BE x = c`` by SMALBE (Figure 6.7).
 
     See the module docstring for the algorithm.
@@ -108,6 +109,12 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         Initial multiplier ``mu^0`` (default 0).
     halfstep : bool
         Passed to MPRGP (feasible half step before expansion steps).
+    feas_tol : float, optional
+        Absolute tolerance of the equality part of the outer stopping rule,
+        ``||BE x - c|| <= feas_tol`` (default the thesis's ``max(eps ||b||, atol)``). A
+        caller whose equality carries a quantity much smaller than ``||b||`` (the net
+        contact force of :func:`ddsolve.contact.smalbe_dual.solve_contact_smalbe`)
+        passes a smaller value.
 
     Returns
     -------
@@ -185,6 +192,7 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         return Amul(v) + penalty[0] * BTmul(Bmul(v))
 
     tol_outer = max(eps * norm_b, atol)
+    tol_feas = tol_outer if feas_tol is None else check_positive("feas_tol", feas_tol)
     BTc = BTmul(c)
 
     # gradient of L(x, mu, rho) (6.3): A x - b + BE^T (mu + rho (BE x - c))
@@ -194,7 +202,7 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
 
     def inner_stop(xk: np.ndarray, gp_norm: float) -> str | None:
         feas = float(np.linalg.norm(Bmul(xk) - c))
-        if gp_norm <= tol_outer and feas <= tol_outer:
+        if gp_norm <= tol_outer and feas <= tol_feas:
             return f"outer rule met: ||g^P|| = {gp_norm:.3e}, ||BE x - c|| = {feas:.3e}"
         bound = min(M * feas, eta)
         if gp_norm <= bound:
@@ -244,10 +252,14 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         L_k = 0.5 * float(x @ (g - bt)) - float(c @ mu) + 0.5 * rho * float(c @ c)
         # multiplier update (step 3); at convergence this is the KKT multiplier
         mu = mu + rho * r
-        if gp_norm <= tol_outer and feas <= tol_outer:
+        if gp_norm <= tol_outer and feas <= tol_feas:
             converged = True
-            reason = (f"converged: ||g^P|| = {gp_norm:.3e} and ||BE x - c|| = {feas:.3e} "
-                      f"<= eps ||b|| = {tol_outer:.3e}")
+            if tol_feas == tol_outer:
+                reason = (f"converged: ||g^P|| = {gp_norm:.3e} and ||BE x - c|| = {feas:.3e} "
+                          f"<= eps ||b|| = {tol_outer:.3e}")
+            else:
+                reason = (f"converged: ||g^P|| = {gp_norm:.3e} <= eps ||b|| = {tol_outer:.3e} and "
+                          f"||BE x - c|| = {feas:.3e} <= {tol_feas:.3e}")
             break
         # penalty update (step 4)
         rho_new = rho
