@@ -192,7 +192,8 @@ def _solve(spec: ProblemSpec) -> SolveResult:
             out = reference()
         else:
             # PCR (hybrid) has no Lanczos estimate: cond stays None there.
-            options = {"cond": spec.cond} if spec.method == "feti-feti" else {}
+            options = ({"cond": spec.cond} if spec.method == "feti-feti"
+                       else {"norm": spec.norm, "projection": spec.projection})
             out = _multibody_solver(spec.method, sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
                                                                 **options)
         result.extra["n_active"] = int(active.sum())

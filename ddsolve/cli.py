@@ -43,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
                                "multibody); contact: dostal (default) or dostal:F1,F2")
     s.add_argument("--scaling", help="rho (default) or multiplicity")
     s.add_argument("--gamma", help="exponent of the rho-scaling (default 1)")
+    s.add_argument("--norm", help="hybrid: PCR stopping norm, l2 (default, the thesis's) or M (the preconditioner's)")
+    s.add_argument("--projection", help="hybrid: projection onto ker(G^T), orthogonal (default, the thesis's), "
+                                        "dirichlet or lumped (rho-weighted, robust for jumps)")
     s.add_argument("--rtol", help="relative residual tolerance (default 1e-6)")
     s.add_argument("--maxiter", help="iteration limit (default 1000)")
     s.add_argument("--cond", action="store_const", const=True, help="compute the Lanczos condition estimate")

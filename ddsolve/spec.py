@@ -29,6 +29,12 @@ DEFAULT_F: dict[str, float | str] = {"poisson": 1.0, "multibody": "random:0", "c
 DEFAULT_RTOL: dict[str, float] = {"contact": 1e-5}
 CONTACTS = ("full", "middle")
 SCALINGS = ("rho", "multiplicity")
+#: Stopping norms of the hybrid method's PCR (ddsolve.krylov.pcr): Euclidean or the preconditioner's.
+NORMS = ("l2", "M")
+#: Projections onto V^k of the hybrid method (ddsolve.multibody.hybrid.PROJECTIONS).
+PROJECTIONS = ("orthogonal", "dirichlet", "lumped")
+#: Methods that take ``norm`` and ``projection`` other than the defaults.
+PCR_METHODS = ("hybrid",)
 
 
 def _as_int(field: str, value: Any, minimum: int) -> int:
@@ -53,6 +59,15 @@ def _as_positive_float(field: str, value: Any) -> float:
     if isinstance(value, bool) or not math.isfinite(out) or out <= 0:
         raise InputError(field, f"must be a positive number, got {value!r}")
     return out
+
+
+def _choice(field: str, value: Any, choices: tuple[str, ...]) -> str:
+    """``value`` as one of ``choices`` (matched case-insensitively, returned as spelled there)."""
+    by_lower = {c.lower(): c for c in choices}
+    key = value.strip().lower() if isinstance(value, str) else None
+    if key not in by_lower:
+        raise InputError(field, f"unknown {field} {value!r} (choose from {', '.join(choices)})")
+    return by_lower[key]
 
 
 def parse_rho(value: Any) -> tuple[str, float]:
@@ -173,6 +188,19 @@ class ProblemSpec:
         ``"rho"`` (delta-dagger rho-scaling, Section 2.3) or ``"multiplicity"``.
     gamma : float
         Exponent of the rho-scaling, gamma >= 1/2.
+    norm : str
+        Stopping norm of the hybrid method's PCR: ``"l2"`` (default, the
+        thesis's ||r_n||_2 / ||r_0||_2 < rtol, used for Table 4.2) or ``"M"``
+        (||r||_M = <r, M r>^(1/2), M the preconditioner (4.11): the norm PCR
+        minimises, invariant under the rho / 1/rho scaling of the two blocks).
+        Other methods accept only ``"l2"``.
+    projection : str
+        Projection onto V^k = ker(G^kT) of the hybrid method:
+        ``"orthogonal"`` (default, P^k of Section 4.2), ``"dirichlet"`` or
+        ``"lumped"`` (FETI's Q-weighted P = I - QG(G^T Q G)^{-1} G^T with Q the
+        multiplier preconditioner M_D^{-1} of (4.11) or its super-lumped
+        diagonal; robust for coefficient jumps on floating bodies). Other
+        methods accept only ``"orthogonal"``.
     rtol : float or None
         Relative residual tolerance ||r_k|| / ||r_0|| < rtol; None takes the
         problem's default (1e-5 for contact, 1e-6 otherwise).
@@ -194,6 +222,8 @@ class ProblemSpec:
     contact: str = "full"
     scaling: str = "rho"
     gamma: float = 1.0
+    norm: str = "l2"
+    projection: str = "orthogonal"
     rtol: float | None = None
     maxiter: int = 1000
     cond: bool = False
@@ -276,6 +306,12 @@ class ProblemSpec:
         gamma = _as_positive_float("gamma", merged["gamma"])
         if gamma < 0.5:
             raise InputError("gamma", f"must be >= 1/2 (Section 2.3), got {gamma}")
+        norm = _choice("norm", merged["norm"], NORMS)
+        projection = _choice("projection", merged["projection"], PROJECTIONS)
+        for field, value, default in (("norm", norm, NORMS[0]), ("projection", projection, PROJECTIONS[0])):
+            if value != default and method not in PCR_METHODS:
+                raise InputError(field, f"{value!r} applies to the hybrid method only, not {method!r} "
+                                        f"(use {default!r})")
         rtol = _as_positive_float("rtol", merged["rtol"])
         if rtol >= 1:
             raise InputError("rtol", f"must be in (0, 1), got {rtol}")
@@ -284,8 +320,8 @@ class ProblemSpec:
             if not isinstance(merged[flag], bool):
                 raise InputError(flag, f"must be true or false, got {merged[flag]!r}")
         return cls(problem=problem, method=method, bodies=bodies, subdomains=subdomains,
-                   elements=elements, rho=rho, f=f, contact=contact, scaling=scaling, gamma=gamma, rtol=rtol,
-                   maxiter=maxiter, cond=merged["cond"], check=merged["check"])
+                   elements=elements, rho=rho, f=f, contact=contact, scaling=scaling, gamma=gamma, norm=norm,
+                   projection=projection, rtol=rtol, maxiter=maxiter, cond=merged["cond"], check=merged["check"])
 
     @classmethod
     def from_yaml(cls, path: str | Path, overrides: Mapping[str, Any] | None = None) -> "ProblemSpec":

@@ -1,6 +1,12 @@
 """Shared fixtures and helpers for the ddsolve test suite."""
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -8,6 +14,32 @@ from ddsolve.api import build_scene
 from ddsolve.dd import Substructures
 from ddsolve.scene import assemble
 from ddsolve.spec import ProblemSpec
+
+
+#: The repository root (the workflow's files are copied from here).
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def copy_workflow(dest: Path) -> Path:
+    """Copy Snakefile, workflows/ and config/ to `dest`, so that runs never touch the repository."""
+    shutil.copy(ROOT / "Snakefile", dest / "Snakefile")
+    shutil.copytree(ROOT / "workflows", dest / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "config", dest / "config")
+    return dest
+
+
+def run_snakemake(wd: Path, *args: str, check: bool = True, timeout: float = 300) -> subprocess.CompletedProcess:
+    """``python -m snakemake ARGS`` in `wd`, with this checkout's ddsolve first on the path.
+
+    With `check`, a non-zero exit fails the test with Snakemake's output.
+    """
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
+    proc = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=wd, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+    if check and proc.returncode != 0:
+        pytest.fail(f"snakemake {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+    return proc
 
 
 def substructures(**fields) -> Substructures:

@@ -142,22 +142,13 @@ def test_plots_write_files(tmp_path):
 
 def test_dry_run_plans_the_contact_study(tmp_path):
     """50 solves, one summary, both tables, the comparison and Figure 5.2; nothing runs."""
-    import os
     import re
-    import shutil
-    import subprocess
-    import sys
+
+    from conftest import copy_workflow, run_snakemake
 
     pytest.importorskip("snakemake")
-    shutil.copy(ROOT / "Snakefile", tmp_path / "Snakefile")
-    shutil.copytree(ROOT / "workflows", tmp_path / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(ROOT / "config", tmp_path / "config")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
-    proc = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--cores", "1", "--configfile",
-                           "config/table_5_6.yaml"], cwd=tmp_path, env=env, capture_output=True, text=True,
-                          timeout=120)
+    proc = run_snakemake(copy_workflow(tmp_path), "-n", "--cores", "1", "--configfile", "config/table_5_6.yaml")
     text = proc.stdout + proc.stderr
-    assert proc.returncode == 0, text
     counts = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)\s*$", text, flags=re.MULTILINE)}
     assert counts == {"solve_case": 50, "aggregate": 1, "contact_table": 2, "contact_comparison": 1,
                       "figure_5_2": 1, "all": 1, "total": 56}

@@ -6,17 +6,13 @@ The dry runs need only Snakemake; the real run of a tiny Poisson study
 from __future__ import annotations
 
 import importlib.util
-import os
 import re
-import shutil
 import subprocess
-import sys
-from pathlib import Path
 
 import pandas as pd
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import ROOT, copy_workflow
+from conftest import run_snakemake as snakemake
 
 pytest.importorskip("snakemake")
 
@@ -35,22 +31,9 @@ TINY = "study: quick\nsubdomains: [2]\nelements: [2, 4]\n"
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory):
     """A copy of Snakefile, workflows/ and config/ (outputs never touch the repository)."""
-    wd = tmp_path_factory.mktemp("pipeline")
-    shutil.copy(ROOT / "Snakefile", wd / "Snakefile")
-    shutil.copytree(ROOT / "workflows", wd / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(ROOT / "config", wd / "config")
+    wd = copy_workflow(tmp_path_factory.mktemp("pipeline"))
     (wd / "tiny.yaml").write_text(TINY)
     return wd
-
-
-def snakemake(wd: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
-    proc = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=wd, env=env,
-                          capture_output=True, text=True, timeout=300)
-    if check and proc.returncode != 0:
-        pytest.fail(f"snakemake {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
-    return proc
 
 
 def planned(proc: subprocess.CompletedProcess) -> dict[str, int]:

@@ -8,12 +8,12 @@ config is not rerun by the reproduction.
 from __future__ import annotations
 
 import re
-import shutil
 
 import pytest
 import yaml
-
-from test_pipeline import ROOT, has_api, snakemake
+from conftest import ROOT, copy_workflow
+from conftest import run_snakemake as snakemake
+from test_pipeline import has_api
 
 pytest.importorskip("snakemake")
 
@@ -60,11 +60,7 @@ def test_study_lists_validate(name):
 
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory):
-    wd = tmp_path_factory.mktemp("reproduce")
-    shutil.copy(ROOT / "Snakefile", wd / "Snakefile")
-    shutil.copytree(ROOT / "workflows", wd / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(ROOT / "config", wd / "config")
-    return wd
+    return copy_workflow(tmp_path_factory.mktemp("reproduce"))
 
 
 def jobs(text: str) -> dict[str, int]:

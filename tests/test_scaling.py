@@ -109,20 +109,14 @@ def test_profile_lists_functions():
 def test_scaling_workflow_dry_run(tmp_path):
     """config/scaling.yaml plans one job per (method, H/h), the summary, plot and profile, and nothing else."""
     import re
-    import shutil
-    import subprocess
-    import sys
     from pathlib import Path
+
+    from conftest import copy_workflow, run_snakemake
 
     pytest.importorskip("snakemake")
     root = Path(__file__).resolve().parents[1]
-    shutil.copy(root / "Snakefile", tmp_path / "Snakefile")
-    shutil.copytree(root / "workflows", tmp_path / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(root / "config", tmp_path / "config")
-    env = {**__import__("os").environ, "PYTHONPATH": str(root)}
-    proc = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--cores", "2", "--configfile",
-                           "config/scaling.yaml", "--config", "scaling=multiplicity"],
-                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    proc = run_snakemake(copy_workflow(tmp_path), "-n", "--cores", "2", "--configfile", "config/scaling.yaml",
+                         "--config", "scaling=multiplicity")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     text = proc.stdout + proc.stderr
     import yaml

@@ -11,11 +11,7 @@ All loads are deterministic (seeded or closed-form).
 from __future__ import annotations
 
 import math
-import os
 import re
-import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -34,10 +30,6 @@ QUICK = catalog("quick")
 
 #: Known weaknesses (FAIL in the study report): case name pattern -> why.
 KNOWN = {
-    r"^jumps_hybrid_(cb|body)_rho_(?!1$)": "hybrid method: rho-scaling is not robust for jumps when bodies "
-                                          "float (iterations up to 4x those of rho = 1)",
-    r"^contact_(single_node|barely)_smalbe$": "SMALBE returns converged=True with a contact force error "
-                                              "O(eps ||P d||) larger than the net load it carries",
 }
 
 
@@ -229,24 +221,22 @@ def test_report_one_row_per_case(rows):
 
 # --------------------------------------------------------------------------- Snakemake wiring
 def _snakemake(wd: Path, *args: str) -> str:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
-    proc = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=wd, env=env,
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    from conftest import run_snakemake
+
+    proc = run_snakemake(wd, *args)
     return proc.stdout + proc.stderr
 
 
 def test_stress_study_dry_run(tmp_path):
+    from conftest import copy_workflow
+
     pytest.importorskip("snakemake")
-    shutil.copy(ROOT / "Snakefile", tmp_path / "Snakefile")
-    shutil.copytree(ROOT / "workflows", tmp_path / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(ROOT / "config", tmp_path / "config")
+    copy_workflow(tmp_path)
     out = _snakemake(tmp_path, "-n", "--cores", "1", "--configfile", "config/stress.yaml",
                      "--config", "study=stress_quick")
-    n_series = len({case.series for case in QUICK})
-    assert re.search(rf"^stress_series\s+{n_series}\s*$", out, flags=re.MULTILINE), out
+    n_jobs = len({case.group for case in QUICK})  # the quick tier runs one job per group
+    assert re.search(rf"^stress_series\s+{n_jobs}\s*$", out, flags=re.MULTILINE), out
     assert re.search(r"^stress_report\s+1\s*$", out, flags=re.MULTILINE), out
     assert "solve_case" not in out
-    out = _snakemake(tmp_path, "-n", "--cores", "1", "--configfile", "config/quick.yaml")
+    out = _snakemake(tmp_path, "-n", "--cores", "1", "--configfile", "config/poisson.yaml")
     assert "stress_series" not in out and "stress_report" not in out

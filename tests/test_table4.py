@@ -3,7 +3,6 @@ figures on synthetic runs, and a tiny end-to-end Snakemake run of a multibody st
 from __future__ import annotations
 
 import math
-import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -286,11 +285,9 @@ thesis_tables: THESIS
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory):
     pytest.importorskip("snakemake")
-    wd = tmp_path_factory.mktemp("table4")
-    shutil.copy(ROOT / "Snakefile", wd / "Snakefile")
-    shutil.copytree(ROOT / "workflows", wd / "workflows", ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(ROOT / "config", wd / "config")
-    return wd
+    from conftest import copy_workflow
+
+    return copy_workflow(tmp_path_factory.mktemp("table4"))
 
 
 def test_dry_run_table_4(workdir):

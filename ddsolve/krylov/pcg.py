@@ -182,14 +182,16 @@ def _maxiter_reason(maxiter: int, rnorm: float, rnorm0: float, threshold: float)
 
 
 def _initial_checks(
-    s: _Setup, r: np.ndarray, matvecs: int, t0: float
+    s: _Setup, r: np.ndarray, matvecs: int, t0: float, rnorm0: float | None = None
 ) -> tuple[KrylovResult | None, float, float]:
     """Handle a zero / non-finite / already small initial residual.
 
-    Returns ``(result, rnorm0, threshold)``; ``result`` is not None when the
-    iteration must not start.
+    ``rnorm0`` is the norm of ``r`` in the stopping norm (``||r||_2`` when
+    None). Returns ``(result, rnorm0, threshold)``; ``result`` is not None when
+    the iteration must not start.
     """
-    rnorm0 = _norm(r)
+    if rnorm0 is None:
+        rnorm0 = _norm(r)
     if not math.isfinite(rnorm0):
         return (KrylovResult(
             x=s.x, converged=False,

@@ -16,6 +16,15 @@ Two mathematically equivalent recurrences are used:
   whose only denominators are ``<A p, M A p> > 0``, so it cannot break down for
   nonsingular ``A``. It takes over, restarted from the current iterate, when
   ``<z, A z>`` is (numerically) zero.
+
+The stopping rule measures the residual either in the Euclidean norm
+(``norm="l2"``, the rule of Section 4.4 of the thesis and scipy's) or in the
+norm the iteration minimises, ``||r||_M = <r, M r>^{1/2}`` (``norm="M"``). For
+a block-diagonal preconditioner such as (4.11) of the thesis the latter is
+invariant under a rescaling of the blocks (e.g. forces ~ rho against
+displacements ~ 1/rho), which ``||r||_2`` is not. Both recurrences carry
+``z = M r`` recursively (``z -= step * M A p``), so ``||r||_M`` costs one dot
+product per iteration and one preconditioner application at the start.
 """
 from __future__ import annotations
 
@@ -23,7 +32,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -39,15 +48,22 @@ from .pcg import (
     _Setup,
     _true_residual,
 )
+from ..errors import InputError
 from .result import KrylovResult
 
-__all__ = ["pcr"]
+__all__ = ["pcr", "NORMS"]
+
+#: Stopping norms of :func:`pcr`: Euclidean, or ``<r, M r>^{1/2}`` (M the preconditioner).
+NORMS: tuple[str, ...] = ("l2", "M")
 
 logger = logging.getLogger(__name__)
 
 #: ``|<z, A z>| <= _CR_PIVOT_TOL * ||z|| * ||A z||`` hands over to the three-term
 #: recurrence (the two-term CR would divide by a numerically zero pivot).
 _CR_PIVOT_TOL = 1e-8
+#: A negative ``<r, M r>`` within ``_ROUNDING * ||r|| ||M r||`` is rounding, not an
+#: indefinite ``M``: its square root is taken of the absolute value.
+_ROUNDING = 64 * float(np.finfo(float).eps)
 
 # outcomes of one recurrence
 _CONVERGED, _MAXITER, _BREAKDOWN, _SWITCH = "converged", "maxiter", "breakdown", "switch"
@@ -57,10 +73,16 @@ class _PCRState:
     """Iterate, residual and bookkeeping shared by the two recurrences."""
 
     def __init__(self, s: _Setup, r: np.ndarray, rnorm0: float, threshold: float,
-                 matvecs: int, callback: Callable[[np.ndarray], Any] | None) -> None:
+                 matvecs: int, callback: Callable[[np.ndarray], Any] | None,
+                 norm: str = "l2", z: np.ndarray | None = None) -> None:
         self.s = s
         self.x = s.x
         self.r = r
+        #: stopping norm, "l2" or "M"
+        self.norm = norm
+        #: z = P M r, updated with r (always by the two-term recurrence, by the
+        #: three-term one only for norm="M"); None when not carried
+        self.z = z
         self.rnorm0 = rnorm0
         self.threshold = threshold
         self.matvecs = matvecs
@@ -80,36 +102,53 @@ class _PCRState:
 
     def precondition(self, v: np.ndarray) -> np.ndarray:
         """``P M v`` (a fresh array)."""
-        z = v.copy() if self.s.M is None else _apply(self.s.M, v)
-        return z if self.s.P is None else _apply(self.s.P, z)
+        return _precondition(self.s, v)
 
-    def step(self, step: float, p: np.ndarray, ap: np.ndarray) -> str | None:
-        """``x += step p``, ``r -= step A p``; record, call back, test convergence.
+    def step(self, step: float, p: np.ndarray, ap: np.ndarray,
+             map_: np.ndarray | None = None) -> str | None:
+        """``x += step p``, ``r -= step A p``, ``z -= step M A p``; record, call back, test.
 
-        Returns None to continue, or ``_CONVERGED`` / ``_MAXITER`` / ``_BREAKDOWN``
-        (with ``self.reason`` set).
+        ``map_`` (``P M A p``) is required while ``self.z`` is carried. The
+        residual is measured in ``self.norm``. Returns None to continue, or
+        ``_CONVERGED`` / ``_MAXITER`` / ``_BREAKDOWN`` (with ``self.reason`` set).
         """
         tmp = self.tmp
         np.multiply(p, step, out=tmp)
         self.x += tmp
         np.multiply(ap, step, out=tmp)
         self.r -= tmp
-        rnorm = _norm(self.r)
-        self.residuals.append(rnorm)
+        if self.z is not None:
+            if map_ is None:  # pragma: no cover - internal invariant
+                raise RuntimeError("pcr: M A p is needed to update z = M r")
+            np.multiply(map_, step, out=tmp)
+            self.z -= tmp
         self.iterations += 1
         k = self.iterations
+        if self.norm == "M":
+            rz = float(np.dot(self.r, self.z))
+            rnorm = _m_norm(self.r, self.z, rz)
+            if math.isnan(rnorm) and math.isfinite(rz):
+                # clearly negative <r, M r>: recorded by its modulus (a non-finite one is caught below)
+                self.residuals.append(math.sqrt(-rz))
+                self.reason = (f"breakdown: <r, M r> = {rz:.3e} < 0 at iteration {k} "
+                               "(M not positive definite)")
+                return _BREAKDOWN
+        else:
+            rnorm = _norm(self.r)
+        self.residuals.append(rnorm)
         if self.debug:
-            logger.debug("pcr it %d: ||r||/||r0|| = %.3e", k, rnorm / self.rnorm0)
+            logger.debug("pcr it %d: ||r||/||r0|| = %.3e (%s)", k, rnorm / self.rnorm0, self.norm)
         if self.callback is not None:
             self.callback(self.x_view)
         if not math.isfinite(rnorm):
             self.reason = f"breakdown: non-finite residual at iteration {k}"
             return _BREAKDOWN
         if rnorm <= self.threshold:
-            self.reason = _converged_reason(rnorm, self.rnorm0, self.threshold)
+            self.reason = _label(_converged_reason(rnorm, self.rnorm0, self.threshold), self.norm)
             return _CONVERGED
         if k >= self.s.maxiter:
-            self.reason = _maxiter_reason(self.s.maxiter, rnorm, self.rnorm0, self.threshold)
+            self.reason = _label(_maxiter_reason(self.s.maxiter, rnorm, self.rnorm0, self.threshold),
+                                 self.norm)
             return _MAXITER
         return None
 
@@ -118,6 +157,29 @@ class _PCRState:
                        f"{self.iterations + 1} (A singular, M not positive definite, "
                        "or NaN/inf)")
         return _BREAKDOWN
+
+
+def _m_norm(r: np.ndarray, z: np.ndarray, rz: float | None = None) -> float:
+    """``<r, z>^{1/2}`` with ``z = M r``: the ``M``-norm of the residual.
+
+    NaN when ``<r, z>`` (``rz`` if given) is negative beyond rounding (``M``
+    not positive definite) or not finite; a negative value at rounding level
+    counts by its modulus.
+    """
+    if rz is None:
+        rz = float(np.dot(r, z))
+    if rz >= 0.0:
+        return math.sqrt(rz)
+    if -rz <= _ROUNDING * _norm(r) * _norm(z):
+        return math.sqrt(-rz)
+    return math.nan
+
+
+def _label(reason: str, norm: str) -> str:
+    """Name the ``M``-norm in a stopping reason (``||r||`` -> ``||r||_M``)."""
+    if norm != "M":
+        return reason
+    return reason.replace("||r||/||r0||", "||r||_M/||r0||_M")
 
 
 def _two_term(st: _PCRState) -> str:
@@ -133,10 +195,12 @@ def _two_term(st: _PCRState) -> str:
         A p_{k+1} = A z_{k+1} + beta_k A p_k,   M A p_{k+1} = M (A p_{k+1})
 
     One operator (``A z``) and one preconditioner (``M A p``) application per
-    iteration. Returns ``_SWITCH`` when ``rho`` is numerically zero.
+    iteration. ``z`` is ``st.z``, updated in place by :meth:`_PCRState.step`.
+    Returns ``_SWITCH`` when ``rho`` is numerically zero.
     """
-    tmp = st.tmp
-    z = st.precondition(st.r)
+    if st.z is None:
+        st.z = st.precondition(st.r)
+    z = st.z
     az = st.op(z)
     rho = float(np.dot(z, az))
     if not math.isfinite(rho):
@@ -155,11 +219,9 @@ def _two_term(st: _PCRState) -> str:
         if not math.isfinite(alpha):
             st.reason = f"breakdown: non-finite step length at iteration {st.iterations + 1}"
             return _BREAKDOWN
-        outcome = st.step(alpha, p, ap)
+        outcome = st.step(alpha, p, ap, map_)     # also z -= alpha M A p
         if outcome is not None:
             return outcome
-        np.multiply(map_, alpha, out=tmp)
-        z -= tmp
         az = st.op(z)
         rho_new = float(np.dot(z, az))
         if not math.isfinite(rho_new):
@@ -189,10 +251,13 @@ def _three_term(st: _PCRState) -> str:
 
     The ``A p_k`` are ``M``-orthogonal; the normalisation keeps the recurrence
     from overflowing (it grows like ``||M A||^k`` otherwise). One operator and
-    one preconditioner application per iteration.
+    one preconditioner application per iteration. For ``norm="M"`` the
+    residual's ``z = M r`` is refreshed here and then updated by
+    ``z -= lambda v_{k-1}`` (``v = M A p``); for ``"l2"`` it is not carried.
     """
     tmp = st.tmp
     p = st.precondition(st.r)
+    st.z = p.copy() if st.norm == "M" else None
     w = st.op(p)
     v = st.precondition(w)
     d = float(np.dot(w, v))
@@ -210,7 +275,7 @@ def _three_term(st: _PCRState) -> str:
         if not math.isfinite(lam):
             st.reason = f"breakdown: non-finite step length at iteration {st.iterations + 1}"
             return _BREAKDOWN
-        outcome = st.step(lam, p, w)
+        outcome = st.step(lam, p, w, v)           # also z -= lambda M A p (norm="M")
         if outcome is not None:
             return outcome
         t = st.op(v)
@@ -242,6 +307,24 @@ def _three_term(st: _PCRState) -> str:
         v_prev, v = v, v_new
 
 
+def _precondition(s: _Setup, v: np.ndarray) -> np.ndarray:
+    """``P M v`` (a fresh array; ``P v`` without ``M``)."""
+    z = v.copy() if s.M is None else _apply(s.M, v)
+    return z if s.P is None else _apply(s.P, z)
+
+
+def _true_m_residual(s: _Setup, x: np.ndarray) -> float:
+    """``||r||_M = <r, P M r>^{1/2}``, ``r = P (b - A x)`` recomputed from ``x``.
+
+    One operator and one preconditioner application; NaN if ``<r, M r>`` is
+    clearly negative.
+    """
+    r = s.b - _apply(s.A, x)
+    if s.P is not None:
+        r = _apply(s.P, r)
+    return _m_norm(r, _precondition(s, r))
+
+
 def pcr(
     A: Any,
     b: Any,
@@ -253,6 +336,7 @@ def pcr(
     M: Any = None,
     P: Any = None,
     callback: Callable[[np.ndarray], Any] | None = None,
+    norm: Literal["l2", "M"] = "l2",
 ) -> KrylovResult:
     """Solve ``A x = b`` (``A`` symmetric, maybe indefinite) by preconditioned CR.
 
@@ -282,9 +366,8 @@ def pcr(
     x0 : array_like, shape (n,), optional
         Initial guess (zero by default).
     rtol, atol : float
-        Stop when ``||r_k||_2 <= max(rtol * ||r_0||_2, atol)`` (Euclidean norm,
-        which, unlike ``||r||_M``, need not decrease monotonically). At least
-        one must be > 0.
+        Stop when ``||r_k|| <= max(rtol * ||r_0||, atol)`` in the norm
+        ``norm``. At least one must be > 0.
     maxiter : int, optional
         Maximum number of iterations, ``10 * n`` by default.
     M : operator, shape (n, n), optional
@@ -295,14 +378,24 @@ def pcr(
     callback : callable, optional
         ``callback(xk)`` after each iteration with a read-only view of the
         current iterate, shape (n,).
+    norm : {"l2", "M"}
+        Norm of the stopping rule, the ``residuals`` and ``true_residual``.
+        ``"l2"`` (default): ``||r||_2``, which, unlike ``||r||_M``, need not
+        decrease monotonically and depends on the relative scaling of the
+        unknowns (e.g. the two blocks of a saddle-point system). ``"M"``:
+        ``||r||_M = <r, P M r>^{1/2}``, the norm PCR minimises (monotone;
+        one extra preconditioner application at the start and one for the
+        true residual). Needs ``M`` symmetric positive (semi)definite on
+        ``range(P)``; a clearly negative ``<r, M r>`` is a breakdown.
 
     Returns
     -------
     KrylovResult
         ``x`` shape (n,), ``residuals`` shape (iterations + 1,) (recursively
-        updated ``||r_k||_2``), ``true_residual`` = ``||P (b - A x)||_2``
-        recomputed at the end (one operator application, counted in
-        ``matvecs``). At very tight tolerances on ill-conditioned problems the
+        updated ``||r_k||`` in the norm ``norm``), ``true_residual`` =
+        ``||P (b - A x)||`` in that norm, recomputed at the end (one operator
+        application, counted in ``matvecs``, and for ``norm="M"`` one
+        preconditioner application). At very tight tolerances on ill-conditioned problems the
         true residual can exceed the recursive one (rounding in the
         recurrences); compare the two. ``lambda_min``, ``lambda_max`` and
         ``cond`` are None. Non-convergence and breakdown
@@ -314,23 +407,40 @@ def pcr(
     ------
     InputError
         (a ``ValueError``) for invalid arguments: shape mismatch, both
-        ``rtol`` and ``atol`` <= 0, ``maxiter < 1``, an unusable operator.
+        ``rtol`` and ``atol`` <= 0, ``maxiter < 1``, an unusable operator, a
+        ``norm`` other than ``"l2"`` and ``"M"``.
     """
+    if not isinstance(norm, str) or norm not in NORMS:
+        raise InputError("norm", f"must be one of {', '.join(map(repr, NORMS))}, got {norm!r}")
     s = _setup(A, b, x0, rtol, atol, maxiter, M, P)
     t0 = time.perf_counter()
     r, matvecs = _initial_residual(s)
-    early, rnorm0, threshold = _initial_checks(s, r, matvecs, t0)
+    z0 = None
+    if norm == "M":
+        z0 = _precondition(s, r)
+        rnorm0 = _m_norm(r, z0)
+        if math.isnan(rnorm0):
+            rz = float(np.dot(r, z0))
+            what = (f"<r0, M r0> = {rz:.3e} < 0 (M not positive definite)" if math.isfinite(rz)
+                    else "non-finite <r0, M r0> (NaN/inf in A, b, x0, M or P)")
+            return KrylovResult(
+                x=s.x, converged=False, reason=f"breakdown: {what}", iterations=0,
+                residuals=np.array([math.sqrt(-rz) if math.isfinite(rz) else rnorm0]), matvecs=matvecs,
+                seconds=time.perf_counter() - t0, true_residual=None)
+        early, rnorm0, threshold = _initial_checks(s, r, matvecs, t0, rnorm0=rnorm0)
+    else:
+        early, rnorm0, threshold = _initial_checks(s, r, matvecs, t0)
     if early is not None:
         return early
 
-    st = _PCRState(s, r, rnorm0, threshold, matvecs, callback)
+    st = _PCRState(s, r, rnorm0, threshold, matvecs, callback, norm=norm, z=z0)
     outcome = _two_term(st)
     if outcome == _SWITCH:
         logger.debug("pcr: <z, A z> ~ 0 at iteration %d, switching to the three-term "
                      "recurrence (Figure 1.3)", st.iterations + 1)
         outcome = _three_term(st)
 
-    true_res = _true_residual(s, st.x)
+    true_res = _true_residual(s, st.x) if norm == "l2" else _true_m_residual(s, st.x)
     st.matvecs += 1
     seconds = time.perf_counter() - t0
     logger.debug("pcr: %s (%d iterations, %.3g s)", st.reason, st.iterations, seconds)

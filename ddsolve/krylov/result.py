@@ -22,7 +22,8 @@ class KrylovResult:
     iterations : int
         Number of iterations performed.
     residuals : ndarray, shape (iterations + 1,)
-        ||r_k||_2 for k = 0..iterations (the recursively updated residual).
+        ||r_k|| for k = 0..iterations (the recursively updated residual) in the
+        stopping norm: ||.||_2, or ||r||_M = <r, M r>^{1/2} for ``pcr(norm="M")``.
     lambda_min, lambda_max, cond : float or None
         Lanczos estimates of the extreme eigenvalues of the preconditioned
         operator and their ratio (PCG with ``cond=True`` only).
@@ -31,7 +32,8 @@ class KrylovResult:
     seconds : float
         Wall time of the iteration.
     true_residual : float or None
-        ||P (b - A x)||_2 (||b - A x||_2 without a projection ``P``) recomputed
+        ||P (b - A x)|| (||b - A x|| without a projection ``P``, in the norm of
+        ``residuals``) recomputed
         from the returned ``x`` with one extra operator application, to compare
         with the recursively updated ``residuals[-1]``.
     """

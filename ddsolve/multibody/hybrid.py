@@ -23,6 +23,13 @@ Dirichlet preconditioner that regards each body as one subdomain, with the
 inexact Schur complement S~_OL built on the inexact Dirichlet solver
 (4.9)-(4.10).
 
+Two options leave the thesis's method (the defaults) for robustness against
+coefficient jumps on floating bodies (:meth:`HybridSolver.solve`): the PCR
+stopping rule in ||r||_B = <r, B^{-1} r>^{1/2} instead of ||r||_2
+(``norm="M"``), and FETI's Q-weighted projection P = I - QG(G^T Q G)^{-1} G^T,
+Q = M_D^{-1} or its super-lumped diagonal, in place of the orthogonal P^k
+(``projection="dirichlet"`` / ``"lumped"``).
+
 Everything that needs a factorization (interior Dirichlet solves, the two
 primal-constrained solvers and their coarse problems) is built once in
 :class:`HybridSolver`; the active set only enters through index masks and the
@@ -32,7 +39,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -48,7 +55,14 @@ from .interface import GlobalInterface
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HybridSolver"]
+__all__ = ["HybridSolver", "PROJECTIONS", "NORMS"]
+
+#: Projections onto V^k = ker(G^kT): ``"orthogonal"`` is P^k of Section 4.2;
+#: ``"dirichlet"`` and ``"lumped"`` are Q-weighted (FETI's P = I - QG(G^T Q G)^{-1} G^T)
+#: with Q = M_D^{-1} of (4.11) or its super-lumped diagonal, see :meth:`HybridSolver.solve`.
+PROJECTIONS: tuple[str, ...] = ("orthogonal", "dirichlet", "lumped")
+#: Stopping norms of the PCR iteration (:func:`ddsolve.krylov.pcr`).
+NORMS: tuple[str, ...] = ("l2", "M")
 
 
 class _Space:
@@ -105,6 +119,8 @@ class _ActiveSet:
     wb: np.ndarray              # (n_act,) body-level weight of b
     G: sp.csr_matrix            # (n_act, n_float) G^k = Z B^ R_c
     GtG_chol: Any               # Cholesky factor of G^kT G^k (n_float x n_float) or None
+    # Q-weighted projections by kind: (Q G^k dense (n_act, n_float), ("cho" | "lu", factor of G^kT Q G^k))
+    weighted: dict = field(default_factory=dict)
 
 
 class HybridSolver:
@@ -167,6 +183,8 @@ class HybridSolver:
         self._reported = False
 
         self.delta_gam = sub.delta[self.gam.idx]
+        # diagonal of the body stiffness on the global interface (sum of the subdomain copies)
+        self._K_gl_diag = self.gl.gather(sub.K_W.diagonal())
         self.delta_g0 = sub.delta[self.g0.idx]
 
         # body of every u_Gamma dof; R_c columns (constants on floating bodies)
@@ -324,6 +342,75 @@ class HybridSolver:
             return lam
         return lam - a.G @ self._GtG_solve(a, a.G.T @ lam)
 
+    def _weighted(self, a: _ActiveSet, kind: str) -> tuple[np.ndarray, Any] | None:
+        """(Q G^k, factor of G^kT Q G^k) of a Q-weighted projection (cached on ``a``).
+
+        None for ``"orthogonal"`` or without floating bodies. ``"dirichlet"``:
+        Q = M_D^{-1} of (4.11) (one application per floating body);
+        ``"lumped"``: Q = Z B_{Gamma_OL,D} diag(K_GG) B_{Gamma_OL,D}^T Z, the
+        super-lumped variant (diagonal of the stiffness on the global
+        interface instead of S~_OL; no solves).
+
+        Raises
+        ------
+        ValueError
+            If G^kT Q G^k is singular. An indefinite one (Q = M_D^{-1} not
+            positive definite) is factored by LU, with a warning.
+        """
+        if kind == "orthogonal" or a.GtG_chol is None:
+            return None
+        hit = a.weighted.get(kind)
+        if hit is not None:
+            return hit
+        Gd = a.G.toarray()
+        if kind == "dirichlet":
+            QG = np.column_stack([self.M_D(a, g) for g in Gd.T])
+        elif kind == "lumped":
+            QG = np.column_stack([self._M_lumped(a, g) for g in Gd.T])
+        else:
+            raise ValueError(f"unknown projection {kind!r} (choose from {', '.join(PROJECTIONS)})")
+        GtQG = Gd.T @ QG
+        GtQG = 0.5 * (GtQG + GtQG.T)
+        ev = np.linalg.eigvalsh(GtQG)
+        if not np.abs(ev).min() > 1e-12 * np.abs(ev).max():
+            raise ValueError(f"G^T Q G of the {kind!r} projection is singular")
+        if ev.min() > 0:
+            out = (QG, ("cho", la.cho_factor(GtQG)))
+        else:
+            # M_D^{-1} indefinite (e.g. multiplicity scaling across a checkerboard): P is
+            # still a projection onto V^k, but PCR will meet the indefinite preconditioner.
+            log.warning("hybrid: G^T Q G of the %r projection is indefinite (min eigenvalue %.2e): "
+                        "M_D^{-1} is not positive definite", kind, ev.min())
+            out = (QG, ("lu", la.lu_factor(GtQG)))
+        a.weighted[kind] = out
+        return out
+
+    @staticmethod
+    def _GtQG_solve(factor: tuple[str, Any], x: np.ndarray) -> np.ndarray:
+        kind, f = factor
+        return la.cho_solve(f, x) if kind == "cho" else la.lu_solve(f, x)
+
+    def _Pq(self, a: _ActiveSet, q: tuple[np.ndarray, Any] | None, lam: np.ndarray) -> np.ndarray:
+        """P = I - Q G (G^T Q G)^{-1} G^T onto V^k = ker(G^T) (``q`` None: P^k), (n_act,) -> (n_act,)."""
+        if q is None:
+            return self._P(a, lam)
+        QG, chol = q
+        return lam - QG @ self._GtQG_solve(chol, a.G.T @ lam)
+
+    def _PqT(self, a: _ActiveSet, q: tuple[np.ndarray, Any] | None, w: np.ndarray) -> np.ndarray:
+        """P^T = I - G (G^T Q G)^{-1} (Q G)^T, zero on range(G) (``q`` None: P^k), (n_act,) -> (n_act,)."""
+        if q is None:
+            return self._P(a, w)
+        QG, chol = q
+        return w - a.G @ self._GtQG_solve(chol, QG.T @ w)
+
+    def _M_lumped(self, a: _ActiveSet, lam: np.ndarray) -> np.ndarray:
+        """Z B_{Gamma_OL,D} diag(K_GG) B_{Gamma_OL,D}^T Z lam: M_D^{-1} with S~_OL super-lumped."""
+        n = self.gl.n
+        v = np.bincount(a.da, weights=a.wb * lam, minlength=n) - np.bincount(a.db, weights=a.wa * lam, minlength=n)
+        s = self._K_gl_diag * v
+        return a.wb * s[a.da] - a.wa * s[a.db]
+
     def M_D(self, a: _ActiveSet, lam: np.ndarray) -> np.ndarray:
         """M_D^{-1} lam = Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z lam, shape (n_act,) -> (n_act,).
 
@@ -337,7 +424,8 @@ class HybridSolver:
 
     # ---------------------------------------------------------------- solve
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000,
-              x0: Any = None, restart: int = 100) -> MethodOutput:
+              x0: Any = None, restart: int = 100, norm: str = "l2",
+              projection: str = "orthogonal") -> MethodOutput:
         """Solve the KKT system (4.2) on the active set Z^k: PCR on (4.5) with (4.11).
 
         The iteration runs on range(P_R) x V^k for (u_Gamma, mu) with
@@ -350,7 +438,7 @@ class HybridSolver:
         active : ndarray of bool, shape (n_gl,)
             Active global multipliers (the diagonal of Z^k).
         rtol : float
-            Stopping rule ||r_n||_2 <= rtol max(||r_0||_2, ||F_k||_2), F_k the
+            Stopping rule ||r_n|| <= rtol max(||r_0||, ||F_k||), F_k the
             right-hand side of (4.5): ||r_n|| / ||r_0|| < rtol for a zero initial
             guess (the rule of Section 4.4); a good warm start stops at the
             level a cold start would reach.
@@ -365,6 +453,30 @@ class HybridSolver:
             PCR cycles end after ``restart`` iterations; an unconverged cycle,
             or one whose recomputed residual is far above the recursive one, is
             restarted from its iterate (see :meth:`_pcr`).
+        norm : {"l2", "M"}
+            Norm of the stopping rule, of ``krylov.residuals`` and of
+            ``krylov.true_residual``. ``"l2"`` (default, the thesis's rule of
+            Section 4.4): ||r||_2, which adds the displacement-block residual
+            (forces, ~ rho) to the multiplier-block residual (displacements,
+            ~ 1/rho) and so depends on the coefficients' scale. ``"M"``:
+            ||r||_B = <r, B^{-1} r>^{1/2} with B^{-1} the preconditioner (4.11),
+            the norm PCR minimises (Lemma 1.3.2), invariant under such scalings.
+        projection : {"orthogonal", "dirichlet", "lumped"}
+            Projection onto V^k = ker(G^kT) in (4.5), (4.11) and (4.13).
+            ``"orthogonal"`` (default): P^k = I - G (G^T G)^{-1} G^T of Section
+            4.2. The others use FETI's Q-weighted projection
+            P = I - Q G (G^T Q G)^{-1} G^T: the multiplier unknowns stay in
+            range(P) = V^k, the multiplier equations become P^T Z B^ u_Gamma = 0
+            (P^T vanishes on range(G^k) = Z B^ ker(S^_c), as P^k does) and the
+            preconditioner block P M_D^{-1} P^T; the system stays symmetric and
+            has the same solution. P^T is the Q-orthogonal projection, so it
+            does not amplify the Q-norm of a residual; with Q = M_D^{-1}
+            (``"dirichlet"``, rho-scaled) this keeps the multiplier block
+            robust for coefficient jumps between subdomains of floating bodies
+            (Klawonn & Widlund, CPAM 54 (2001), [35] of the thesis, for one-level
+            FETI), which P^k is not. ``"lumped"``: Q = B_D diag(K_GG) B_D^T, a cheaper
+            diagonal. Cost: one M_D^{-1} application per floating body and
+            active set (``"dirichlet"``), cached.
 
         Returns
         -------
@@ -374,7 +486,17 @@ class HybridSolver:
             ``n_factorizations`` new factorizations (0 after the first solve),
             ``extra = {"lambda": (n_active,), "state": dict, "u_gamma": (n_gamma,),
             "n_gamma": int, "n_floating": int, "constraint_residual": float}``.
+
+        Raises
+        ------
+        ValueError
+            For an unknown ``norm`` or ``projection``, a wrong ``active`` or warm
+            start shape, or a floating body not tied to a clamped one.
         """
+        if norm not in NORMS:
+            raise ValueError(f"unknown norm {norm!r} (choose from {', '.join(NORMS)})")
+        if projection not in PROJECTIONS:
+            raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
         t0 = time.perf_counter()
         a = self.active_set(active)
         n_act = a.ia.size
@@ -389,25 +511,28 @@ class HybridSolver:
         else:
             lam0 = np.zeros(n_act)
 
-        def A_op(x: np.ndarray) -> np.ndarray:                  # (4.13)
-            u, mu = x[:n_g], x[n_g:]
-            return np.concatenate([self.S_hat(u) + self._BT(a, self._P(a, mu)),
-                                   self._P(a, self._B(a, u))])
+        q = self._weighted(a, projection)                   # None: P^k of Section 4.2
 
-        def M_op(r: np.ndarray) -> np.ndarray:                  # (4.11)
+        def A_op(x: np.ndarray) -> np.ndarray:                  # (4.13), P^k -> P, P^T
+            u, mu = x[:n_g], x[n_g:]
+            return np.concatenate([self.S_hat(u) + self._BT(a, self._Pq(a, q, mu)),
+                                   self._PqT(a, q, self._B(a, u))])
+
+        def M_op(r: np.ndarray) -> np.ndarray:                  # (4.11), P^k M_D^{-1} P^k -> P M_D^{-1} P^T
             ru, rl = r[:n_g], r[n_g:]
             zu = self.P_R(self.M_bddc(self.P_R(ru)))
-            zl = self._P(a, self.M_D(a, self._P(a, rl)))
+            zl = self._Pq(a, q, self.M_D(a, self._PqT(a, q, rl)))
             return np.concatenate([zu, zl])
 
         b = np.concatenate([self.g_hat - self._BT(a, lam0), np.zeros(n_act)])
-        xs = self._initial_guess(a, x0, lam0)
+        xs = self._initial_guess(a, x0, lam0, q)
         n = n_g + n_act
         setup = time.perf_counter() - t0
-        kr = self._pcr(linear_operator(n, A_op), b, xs, linear_operator(n, M_op), rtol, maxiter, restart)
+        kr = self._pcr(linear_operator(n, A_op), b, xs, linear_operator(n, M_op), rtol, maxiter, restart,
+                       norm=norm)
         u_g = kr.x[:n_g]
         mu = kr.x[n_g:]
-        lam = lam0 + self._P(a, mu)
+        lam = lam0 + self._Pq(a, q, mu)
         # u_Gamma - R_c (G^T G)^{-1} G^T Z B^ u_Gamma (after (4.5))
         if nf:
             beta = self._GtG_solve(a, a.G.T @ self._B(a, u_g))
@@ -429,8 +554,12 @@ class HybridSolver:
 
     @staticmethod
     def _pcr(A: Any, b: np.ndarray, x0: np.ndarray | None, M: Any, rtol: float, maxiter: int,
-             restart: int) -> KrylovResult:
-        """PCR on (4.14) with restarts; stop at ||r_n||_2 <= rtol max(||r_0||_2, ||F_k||_2).
+             restart: int, norm: str = "l2") -> KrylovResult:
+        """PCR on (4.14) with restarts; stop at ||r_n|| <= rtol max(||r_0||, ||F_k||).
+
+        All norms (the threshold, the recursive and the recomputed residuals)
+        are ``norm``: ||.||_2, or ||r||_B = <r, B^{-1} r>^{1/2} with B^{-1} = ``M``
+        the preconditioner (4.11).
 
         The two-term recurrence of :func:`ddsolve.krylov.pcr` can lose the
         accuracy of its recursive residual after a near-zero pivot <z, A z>
@@ -445,7 +574,11 @@ class HybridSolver:
         KrylovResult
             Iterations, matvecs, seconds and residual histories of all cycles.
         """
-        bnorm = float(np.linalg.norm(b))
+        if norm == "M":
+            bb = float(np.dot(b, M.matvec(b)))
+            bnorm = float(np.sqrt(abs(bb)))      # a negative <F, B^{-1} F> breaks down in pcr
+        else:
+            bnorm = float(np.linalg.norm(b))
         cycles: list[KrylovResult] = []
         x = x0
         threshold = None
@@ -453,10 +586,10 @@ class HybridSolver:
             used = sum(c.iterations for c in cycles)
             budget = min(max(int(restart), 1), maxiter - used)
             if threshold is None:
-                kr = pcr(A, b, x, rtol=rtol, atol=rtol * bnorm, maxiter=max(budget, 1), M=M)
+                kr = pcr(A, b, x, rtol=rtol, atol=rtol * bnorm, maxiter=max(budget, 1), M=M, norm=norm)
                 threshold = rtol * max(float(kr.residuals[0]), bnorm)
             else:
-                kr = pcr(A, b, x, rtol=0.0, atol=threshold, maxiter=budget, M=M)
+                kr = pcr(A, b, x, rtol=0.0, atol=threshold, maxiter=budget, M=M, norm=norm)
             cycles.append(kr)
             true_ok = kr.true_residual is not None and kr.true_residual <= 2.0 * threshold
             if (kr.converged and true_ok) or kr.reason.startswith("breakdown"):
@@ -477,8 +610,12 @@ class HybridSolver:
             matvecs=sum(c.matvecs for c in cycles), seconds=sum(c.seconds for c in cycles),
             true_residual=last.true_residual)
 
-    def _initial_guess(self, a: _ActiveSet, x0: Any, lam0: np.ndarray) -> np.ndarray | None:
-        """Map a warm start to range(P_R) x V^k: u0 = P_R u_Gamma, mu0 = P^k lambda (lambda_0 in range(G^k))."""
+    def _initial_guess(self, a: _ActiveSet, x0: Any, lam0: np.ndarray,
+                       q: tuple[np.ndarray, Any] | None = None) -> np.ndarray | None:
+        """Map a warm start to range(P_R) x V^k: u0 = P_R u_Gamma, mu0 = P (lambda - lambda_0).
+
+        P is P^k, or the Q-weighted projection ``q`` (see :meth:`_weighted`).
+        """
         if x0 is None:
             return None
         n_g = self.gam.n
@@ -500,4 +637,4 @@ class HybridSolver:
             u0, lam = x[:n_g], x[n_g:] + lam0
         if u0.shape != (n_g,):
             raise ValueError(f"warm start u_gamma must have shape ({n_g},), got {u0.shape}")
-        return np.concatenate([self.P_R(u0), self._P(a, lam - lam0)])
+        return np.concatenate([self.P_R(u0), self._Pq(a, q, lam - lam0)])

@@ -11,7 +11,8 @@ CONTACT = config.get("problem", "poisson") == "contact"
 
 #: Config keys shared by every case, passed unchanged to ddsolve.spec.ProblemSpec
 #: (a multibody case overrides `bodies` with its own value and adds `contact`).
-SHARED_SPEC_KEYS = ("problem", "bodies", "rho", "f", "scaling", "gamma", "rtol", "maxiter", "cond", "check")
+SHARED_SPEC_KEYS = ("problem", "bodies", "rho", "f", "scaling", "gamma", "norm", "projection", "rtol", "maxiter",
+                    "cond", "check")
 
 #: One case's path below results/ and logs/ (without the suffix).
 if MULTIBODY:
