@@ -158,7 +158,8 @@ class ActiveSetHybrid:
 
     # ------------------------------------------------------------------ solve
     def solve(self, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5, maxiter: int = 1000, max_outer: int = 50,
-              feasibility_tol: float | None = None, removal: str = "all") -> ContactSolution:
+              feasibility_tol: float | None = None, removal: str = "all",
+              forcing: float | None = None) -> ContactSolution:
         """Run the active set method.
 
         Parameters
@@ -182,6 +183,16 @@ class ActiveSetHybrid:
             (projected onto lambda >= 0) as the next iterate and warm start, as
             primal-dual active set methods do; an active set that would repeat
             falls back to the cross-point step, so the iteration cannot cycle.
+        forcing : float, optional
+            Inexact face solves (an inexact-Newton-style forcing term): while
+            the active set still changes, face solves stop at
+            ``max(forcing, rtol)`` instead of ``rtol`` and the sign tests use
+            ``max(feasibility_tol, forcing)``. The first face whose loose minimizer
+            would end the iteration is solved again to ``rtol`` (warm started),
+            and from then on every face solve uses ``rtol``, so the iteration
+            still stops only on a face minimizer computed to ``rtol`` that
+            passes the sign tests at ``feasibility_tol``. None (default): every
+            face solve to ``rtol`` (Chapter 5 as printed).
 
         Returns
         -------
@@ -208,10 +219,15 @@ class ActiveSetHybrid:
         converged, reason = False, f"active set not settled after {max_outer} outer iterations"
         out: Any = None
         seen = {np.packbits(active).tobytes()}
+        loose = forcing is not None and float(forcing) > rtol
+        face_tols: list[float] = []
         for _ in range(max_outer):
-            out = h.solve(active, rtol=rtol, maxiter=maxiter,
+            face_rtol = float(forcing) if loose else rtol
+            sign_tol = max(tol, face_rtol) if loose else tol
+            out = h.solve(active, rtol=face_rtol, maxiter=maxiter,
                           x0={"u_gamma": u_k, "lambda": lam_k})
             inner.append(int(out.krylov.iterations))
+            face_tols.append(face_rtol)
             if not out.krylov.converged:
                 reason = f"face solve {len(inner)} did not converge: {out.krylov.reason}"
                 break
@@ -219,7 +235,7 @@ class ActiveSetHybrid:
             lam_y[active] = out.extra["lambda"]
             u_y = out.extra["u_gamma"]
             lam_scale = max(float(np.abs(lam_y).max()), 1e-300)
-            negative = active & (lam_y < -tol * lam_scale)
+            negative = active & (lam_y < -sign_tol * lam_scale)
             if (negative.any() and removal == "all"
                     and np.packbits(active & ~negative).tobytes() not in seen):
                 # free every pair with a negative multiplier at once (projected iterate)
@@ -243,7 +259,10 @@ class ActiveSetHybrid:
                 lam_k = np.maximum(lam_y, 0.0)
                 u_k = u_y
                 gap = self.B(u_y)
-                penetrating = ~active & (gap > tol * max(float(np.abs(u_y).max()), 1e-300))
+                penetrating = ~active & (gap > sign_tol * max(float(np.abs(u_y).max()), 1e-300))
+                if not penetrating.any() and loose:
+                    loose = False                   # solve this face again to rtol (warm started)
+                    continue
                 if not penetrating.any():
                     converged = True
                     reason = f"KKT conditions hold after {len(inner)} outer iteration(s)"
@@ -261,7 +280,8 @@ class ActiveSetHybrid:
             seconds=seconds, n_factorizations=int(h.n_factorizations),
             extra={"lambda_star": lam_star, "lambda_hat": lam_hat, "initial_active": initial_active,
                    "projection_iterations": int(qp.iterations), "active_history": history,
-                   "pcg_converged": bool(kr0.converged), "setup_seconds": float(h.setup_seconds)})
+                   "pcg_converged": bool(kr0.converged), "setup_seconds": float(h.setup_seconds),
+                   "face_rtol": face_tols})
 
 
 def solve_contact_active_set(problem: ContactProblem, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5,

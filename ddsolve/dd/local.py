@@ -59,6 +59,8 @@ class _Group:
     factor: _Factor
     index: np.ndarray       # (n_J, n_members) positions in the W vector
     inv_rho: np.ndarray     # (n_members,)
+    loc: np.ndarray         # (n_J,) template-local indices J
+    members: np.ndarray     # (n_members,) subdomains
 
 
 class BatchedSolver:
@@ -105,7 +107,7 @@ class BatchedSolver:
             members_arr = np.asarray(members)
             # positions: W offset of each member + position of loc within its free local dofs
             index = np.stack([layout.position(s, loc) for s in members_arr], axis=1)
-            self.groups.append(_Group(cache[key], index, 1.0 / layout.rho[members_arr]))
+            self.groups.append(_Group(cache[key], index, 1.0 / layout.rho[members_arr], loc, members_arr))
         log.debug("BatchedSolver: %d groups, %d new factorizations", len(self.groups), self.n_new_factorizations)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
@@ -124,3 +126,48 @@ class BatchedSolver:
             sol = g.factor.solve(rhs).reshape(n_J, n_m, -1)
             X[g.index] = sol * g.inv_rho[None, :, None]
         return X
+
+
+class DenseBlocks:
+    """Apply dense local matrices to groups of subdomain vectors: y_i = s_i A_t x_i.
+
+    Parameters
+    ----------
+    blocks : sequence of (A, index, scale)
+        ``A`` (n, n) dense, shared by the members of the group; ``index``
+        (n, n_members) W positions of the members' entries; ``scale``
+        (n_members,) factor of each member (rho_i or 1/rho_i).
+
+    Attributes
+    ----------
+    flat : ndarray of int
+        All W positions, group by group (C order of each ``index``); every
+        position occurs once if the groups do not overlap.
+
+    Notes
+    -----
+    :meth:`apply` works on the compact vector ``x[flat]``: one gather before,
+    one scatter after, and one GEMM per group in between, with no per-group
+    fancy-index copies.
+    """
+
+    def __init__(self, blocks) -> None:
+        self.parts: list[tuple[np.ndarray, int, int, int, np.ndarray]] = []
+        flats, off = [], 0
+        for A, index, scale in blocks:
+            n, n_m = index.shape
+            self.parts.append((np.ascontiguousarray(A, dtype=float), off, n, n_m,
+                               np.asarray(scale, dtype=float)))
+            flats.append(np.asarray(index, dtype=np.int64).ravel())
+            off += n * n_m
+        self.flat = np.concatenate(flats) if flats else np.zeros(0, dtype=np.int64)
+        self.size = off
+
+    def apply(self, xs: np.ndarray) -> np.ndarray:
+        """ys = blockdiag(s_i A_t) xs for a compact vector xs = x[flat], shape (size,)."""
+        ys = np.empty(self.size)
+        for A, off, n, n_m, scale in self.parts:
+            out = ys[off:off + n * n_m].reshape(n, n_m)
+            np.matmul(A, xs[off:off + n * n_m].reshape(n, n_m), out=out)
+            out *= scale
+        return ys

@@ -218,7 +218,7 @@ class HybridSolver:
     # ----------------------------------------------------------- operators
     def S_hat(self, u: np.ndarray) -> np.ndarray:
         """S^_c u, the per-body assembled Schur complement, shape (n_gamma,) -> (n_gamma,)."""
-        return self.gam.gather(self.schur.matvec(self.gam.scatter(u)))
+        return self.schur.space_matvec(u, self.gam, self.gam)
 
     def M_bddc(self, r: np.ndarray) -> np.ndarray:
         """M_BDDC^{-1} r = R_D^T S~^dagger R_D r on every body, shape (n_gamma,) -> (n_gamma,).
@@ -226,8 +226,7 @@ class HybridSolver:
         R_D scales the subdomain copies by delta-dagger (within the body); the
         primal copies are summed inside :class:`PrimalConstrainedSolver`.
         """
-        x = self.At.solve(self.gam.scatter(r, self.delta_gam))
-        return self.gam.gather(x, self.delta_gam)
+        return self.At.space_solve(r, self.gam, self.delta_gam, self.schur.gamma)
 
     def P_R(self, u: np.ndarray) -> np.ndarray:
         """P_R = I - R_c (R_c^T R_c)^{-1} R_c^T: remove the mean on every floating body."""
@@ -273,10 +272,14 @@ class HybridSolver:
         -------
         ndarray, shape (n_GL,)
         """
-        w = self.gl.scatter(v)
-        t = self.sub.K_W @ w                                    # A_IG v (unassembled)
-        x = self.inexact_interior_solve(t)
-        return self.gl.gather(self.sub.K_W @ (w - x))
+        # Eliminating the subdomain interiors exactly (local Schur complements S = diag S^(i) on
+        # Gamma) turns this into S~_OL v = (S (w - x~_Gamma0))_GL with w = v on the global
+        # interface and x~_Gamma0 = M_0^{-1} (S w)_Gamma0, M_0^{-1} the primal-constrained solve of
+        # (4.10) on the interface: the same operator as A_GG - A_GI A~_II^{-1} A_IG with A~_II^{-1}
+        # of (4.9) (:meth:`inexact_interior_solve`), without interior solves when S is explicit.
+        r0 = self.schur.space_matvec(v, self.gl, self.g0)
+        x0 = self.At0.space_solve(r0, self.g0, self.delta_g0, self.schur.gamma)
+        return self.schur.space_matvec((v, -x0), (self.gl, self.g0), self.gl)
 
     # ------------------------------------------------------------ active set
     def active_set(self, active: np.ndarray) -> _ActiveSet:

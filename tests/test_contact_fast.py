@@ -1,0 +1,136 @@
+"""Fast paths of the contact solve: explicit local Schur complements, interface-restricted
+primal-constrained solves and inexact (adaptive) face solves, checked against the implicit
+operators and the direct reference."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from threadpoolctl import threadpool_limits
+
+import ddsolve.dd.local as local_mod
+from ddsolve.contact import ContactProblem
+from ddsolve.contact.active_set import ActiveSetHybrid
+from ddsolve.contact.direct import solve_contact_direct
+from ddsolve.dd import Substructures
+from ddsolve.dd.operators import DirichletSchur
+from ddsolve.multibody.hybrid import HybridSolver
+from ddsolve.scene import assemble
+from ddsolve.scene.contact import two_membranes
+
+
+def contact_problem(N: int, m: int) -> ContactProblem:
+    return ContactProblem(Substructures(assemble(two_membranes(N, m))))
+
+
+@pytest.fixture(scope="module")
+def hybrid():
+    p = contact_problem(4, 6)
+    with threadpool_limits(1, "blas"):
+        yield p, HybridSolver(p.sub, p.gi)
+
+
+def test_explicit_schur_complement_equals_implicit(hybrid):
+    p, h = hybrid
+    rng = np.random.default_rng(1)
+    w = rng.standard_normal(p.sub.n_W)
+    implicit = DirichletSchur(p.sub, h.schur.gamma, h._cache, explicit=False)
+    explicit = DirichletSchur(p.sub, h.schur.gamma, h._cache, explicit=True)
+    assert explicit.explicit and not implicit.explicit
+    a, b = implicit.matvec(w), explicit.matvec(w)
+    assert np.abs(a - b).max() < 1e-12 * np.abs(a).max()
+    assert np.all(b[~h.schur.gamma] == 0.0)
+    # the hybrid's own S (auto) is explicit at this size
+    assert h.schur.explicit
+
+
+@pytest.mark.parametrize("which", ["At", "At0"])
+def test_interface_restricted_primal_solve_equals_full_solve(hybrid, which):
+    p, h = hybrid
+    solver = getattr(h, which)
+    rng = np.random.default_rng(2)
+    mask = h.schur.gamma
+    b = np.where(mask & (solver.r | solver.primal), rng.standard_normal(p.sub.n_W), 0.0)
+    full = solver.solve(b)
+    fast = solver.solve_interface(b, mask)
+    ref = np.where(mask, full, 0.0)
+    assert np.abs(fast - ref).max() < 1e-11 * np.abs(ref).max()
+
+
+def test_inexact_body_schur_complement_matches_interior_formula(hybrid):
+    """S~_OL through interface operators equals A_GG - A_GI A~_II^{-1} A_IG with (4.9)-(4.10)."""
+    p, h = hybrid
+    v = np.random.default_rng(3).standard_normal(h.gl.n)
+    w = h.gl.scatter(v)
+    t = p.sub.K_W @ w
+    x = h.inexact_interior_solve(t)
+    ref = h.gl.gather(p.sub.K_W @ (w - x))
+    got = h.S_ol(v)
+    assert np.abs(got - ref).max() < 1e-11 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("explicit", [True, False])
+def test_active_set_with_and_without_explicit_operators_matches_direct(monkeypatch, explicit):
+    p = contact_problem(4, 8)
+    ref = solve_contact_direct(p)
+    import ddsolve.dd.operators as ops
+    monkeypatch.setattr(ops, "EXPLICIT_SETUP_MATVECS", 10**9 if explicit else -1)
+    with threadpool_limits(1, "blas"):
+        s = ActiveSetHybrid(p)
+        made = []
+        orig = local_mod._Factor.__init__
+
+        def counting(self, K):
+            made.append(K.shape[0])
+            orig(self, K)
+
+        monkeypatch.setattr(local_mod._Factor, "__init__", counting)
+        sol = s.solve(rtol=1e-5)
+    assert s.hybrid.schur.explicit is explicit
+    assert made == []                                     # no factorization after the setup
+    assert sol.converged, sol.reason
+    assert np.array_equal(sol.active, ref.active)
+    assert p.kkt(sol.u, sol.lam).max < 1e-5
+    assert np.linalg.norm(sol.u - ref.u) < 1e-4 * np.linalg.norm(ref.u)
+    assert np.linalg.norm(sol.lam - ref.lam) < 1e-3 * np.linalg.norm(ref.lam)
+
+
+def test_explicit_interior_solution_equals_sparse(hybrid):
+    p, h = hybrid
+    rng = np.random.default_rng(4)
+    w = np.where(h.schur.gamma, rng.standard_normal(p.sub.n_W), 0.0)
+    implicit = DirichletSchur(p.sub, h.schur.gamma, h._cache, explicit=False)
+    explicit = DirichletSchur(p.sub, h.schur.gamma, h._cache, explicit=True)
+    assert explicit.explicit and explicit._ext is not None
+    for f in (p.sub.f_W, rng.standard_normal(p.sub.n_W)):
+        a = implicit.interior_solution(f, w)
+        b = explicit.interior_solution(f, w)
+        assert np.abs(a - b).max() < 1e-11 * np.abs(a).max()
+        a = implicit.harmonic_extension_rhs(f)
+        b = explicit.harmonic_extension_rhs(f)
+        assert np.abs(a - b).max() < 1e-11 * np.abs(a).max()
+    f = rng.standard_normal(p.sub.n_W)
+    explicit.interior_solution(f, w)
+    f[:] = rng.standard_normal(p.sub.n_W)              # changed in place: the cached A_II^{-1} f_I is stale
+    assert np.abs(explicit.interior_solution(f, w) - implicit.interior_solution(f, w)).max() < 1e-10
+
+
+@pytest.mark.parametrize("N, m, forcing", [(4, 8, 3e-3), (8, 4, 1e-2), (8, 8, 3e-3)])
+def test_inexact_face_solves_match_direct_and_end_at_rtol(N, m, forcing):
+    p = contact_problem(N, m)
+    ref = solve_contact_direct(p)
+    with threadpool_limits(1, "blas"):
+        s = ActiveSetHybrid(p)
+        exact = s.solve(rtol=1e-5)
+        sol = s.solve(rtol=1e-5, forcing=forcing)
+    assert sol.converged, sol.reason
+    assert np.array_equal(sol.active, ref.active)
+    assert p.kkt(sol.u, sol.lam).max < 1e-5
+    assert np.linalg.norm(sol.u - ref.u) < 1e-4 * np.linalg.norm(ref.u)
+    assert np.linalg.norm(sol.lam - ref.lam) < 1e-3 * np.linalg.norm(ref.lam)
+    tols = sol.extra["face_rtol"]
+    assert len(tols) == sol.outer_iterations and tols[-1] == 1e-5 and tols[0] == forcing
+    # one extra (loose) face solve when the initial active set is already right
+    assert sol.total_iterations <= exact.total_iterations + 5
+    # forcing at or below rtol is the exact method
+    same = s.solve(rtol=1e-5, forcing=1e-5)
+    assert same.inner_iterations == exact.inner_iterations
