@@ -344,7 +344,8 @@ def render_comparison(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None
                "Table 5.1 / 6.1; wall time: setup_seconds + solve_seconds of the run (assembly, "
                "factorizations and iterations; one BLAS thread, on a shared machine); KKT stationarity: "
                "||Ku - f + B^T lambda|| / (||f|| + ||B^T lambda||) of the returned solution. The two "
-               "methods stop at different accuracies: the active set method's face solves reduce the "
-               "residual of (4.5) by 1e-5, SMALBE's epsilon = 1e-5 is relative to ||b|| of the dual "
-               "problem and leaves a larger primal residual; compare iterations at equal accuracy.\n\n")
+               "methods stop on different quantities (the active set method's face solves reduce the "
+               "residual of (4.5) by 1e-5; SMALBE's epsilon = 1e-5 bounds its projected gradient "
+               "relative to ||b|| of the dual problem and the floating body's force imbalance), so "
+               "compare the iterations together with the KKT columns.\n\n")
     return heading + to_markdown(table, digits=2), contact_latex(table, digits=2), table, caption

@@ -476,15 +476,22 @@ def _is_missing(value: Any) -> bool:
         return False
 
 
+#: Quantities shown in scientific notation: residuals that span decades.
+SCIENTIFIC_QUANTITIES: frozenset[str] = frozenset({"KKT stationarity", "kkt_stationarity", "kkt_residual"})
+
+
 def _column_kind(name: Any, series: pd.Series) -> str:
-    """'dev' (relative deviation), 'int', 'float' or 'other' for formatting."""
-    last = str(name[-1] if isinstance(name, tuple) else name)
+    """'dev' (relative deviation), 'int', 'float', 'sci' or 'other' for formatting."""
+    parts = [str(part) for part in (name if isinstance(name, tuple) else (name,))]
+    last = parts[-1]
     if last.endswith("_dev") or last == "dev":
         return "dev"
     if pd.api.types.is_bool_dtype(series.dtype):
         return "other"
     if pd.api.types.is_integer_dtype(series.dtype):
         return "int"
+    if pd.api.types.is_float_dtype(series.dtype) and SCIENTIFIC_QUANTITIES.intersection(parts):
+        return "sci"
     if pd.api.types.is_float_dtype(series.dtype):
         values = series.dropna()
         quantity = last.removesuffix("_thesis")
@@ -505,6 +512,8 @@ def _format(value: Any, kind: str, digits: int, missing: str) -> str:
         return str(int(round(float(value))))
     if kind == "float":
         return f"{float(value):.{digits}f}"
+    if kind == "sci":
+        return f"{float(value):.1e}"
     return str(value)
 
 
