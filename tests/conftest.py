@@ -55,5 +55,28 @@ def dense(op, n: int) -> np.ndarray:
 
 
 @pytest.fixture
+def count_factorizations(monkeypatch):
+    """A function that starts recording every subdomain factorization made from then on.
+
+    Call it (after the setup whose factorizations are expected); it returns the list to which
+    the size of each new factorization (``ddsolve.dd.local._Factor``) is appended.
+    """
+    from ddsolve.dd import local
+
+    def start() -> list[int]:
+        made: list[int] = []
+        original = local._Factor.__init__
+
+        def counting(self, K):
+            made.append(K.shape[0])
+            original(self, K)
+
+        monkeypatch.setattr(local._Factor, "__init__", counting)
+        return made
+
+    return start
+
+
+@pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20091)

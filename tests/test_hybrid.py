@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
 
-import ddsolve.dd.local as local_mod
 from ddsolve.dd import Substructures
 from ddsolve.multibody import GlobalInterface
 from ddsolve.multibody.direct import solve_constrained_direct
@@ -61,7 +60,7 @@ def test_matches_direct_solution(nb, ns, m, n_float, case):
     assert np.abs(resid).max() < 1e-7 * np.abs(hs.g_hat).max()
 
 
-def test_new_active_set_reuses_factorizations_and_warm_start(monkeypatch):
+def test_new_active_set_reuses_factorizations_and_warm_start(count_factorizations):
     sub, gi, _ = problem(3, 2, 4)
     hs = HybridSolver(sub, gi)
     full, middle = gi.contact_mask("full"), gi.contact_mask("middle")
@@ -69,14 +68,7 @@ def test_new_active_set_reuses_factorizations_and_warm_start(monkeypatch):
         first = hs.solve(middle, rtol=1e-8)
         assert first.n_factorizations == hs.n_factorizations > 0
         # count every factorization made from now on
-        made = []
-        orig = local_mod._Factor.__init__
-
-        def counting(self, K):
-            made.append(K.shape[0])
-            orig(self, K)
-
-        monkeypatch.setattr(local_mod._Factor, "__init__", counting)
+        made = count_factorizations()
         second = hs.solve(full, rtol=1e-8)
         assert second.n_factorizations == 0 and made == []
         ref = solve_constrained_direct(sub, gi, full).u
