@@ -126,3 +126,24 @@ def test_inexact_face_solves_match_direct_and_end_at_rtol(N, m, forcing):
     # forcing at or below rtol is the exact method
     same = s.solve(rtol=1e-5, forcing=1e-5)
     assert same.inner_iterations == exact.inner_iterations
+
+
+def test_interface_blocks_are_formed_only_where_they_pay_off(hybrid):
+    """Many small subdomains (N = 4, H/h = 6): explicit blocks; two large ones per membrane
+    (N = 2, H/h = 24): forming (A_rr^{-1})_DD would cost more solves than 16 implicit
+    applications, so space_solve / solve_interface use the implicit solve, with the same result."""
+    p, h = hybrid
+    assert h.At._explicit_interface(h.schur.gamma)
+    big = contact_problem(2, 24)
+    with threadpool_limits(1, "blas"):
+        hb = HybridSolver(big.sub, big.gi)
+        mask = hb.schur.gamma
+        assert not hb.At._explicit_interface(mask) and not hb.schur.explicit
+        rng = np.random.default_rng(4)
+        b = np.where(mask & (hb.At.r | hb.At.primal), rng.standard_normal(big.sub.n_W), 0.0)
+        ref = np.where(mask, hb.At.solve(b), 0.0)
+        assert np.abs(hb.At.solve_interface(b, mask) - ref).max() <= 1e-13 * np.abs(ref).max()
+        sol = ActiveSetHybrid(big).solve(rtol=1e-8)
+    direct = solve_contact_direct(big)
+    assert sol.converged and np.array_equal(sol.active, direct.active)
+    assert np.linalg.norm(sol.u - direct.u) < 1e-6 * np.linalg.norm(direct.u)

@@ -366,6 +366,7 @@ class PrimalConstrainedSolver:
         self.n_factorizations = self.rr.n_new_factorizations + (1 if self.n_primal else 0)
         self._psi_csr: tuple | None = None       # (Psi, Psi^T) as sparse (n_W, n_primal), on first use
         self._iface: dict[int, tuple] = {}
+        self._explicit_iface: dict[int, tuple] = {}
         self._space_ops: dict = {}
 
     @property
@@ -402,6 +403,30 @@ class PrimalConstrainedSolver:
         x -= self._Psi_global @ u_pi
         x[self.primal] = u_pi[self.coarse_of_W[self.primal]]
         return x
+
+    def _explicit_interface(self, mask: np.ndarray) -> bool:
+        """Whether the dense interface blocks of ``mask`` pay off (the rule of ``DirichletSchur``).
+
+        Forming them costs one local solve per interface unknown of each distinct
+        (template, r set, interface pattern); one implicit :meth:`solve` costs one per
+        subdomain. Explicit when the former is at most ``EXPLICIT_SETUP_MATVECS`` of the
+        latter and no block exceeds ``EXPLICIT_MAX_BLOCK`` (cached per mask). With few,
+        large subdomains (H/h = 128 or more) the implicit solve is cheaper over a solve.
+        """
+        hit = self._explicit_iface.get(id(mask))
+        if hit is not None and hit[0] is mask:
+            return hit[1]
+        cols, biggest = 0, 0
+        for g in self.rr.groups:
+            pattern = mask[g.index]
+            for column in np.unique(pattern, axis=1).T:
+                n_d = int(np.count_nonzero(column))
+                cols, biggest = cols + n_d, max(biggest, n_d)
+        explicit = cols <= EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1) and biggest <= EXPLICIT_MAX_BLOCK
+        log.debug("PrimalConstrainedSolver: %s interface blocks (%d setup columns, largest %d)",
+                  "explicit" if explicit else "implicit", cols, biggest)
+        self._explicit_iface[id(mask)] = (mask, explicit)
+        return explicit
 
     def _interface_blocks(self, mask: np.ndarray) -> tuple:
         """(DenseBlocks of (A_rr^{-1})_{DD}, Psi rows on D, their transpose) for D = r & mask (cached)."""
@@ -480,6 +505,11 @@ class PrimalConstrainedSolver:
         -------
         ndarray, shape (space.n,)
         """
+        if not self._explicit_interface(mask):             # scatter, the implicit solve, gather
+            w = np.zeros(self.sub.n_W)
+            w[space.idx] = weights * r[space.pos]
+            x = self.solve(w)
+            return np.bincount(space.pos, weights=weights * x[space.idx], minlength=space.n)
         key = (id(space), id(weights), id(mask))
         hit = self._space_ops.get(key)
         if hit is None or hit[0][0] is not space or hit[0][1] is not weights or hit[0][2] is not mask:
@@ -538,8 +568,11 @@ class PrimalConstrainedSolver:
         outside it) must be a persistent array, the cache key. Uses explicit
         dense blocks (A_rr^{-1})_{DD} = S_DD^{-1} on D = r & mask, formed on
         first use from the existing factorizations (no new factorization), so
-        one application costs one GEMM per group of the interface size.
+        one application costs one GEMM per group of the interface size, where that
+        pays off (:meth:`_explicit_interface`; otherwise :meth:`solve`).
         """
+        if not self._explicit_interface(mask):
+            return np.where(mask, self.solve(np.where(mask, b, 0.0)), 0.0)
         db, P, PT, coarse = self._interface_blocks(mask)
         bs = b[db.flat]
         xs = db.apply(bs)
