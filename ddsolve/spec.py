@@ -29,9 +29,11 @@ DEFAULT_F: dict[str, float | str] = {"poisson": 1.0, "multibody": "random:0", "c
 DEFAULT_RTOL: dict[str, float] = {"contact": 1e-5}
 CONTACTS = ("full", "middle")
 SCALINGS = ("rho", "multiplicity")
-#: Stopping norms of the hybrid method's PCR (ddsolve.krylov.pcr): Euclidean or the preconditioner's.
+#: Stopping norms of the hybrid method's PCR: Euclidean or the preconditioner's. Copies of
+#: ddsolve.krylov.pcr.NORMS and ddsolve.multibody.hybrid.PROJECTIONS, so that this module (read
+#: by ``import ddsolve``) needs no numpy; tests/test_hybrid_norm.py checks they agree.
 NORMS = ("l2", "M")
-#: Projections onto V^k of the hybrid method (ddsolve.multibody.hybrid.PROJECTIONS).
+#: Projections onto V^k of the hybrid method.
 PROJECTIONS = ("orthogonal", "dirichlet", "lumped")
 #: Methods that take ``norm`` and ``projection`` other than the defaults.
 PCR_METHODS = ("hybrid",)

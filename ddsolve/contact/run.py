@@ -36,7 +36,9 @@ def solve_contact_spec(spec: ProblemSpec, sub: Substructures, result: SolveResul
     ``outer_iterations``, ``inner_iterations`` (list), ``pcg_iterations``,
     ``total_iterations``, ``n_active``, ``n_contact``, ``energy``,
     ``kkt_residual`` and its four parts (SMALBE also its counters, ``penalty``,
-    ``rho_bar`` and ``force_error`` = |sum(lambda) - net load| / net load). With
+    ``rho_bar``, ``force_error`` = |sum(lambda) - net load| / net load, and
+    ``polish`` ("accepted" / "rejected") with ``polish_iterations``, the PCG
+    iterations of the FETI-FETI refinement on the active set, not in ``iterations``). With
     ``check``, ``error_vs_direct`` is the relative l2 error of u against the
     primal-dual active set reference
     (the stiffness is singular on the floating membrane, so the energy norm
@@ -66,7 +68,8 @@ def solve_contact_spec(spec: ProblemSpec, sub: Substructures, result: SolveResul
         "energy": problem.energy(sol.u),
         **kkt.as_dict(),
     })
-    for key in ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty", "rho_bar", "force_error"):
+    for key in ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty", "rho_bar", "force_error",
+                "polish", "polish_iterations"):
         if key in sol.extra:
             result.extra[key] = sol.extra[key]
     if spec.check:

@@ -117,16 +117,6 @@ class BatchedSolver:
             x[g.index] = g.factor.solve(b[g.index]) * g.inv_rho
         return x
 
-    def solve_columns(self, B: np.ndarray) -> np.ndarray:
-        """Same as :meth:`solve` for each column of B, shape (n_W, k)."""
-        X = np.zeros_like(B, dtype=float)
-        for g in self.groups:
-            n_J, n_m = g.index.shape
-            rhs = B[g.index].reshape(n_J, -1)              # (n_J, n_m * k)
-            sol = g.factor.solve(rhs).reshape(n_J, n_m, -1)
-            X[g.index] = sol * g.inv_rho[None, :, None]
-        return X
-
 
 class DenseBlocks:
     """Apply dense local matrices to groups of subdomain vectors: y_i = s_i A_t x_i.

@@ -50,6 +50,7 @@ from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from ..dd.substructure import Substructures
 from ..krylov import pcr
+from ..krylov.pcr import NORMS
 from ..krylov.result import KrylovResult
 from .interface import GlobalInterface
 
@@ -61,8 +62,6 @@ __all__ = ["HybridSolver", "PROJECTIONS", "NORMS"]
 #: ``"dirichlet"`` and ``"lumped"`` are Q-weighted (FETI's P = I - QG(G^T Q G)^{-1} G^T)
 #: with Q = M_D^{-1} of (4.11) or its super-lumped diagonal, see :meth:`HybridSolver.solve`.
 PROJECTIONS: tuple[str, ...] = ("orthogonal", "dirichlet", "lumped")
-#: Stopping norms of the PCR iteration (:func:`ddsolve.krylov.pcr`).
-NORMS: tuple[str, ...] = ("l2", "M")
 
 
 class _Space:

@@ -20,55 +20,59 @@ import sys as _sys
 
 STUDY = config["study"]
 
-if STUDY.startswith("stress"):
+if workflow.basedir not in _sys.path:      # the repository's ddsolve, also without installing it
+    _sys.path.insert(0, workflow.basedir)
+from dataclasses import asdict as _asdict
 
-    if workflow.basedir not in _sys.path:      # the repository's ddsolve, also without installing it
-        _sys.path.insert(0, workflow.basedir)
-    from dataclasses import asdict as _asdict
+from ddsolve.report.stress import catalog as _stress_catalog
 
-    from ddsolve.report.stress import catalog as _stress_catalog
+STRESS_TIER = "quick" if STUDY == "stress_quick" else "study"
+STRESS_CASES = _stress_catalog(STRESS_TIER)
 
-    STRESS_TIER = "quick" if STUDY == "stress_quick" else "study"
-    STRESS_CASES = _stress_catalog(STRESS_TIER)
 
-    def _stress_job(case):
-        """The job of a case: its series; in the quick tier (a smoke test) its group, for fewer jobs."""
-        return case.group if STRESS_TIER == "quick" else case.series
+def _stress_job(case):
+    """The job of a case: its series; in the quick tier (a smoke test) its group, for fewer jobs."""
+    return case.group if STRESS_TIER == "quick" else case.series
 
-    STRESS_SERIES = list(dict.fromkeys(_stress_job(case) for case in STRESS_CASES))
+STRESS_SERIES = list(dict.fromkeys(_stress_job(case) for case in STRESS_CASES))
 
-    def stress_series_cases(wildcards):
-        """The cases of one job as plain dicts (a params value: a changed case reruns its job)."""
-        return [_asdict(case) for case in STRESS_CASES if _stress_job(case) == wildcards.series]
 
-    #: Wall-clock limit of one case (seconds); a case past it is recorded as a FAIL (timeout).
-    STRESS_CASE_TIMEOUT = 240
+def stress_series_cases(wildcards):
+    """The cases of one job as plain dicts (a params value: a changed case reruns its job)."""
+    return [_asdict(case) for case in STRESS_CASES if _stress_job(case) == wildcards.series]
 
-    def report_files():
-        """The stress study's targets (replaces the poisson/multibody reports of rule all)."""
-        return [f"reports/{STUDY}/stress.md", f"results/{STUDY}/stress.csv"]
 
-    rule stress_series:
-        output:
-            f"results/{STUDY}/cases/{{series}}.json",
-        params:
-            cases=stress_series_cases,
-            timeout=STRESS_CASE_TIMEOUT,
-        wildcard_constraints:
-            series="|".join(re.escape(s) for s in STRESS_SERIES),
-        log:
-            f"logs/{STUDY}/cases/{{series}}.log",
-        threads: 1
-        script:
-            "../scripts/stress_series.py"
+#: Wall-clock limit of one case (seconds); a case past it is recorded as a FAIL (timeout).
+STRESS_CASE_TIMEOUT = 240
 
-    rule stress_report:
-        input:
-            expand(f"results/{STUDY}/cases/{{series}}.json", series=STRESS_SERIES),
-        output:
-            md=report(f"reports/{STUDY}/stress.md", caption="../report/stress.rst", category="Stress study"),
-            csv=f"results/{STUDY}/stress.csv",
-        log:
-            f"logs/{STUDY}/stress_report.log",
-        script:
-            "../scripts/stress_report.py"
+
+def report_files():
+    """The stress study's targets (replaces the poisson/multibody reports of rule all)."""
+    return [f"reports/{STUDY}/stress.md", f"results/{STUDY}/stress.csv"]
+
+
+rule stress_series:
+    output:
+        f"results/{STUDY}/cases/{{series}}.json",
+    params:
+        cases=stress_series_cases,
+        timeout=STRESS_CASE_TIMEOUT,
+    wildcard_constraints:
+        series="|".join(re.escape(s) for s in STRESS_SERIES),
+    log:
+        f"logs/{STUDY}/cases/{{series}}.log",
+    threads: 1
+    script:
+        "../scripts/stress_series.py"
+
+
+rule stress_report:
+    input:
+        expand(f"results/{STUDY}/cases/{{series}}.json", series=STRESS_SERIES),
+    output:
+        md=report(f"reports/{STUDY}/stress.md", caption="../report/stress.rst", category="Stress study"),
+        csv=f"results/{STUDY}/stress.csv",
+    log:
+        f"logs/{STUDY}/stress_report.log",
+    script:
+        "../scripts/stress_report.py"
