@@ -418,10 +418,11 @@ class PrimalConstrainedSolver:
             return hit[1]
         cols, biggest = 0, 0
         for g in self.rr.groups:
-            pattern = mask[g.index]
-            for column in np.unique(pattern, axis=1).T:
-                n_d = int(np.count_nonzero(column))
-                cols, biggest = cols + n_d, max(biggest, n_d)
+            pattern = np.ascontiguousarray(np.packbits(mask[g.index], axis=0).T)   # one row per member
+            rows = pattern.view(np.dtype((np.void, pattern.shape[1]))).ravel()
+            _, first = np.unique(rows, return_index=True)                           # distinct patterns
+            n_d = np.count_nonzero(mask[g.index][:, first], axis=0)
+            cols, biggest = cols + int(n_d.sum()), max(biggest, int(n_d.max(initial=0)))
         explicit = cols <= EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1) and biggest <= EXPLICIT_MAX_BLOCK
         log.debug("PrimalConstrainedSolver: %s interface blocks (%d setup columns, largest %d)",
                   "explicit" if explicit else "implicit", cols, biggest)
