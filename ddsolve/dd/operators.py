@@ -492,6 +492,27 @@ class PrimalConstrainedSolver:
             out = ys[off:off + n * n_m].reshape(n, n_m)
             out -= psi @ u_ext[cc]
 
+    def _coarse_step(self, blocks: tuple, bs: np.ndarray, xs: np.ndarray, b_pi: np.ndarray) -> np.ndarray:
+        """The coarse part of A~^{-1} on the interface blocks (shared by the two interface solves).
+
+        ``bs``: the right-hand side on the blocks' entries; ``xs``: A_rr^{-1} of it there, corrected
+        in place by -Psi u_Pi; ``b_pi`` (n_primal + 1,): the primal right-hand side (last slot a
+        sink). Returns u_Pi with a trailing zero (``u_ext``).
+        """
+        db, P, PT, coarse = blocks
+        if coarse is not None:
+            self._coarse_rhs(db, coarse, bs, b_pi)
+        else:
+            b_pi[:-1] -= PT @ bs
+        b_pi = b_pi[:-1]
+        b_pi[self.pinned] = 0.0
+        u_ext = np.append(self.coarse.solve(b_pi), 0.0)
+        if coarse is not None:
+            self._coarse_correct(db, coarse, xs, u_ext)
+        else:
+            xs -= P @ u_ext[:-1]
+        return u_ext
+
     def space_solve(self, r: np.ndarray, space, weights: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """gather_w(A~^{-1} scatter_w(r)) in a space of continuous values on an interface.
 
@@ -516,7 +537,7 @@ class PrimalConstrainedSolver:
         if hit is None or hit[0][0] is not space or hit[0][1] is not weights or hit[0][2] is not mask:
             hit = ((space, weights, mask), self._build_space_solve(space, weights, mask))
             self._space_ops[key] = hit
-        db, P, PT, coarse, cin, win, sel, pp, pw, pc = hit[1]
+        db, P, PT, coarse, cin, win, pp, pw, pc = hit[1]
         r_ext = np.concatenate([r, np.zeros(1)])
         xs = r_ext[cin]
         xs *= win
@@ -524,23 +545,10 @@ class PrimalConstrainedSolver:
         out = None
         if self.n_primal:
             b_pi = np.bincount(pc, weights=r[pp] * pw, minlength=self.n_primal + 1)
-            if coarse is not None:
-                self._coarse_rhs(db, coarse, xs, b_pi)
-            else:
-                b_pi[:-1] -= PT @ xs
-            b_pi = b_pi[:-1]
-            b_pi[self.pinned] = 0.0
-            u_ext = np.append(self.coarse.solve(b_pi), 0.0)
-            if coarse is not None:
-                self._coarse_correct(db, coarse, ys, u_ext)
-            else:
-                ys -= P @ u_ext[:-1]
+            u_ext = self._coarse_step((db, P, PT, coarse), xs, ys, b_pi)
             out = np.bincount(pp, weights=u_ext[pc] * pw, minlength=space.n)
         ys *= win
-        if sel is None:
-            y = np.bincount(cin, weights=ys, minlength=space.n + 1)[:-1]
-        else:
-            y = np.bincount(cin[sel], weights=ys[sel], minlength=space.n)
+        y = np.bincount(cin, weights=ys, minlength=space.n + 1)[:-1]      # slot space.n: outside
         return y if out is None else y + out
 
     def _build_space_solve(self, space, weights, mask):
@@ -559,7 +567,7 @@ class PrimalConstrainedSolver:
         pw = weights[pw_ent]
         pc = self.coarse_of_W[space.idx[pw_ent]]
         # entries outside the space carry weight 0 and land in the extra slot space.n
-        return db, P, PT, coarse, cin, win, None, pp, pw, pc
+        return db, P, PT, coarse, cin, win, pp, pw, pc
 
     def solve_interface(self, b: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """:meth:`solve` for a right-hand side supported on ``mask`` (zero on every other entry),
@@ -574,23 +582,14 @@ class PrimalConstrainedSolver:
         """
         if not self._explicit_interface(mask):
             return np.where(mask, self.solve(np.where(mask, b, 0.0)), 0.0)
-        db, P, PT, coarse = self._interface_blocks(mask)
+        blocks = self._interface_blocks(mask)
+        db = blocks[0]
         bs = b[db.flat]
         xs = db.apply(bs)
         x = np.zeros(self.sub.n_W)
         if self.n_primal:
             b_pi = np.bincount(self.coarse_of_W[self.primal], weights=b[self.primal], minlength=self.n_primal + 1)
-            if coarse is not None:
-                self._coarse_rhs(db, coarse, bs, b_pi)
-            else:
-                b_pi[:-1] -= PT @ bs
-            b_pi = b_pi[:-1]
-            b_pi[self.pinned] = 0.0
-            u_ext = np.append(self.coarse.solve(b_pi), 0.0)
-            if coarse is not None:
-                self._coarse_correct(db, coarse, xs, u_ext)
-            else:
-                xs -= P @ u_ext[:-1]
+            u_ext = self._coarse_step(blocks, bs, xs, b_pi)
             x[self.primal] = u_ext[self.coarse_of_W[self.primal]]
         x[db.flat] = xs
         return np.where(mask, x, 0.0)
