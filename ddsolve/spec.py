@@ -15,28 +15,7 @@ from typing import Any, Mapping
 import yaml
 
 from .errors import InputError
-
-#: Problems and the methods each one accepts (the first is the default).
-METHODS: dict[str, tuple[str, ...]] = {
-    "poisson": ("fetidp", "feti", "bddc", "direct"),
-    "multibody": ("feti-feti", "hybrid", "direct"),
-    "contact": ("active-set", "smalbe", "direct"),
-}
-#: Default right-hand side per problem: f = 1 for poisson; a generic seeded load for
-#: multibody (f = 1 is symmetric there and PCG converges unrepresentatively fast).
-DEFAULT_F: dict[str, float | str] = {"poisson": 1.0, "multibody": "random:0", "contact": "dostal"}
-#: Default relative tolerance per problem (contact: the 1e-5 of Chapters 5 and 6).
-DEFAULT_RTOL: dict[str, float] = {"contact": 1e-5}
-CONTACTS = ("full", "middle")
-SCALINGS = ("rho", "multiplicity")
-#: Stopping norms of the hybrid method's PCR: Euclidean or the preconditioner's. Copies of
-#: ddsolve.krylov.pcr.NORMS and ddsolve.multibody.hybrid.PROJECTIONS, so that this module (read
-#: by ``import ddsolve``) needs no numpy; tests/test_hybrid_norm.py checks they agree.
-NORMS = ("l2", "M")
-#: Projections onto V^k of the hybrid method.
-PROJECTIONS = ("orthogonal", "dirichlet", "lumped")
-#: Methods that take ``norm`` and ``projection`` other than the defaults.
-PCR_METHODS = ("hybrid",)
+from .options import CONTACTS, DEFAULT_F, DEFAULT_RTOL, METHODS, NORMS, PCR_METHODS, PROJECTIONS, SCALINGS
 
 
 def _as_int(field: str, value: Any, minimum: int) -> int:

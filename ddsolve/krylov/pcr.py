@@ -53,8 +53,7 @@ from .result import KrylovResult
 
 __all__ = ["pcr", "NORMS"]
 
-#: Stopping norms of :func:`pcr`: Euclidean, or ``<r, M r>^{1/2}`` (M the preconditioner).
-NORMS: tuple[str, ...] = ("l2", "M")
+from ..options import NORMS  # noqa: E402  (Euclidean, or <r, M r>^{1/2} with M the preconditioner)
 
 logger = logging.getLogger(__name__)
 

@@ -61,7 +61,7 @@ __all__ = ["HybridSolver", "PROJECTIONS", "NORMS"]
 #: Projections onto V^k = ker(G^kT): ``"orthogonal"`` is P^k of Section 4.2;
 #: ``"dirichlet"`` and ``"lumped"`` are Q-weighted (FETI's P = I - QG(G^T Q G)^{-1} G^T)
 #: with Q = M_D^{-1} of (4.11) or its super-lumped diagonal, see :meth:`HybridSolver.solve`.
-PROJECTIONS: tuple[str, ...] = ("orthogonal", "dirichlet", "lumped")
+from ..options import PROJECTIONS  # noqa: E402
 
 
 class _Space:

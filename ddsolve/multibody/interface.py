@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from ..dd.substructure import Substructures
 
 #: Contact areas of problem (4.32).
-CONTACTS = ("full", "middle")
+from ..options import CONTACTS  # noqa: E402
 
 
 class GlobalInterface:

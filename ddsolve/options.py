@@ -1,0 +1,35 @@
+"""The option lists of ddsolve: one numpy-free module read by the spec, the solvers and the workflow schemas.
+
+Every list of accepted values lives here once. :mod:`ddsolve.spec` validates
+against it, the solvers import it, and the Snakemake workflow injects it into
+its JSON schemas (``workflows/rules/common.smk``), so that a new option is added
+in one place. The module imports nothing beyond the standard library.
+"""
+from __future__ import annotations
+
+#: Problems and the methods each one accepts (the first is the default).
+METHODS: dict[str, tuple[str, ...]] = {
+    "poisson": ("fetidp", "feti", "bddc", "direct"),
+    "multibody": ("feti-feti", "hybrid", "direct"),
+    "contact": ("active-set", "smalbe", "direct"),
+}
+#: Default right-hand side per problem: f = 1 for poisson; a generic seeded load for
+#: multibody (f = 1 is symmetric there and PCG converges unrepresentatively fast).
+DEFAULT_F: dict[str, float | str] = {"poisson": 1.0, "multibody": "random:0", "contact": "dostal"}
+#: Default relative tolerance per problem (contact: the 1e-5 of Chapters 5 and 6).
+DEFAULT_RTOL: dict[str, float] = {"contact": 1e-5}
+#: Active contact areas between the bodies of problem (4.32): case (I) and case (II).
+CONTACTS: tuple[str, ...] = ("full", "middle")
+#: Scalings of the jump operator B_D (Section 2.3).
+SCALINGS: tuple[str, ...] = ("rho", "multiplicity")
+#: Stopping norms of PCR: Euclidean, or <r, M r>^(1/2) with M the preconditioner.
+NORMS: tuple[str, ...] = ("l2", "M")
+#: Projections onto V^k = ker(G^kT) of the hybrid method.
+PROJECTIONS: tuple[str, ...] = ("orthogonal", "dirichlet", "lumped")
+#: Methods that take ``norm`` and ``projection`` other than the defaults.
+PCR_METHODS: tuple[str, ...] = ("hybrid",)
+#: All method names, in a stable order.
+ALL_METHODS: tuple[str, ...] = tuple(dict.fromkeys(m for ms in METHODS.values() for m in ms))
+
+__all__ = ["METHODS", "DEFAULT_F", "DEFAULT_RTOL", "CONTACTS", "SCALINGS", "NORMS", "PROJECTIONS",
+           "PCR_METHODS", "ALL_METHODS"]
