@@ -22,5 +22,11 @@ def solve(spec):  # noqa: D103 - documented in ddsolve.api.solve
     return _solve(spec)
 
 
+def prepare(spec, scene=None):  # noqa: D103 - documented in ddsolve.prepared.prepare
+    from .prepared import prepare as _prepare
+    return _prepare(spec, scene)
+
+
 solve.__doc__ = "Solve a problem; see :func:`ddsolve.api.solve`."
-__all__ = ["ProblemSpec", "SolveResult", "InputError", "solve", "__version__"]
+prepare.__doc__ = "Assemble and decompose a problem; see :func:`ddsolve.prepared.prepare`."
+__all__ = ["ProblemSpec", "SolveResult", "InputError", "solve", "prepare", "__version__"]

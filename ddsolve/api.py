@@ -10,15 +10,13 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, Substructures, solve_bddc, solve_direct, solve_feti, solve_fetidp
-from .errors import InputError
 from .krylov import KrylovResult
 from .multibody import GlobalInterface
 from .multibody.direct import solve_constrained_direct
 from .multibody.fetifeti import FetiFetiSolver
 from .result import SolveResult
-from .scene import assemble, checkerboard, structured_square
-from .scene.contact import two_membranes
-from .spec import ProblemSpec, parse_f, parse_rho
+from .prepared import check_decomposition, prepare, scene_from_spec  # noqa: F401  (re-exported)
+from .spec import ProblemSpec
 
 log = logging.getLogger(__name__)
 
@@ -37,63 +35,8 @@ def _multibody_solver(method: str, sub: Substructures, gi: GlobalInterface):
     return HybridSolver(sub, gi)
 
 
-def build_scene(spec: ProblemSpec):
-    """The structured scene of a spec (coefficient pattern applied).
-
-    Raises
-    ------
-    InputError
-        For a contact load whose integral over the floating membrane is not negative.
-    """
-    kind, value = parse_rho(spec.rho)
-    f_kind, f_value = parse_f(spec.f)
-    if spec.problem == "contact":
-        n_el = 2 * (spec.subdomains * spec.elements) ** 2
-        if f_kind == "dostal":
-            scene = two_membranes(spec.subdomains, spec.elements, patches=f_value)
-        elif f_kind == "random":
-            scene = two_membranes(spec.subdomains, spec.elements,
-                                  f=np.random.default_rng(int(f_value)).uniform(-1.0, 1.0, n_el))
-        else:
-            scene = two_membranes(spec.subdomains, spec.elements, f=f_value)
-    else:
-        scene = structured_square(spec.bodies, spec.subdomains, spec.elements, rho=1.0)
-        if f_kind == "random":
-            scene.f = np.random.default_rng(int(f_value)).uniform(-1.0, 1.0, scene.elements.shape[0])
-        else:
-            scene.f = f_value
-    n_sub = scene.n_subdomains
-    if kind == "checkerboard":
-        scene.rho = checkerboard(scene.subdomain_grid, value)
-    elif kind == "body-checkerboard":
-        # (column, row) of each subdomain's body: every body has subdomains x subdomains subdomains
-        scene.rho = checkerboard(scene.subdomain_grid // spec.subdomains, value)
-    else:
-        scene.rho = np.full(n_sub, value)
-    return scene
-
-
-def check_decomposition(spec: ProblemSpec) -> None:
-    """Reject decompositions that a substructuring method cannot handle.
-
-    Raises
-    ------
-    InputError
-        ``subdomains``: a DD method on one subdomain per body side where that
-        leaves nothing to iterate on (poisson: no interface) or a floating body
-        without a primal vertex (multibody with 1/H_b >= 3, whose inner bodies
-        float; contact, whose Omega^2 floats): the generalized inverse of a
-        floating body pins one of its primal vertices.
-    """
-    if spec.method == "direct" or spec.subdomains != 1:
-        return
-    if spec.problem == "poisson":
-        raise InputError("subdomains", f"method {spec.method!r} needs at least 2 subdomains per side "
-                                       f"(one subdomain has no interface); use method 'direct'")
-    if spec.problem == "contact" or (spec.problem == "multibody" and spec.bodies >= 3):
-        raise InputError("subdomains", f"method {spec.method!r} needs at least 2 subdomains per body side "
-                                       f"when a body floats (a floating body pins one of its primal "
-                                       f"vertices, and a one-subdomain body has none); use method 'direct'")
+# The chain spec -> scene -> assembly -> Substructures lives in ddsolve.prepare; these names stay importable.
+build_scene = scene_from_spec
 
 
 #: A Krylov solve counts as converged only if the residual recomputed from its
@@ -166,19 +109,16 @@ def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
 
 
 def _solve(spec: ProblemSpec) -> SolveResult:
-    check_decomposition(spec)
-    t0 = time.perf_counter()
-    scene = build_scene(spec)
-    local = assemble(scene)
-    sub = Substructures(local, scaling=spec.scaling, gamma=spec.gamma)
-    t_assembly = time.perf_counter() - t0
+    prepared = prepare(spec)
+    local, sub = prepared.local, prepared.sub
+    t_assembly = prepared.seconds
 
     result = SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies,
                          subdomains=spec.subdomains, elements=spec.elements, ndof=sub.ndof)
     t1 = time.perf_counter()
     if spec.problem == "contact":
         from .contact.run import solve_contact_spec
-        solve_contact_spec(spec, sub, result)
+        solve_contact_spec(spec, prepared.contact, result)
         result.setup_seconds += t_assembly
         result.extra["n_templates"] = local.n_templates
         log.info("contact %s: %s", spec.method, result.reason)
