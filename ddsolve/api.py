@@ -1,41 +1,32 @@
-"""One call from a :class:`~ddsolve.spec.ProblemSpec` to a :class:`~ddsolve.result.SolveResult`."""
+"""One call from a :class:`~ddsolve.spec.ProblemSpec` to a :class:`~ddsolve.result.SolveResult`.
+
+:func:`solve` is :func:`ddsolve.prepared.prepare` (scene, assembly,
+substructures) followed by the method of the spec, looked up in
+:data:`SOLVERS` (one registry per problem). Each registered runner returns a
+:class:`MethodRun`; the :class:`SolveResult` is built from it once, at the end,
+and never modified afterwards.
+"""
 from __future__ import annotations
 
 import logging
 import math
 import time
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from .dd import MethodOutput, Substructures, solve_bddc, solve_direct, solve_feti, solve_fetidp
+from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
 from .krylov import KrylovResult
-from .multibody import GlobalInterface
-from .multibody.direct import solve_constrained_direct
-from .multibody.fetifeti import FetiFetiSolver
+from .options import METHODS
+from .prepared import Prepared, check_decomposition, prepare, scene_from_spec  # noqa: F401  (re-exported)
 from .result import SolveResult
-from .prepared import check_decomposition, prepare, scene_from_spec  # noqa: F401  (re-exported)
 from .spec import ProblemSpec
 
 log = logging.getLogger(__name__)
 
-_ITERATIVE: dict[str, Callable[..., MethodOutput]] = {
-    "feti": solve_feti,
-    "fetidp": solve_fetidp,
-    "bddc": solve_bddc,
-}
-
-
-def _multibody_solver(method: str, sub: Substructures, gi: GlobalInterface):
-    """The multibody solver object for ``method`` (factorizations happen here)."""
-    if method == "feti-feti":
-        return FetiFetiSolver(sub, gi)
-    from .multibody.hybrid import HybridSolver
-    return HybridSolver(sub, gi)
-
-
-# The chain spec -> scene -> assembly -> Substructures lives in ddsolve.prepare; these names stay importable.
+# The chain spec -> scene -> assembly -> Substructures lives in ddsolve.prepared; this name stays importable.
 build_scene = scene_from_spec
 
 
@@ -81,6 +72,80 @@ def energy_error(A, u: np.ndarray, u_ref: np.ndarray) -> float:
     return float(np.sqrt(max(float(e @ (A @ e)), 0.0) / ref))
 
 
+@dataclass(frozen=True)
+class MethodRun:
+    """What a registered runner hands back to :func:`solve`.
+
+    Attributes
+    ----------
+    output : MethodOutput
+        Solution, Krylov result, multiplier count, factorizations, setup time, extras.
+    reference : callable
+        Computes the direct solution of the same discrete problem (for ``check``).
+    extra : dict
+        Scene-level diagnostics added to the result (e.g. ``n_active``).
+    """
+
+    output: MethodOutput
+    reference: Callable[[], MethodOutput]
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+Runner = Callable[[Prepared], Any]
+
+
+def _poisson_runner(method: Callable[..., MethodOutput]) -> Runner:
+    def run(prep: Prepared) -> MethodRun:
+        spec = prep.spec
+        out = method(prep.sub, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
+        return MethodRun(out, reference=lambda: solve_direct(prep.sub))
+    return run
+
+
+def _poisson_direct(prep: Prepared) -> MethodRun:
+    out = solve_direct(prep.sub)
+    return MethodRun(out, reference=lambda: out)
+
+
+def _multibody_runner(method: str) -> Runner:
+    def run(prep: Prepared) -> MethodRun:
+        from .multibody import GlobalInterface
+        from .multibody.direct import solve_constrained_direct
+
+        spec, sub = prep.spec, prep.sub
+        gi = GlobalInterface(sub)
+        active = gi.contact_mask(spec.contact)
+        reference = lambda: solve_constrained_direct(sub, gi, active)   # noqa: E731
+        if method == "direct":
+            out = reference()
+            return MethodRun(out, reference=lambda: out, extra={"n_active": int(active.sum())})
+        if method == "feti-feti":
+            from .multibody.fetifeti import FetiFetiSolver
+            out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
+        else:  # hybrid: PCR has no Lanczos estimate, so cond stays None
+            from .multibody.hybrid import HybridSolver
+            out = HybridSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
+                                              norm=spec.norm, projection=spec.projection)
+        return MethodRun(out, reference=reference, extra={"n_active": int(active.sum())})
+    return run
+
+
+def _contact_runner(method: str) -> Runner:
+    def run(prep: Prepared):
+        from .contact.run import run_contact
+        return run_contact(method, prep)
+    return run
+
+
+#: One solver registry per problem: ``SOLVERS[problem][method](prepared)``.
+SOLVERS: dict[str, dict[str, Runner]] = {
+    "poisson": {"fetidp": _poisson_runner(solve_fetidp), "feti": _poisson_runner(solve_feti),
+                "bddc": _poisson_runner(solve_bddc), "direct": _poisson_direct},
+    "multibody": {name: _multibody_runner(name) for name in METHODS["multibody"]},
+    "contact": {name: _contact_runner(name) for name in METHODS["contact"]},
+}
+
+
 def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
     """Build, assemble and solve the problem described by ``spec``.
 
@@ -108,60 +173,44 @@ def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
         return _solve(spec)
 
 
-def _solve(spec: ProblemSpec) -> SolveResult:
-    prepared = prepare(spec)
-    local, sub = prepared.local, prepared.sub
-    t_assembly = prepared.seconds
+def _scalar_extras(extra: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in extra.items() if isinstance(v, (bool, int, float, str, np.number, np.bool_))}
 
-    result = SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies,
-                         subdomains=spec.subdomains, elements=spec.elements, ndof=sub.ndof)
+
+def _solve(spec: ProblemSpec) -> SolveResult:
+    prep = prepare(spec)
     t1 = time.perf_counter()
+    run = SOLVERS[spec.problem][spec.method](prep)
+    t_total = time.perf_counter() - t1
+    identity = dict(problem=spec.problem, method=spec.method, bodies=spec.bodies, subdomains=spec.subdomains,
+                    elements=spec.elements, ndof=prep.sub.ndof)
     if spec.problem == "contact":
-        from .contact.run import solve_contact_spec
-        solve_contact_spec(spec, prepared.contact, result)
-        result.setup_seconds += t_assembly
-        result.extra["n_templates"] = local.n_templates
+        from .contact.run import contact_result_fields
+        fields = contact_result_fields(spec, prep.contact, run)
+        fields["setup_seconds"] += prep.seconds
+        fields["extra"]["n_templates"] = prep.local.n_templates
+        result = SolveResult(**identity, **fields)
         log.info("contact %s: %s", spec.method, result.reason)
         return result
-    reference: Callable[[], MethodOutput] = lambda: solve_direct(sub)   # noqa: E731
-    if spec.problem == "multibody":
-        gi = GlobalInterface(sub)
-        active = gi.contact_mask(spec.contact)
-        reference = lambda: solve_constrained_direct(sub, gi, active)   # noqa: E731
-        if spec.method == "direct":
-            out = reference()
-        else:
-            # PCR (hybrid) has no Lanczos estimate: cond stays None there.
-            options = ({"cond": spec.cond} if spec.method == "feti-feti"
-                       else {"norm": spec.norm, "projection": spec.projection})
-            out = _multibody_solver(spec.method, sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
-                                                                **options)
-        result.extra["n_active"] = int(active.sum())
-    elif spec.method == "direct":
-        out = reference()
-    else:
-        out = _ITERATIVE[spec.method](sub, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
-    t_total = time.perf_counter() - t1
 
-    result.u = out.u
-    result.nlambda = out.nlambda
-    result.n_factorizations = out.n_factorizations
-    result.setup_seconds = t_assembly + out.setup_seconds
-    result.solve_seconds = t_total - out.setup_seconds
-    result.extra.update({k: v for k, v in out.extra.items()
-                         if isinstance(v, (bool, int, float, str, np.number, np.bool_))})
-    result.extra["n_templates"] = local.n_templates
+    out = run.output
+    extra = {**_scalar_extras(out.extra), **run.extra, "n_templates": prep.local.n_templates}
+    fields: dict[str, Any] = dict(u=out.u, nlambda=out.nlambda, n_factorizations=out.n_factorizations,
+                                  setup_seconds=prep.seconds + out.setup_seconds,
+                                  solve_seconds=t_total - out.setup_seconds)
     if out.krylov is None:
-        result.converged, result.reason, result.iterations = True, "direct solve", 0
+        fields.update(converged=True, reason="direct solve", iterations=0)
     else:
         kr = out.krylov
-        (result.converged, result.reason), result.iterations = attained(kr, spec.rtol), kr.iterations
-        result.residuals = np.asarray(kr.residuals, dtype=float)
-        result.true_residual = kr.true_residual
+        converged, reason = attained(kr, spec.rtol)
+        fields.update(converged=converged, reason=reason, iterations=kr.iterations,
+                      residuals=np.asarray(kr.residuals, dtype=float), true_residual=kr.true_residual)
+        extra["restarts"] = int(getattr(kr, "restarts", 0))
         if spec.cond and kr.cond is not None:
-            result.cond, result.lambda_min, result.lambda_max = kr.cond, kr.lambda_min, kr.lambda_max
+            fields.update(cond=kr.cond, lambda_min=kr.lambda_min, lambda_max=kr.lambda_max)
     if spec.check:
-        ref = out if spec.method == "direct" else reference()
-        result.error_vs_direct = energy_error(sub.global_matrix(), out.u, ref.u)
+        reference = out if spec.method == "direct" else run.reference()
+        fields["error_vs_direct"] = energy_error(prep.sub.global_matrix(), out.u, reference.u)
+    result = SolveResult(**identity, **fields, extra=extra)
     log.info("%s %s: %s", spec.problem, spec.method, result.reason)
     return result

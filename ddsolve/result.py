@@ -31,9 +31,9 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
-@dataclass
+@dataclass(frozen=True)
 class SolveResult:
-    """Outcome of solving one scene with one method.
+    """Outcome of solving one scene with one method (built once by :func:`ddsolve.solve`, immutable).
 
     Attributes
     ----------

@@ -1,12 +1,20 @@
-"""Glue between :func:`ddsolve.solve` and the contact solvers: one spec in, one :class:`SolveResult` filled."""
+"""Glue between :func:`ddsolve.solve` and the contact solvers: a prepared problem in, the result fields out."""
 from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..result import SolveResult
 from ..spec import ProblemSpec
 from .direct import ContactSolution, solve_contact_direct
 from .problem import ContactProblem
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..prepared import Prepared
+
+#: SMALBE diagnostics copied into the result (when the solver reports them).
+SMALBE_KEYS = ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty", "rho_bar", "force_error",
+               "polish", "polish_iterations")
 
 
 def run_contact_method(method: str, problem: ContactProblem, *, rtol: float, maxiter: int) -> ContactSolution:
@@ -26,10 +34,15 @@ def run_contact_method(method: str, problem: ContactProblem, *, rtol: float, max
     raise ValueError(f"unknown contact method {method!r}")
 
 
-def solve_contact_spec(spec: ProblemSpec, problem: ContactProblem, result: SolveResult) -> ContactSolution:
-    """Solve the contact problem of ``spec`` and fill ``result``.
+def run_contact(method: str, prep: "Prepared") -> ContactSolution:
+    """Solve the contact problem of a prepared spec with ``method``."""
+    return run_contact_method(method, prep.contact, rtol=float(prep.spec.rtol), maxiter=int(prep.spec.maxiter))
 
-    ``result.iterations`` is the total of the inner iterations; ``extra`` gets
+
+def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: ContactSolution) -> dict[str, Any]:
+    """The :class:`~ddsolve.result.SolveResult` fields of a contact solve.
+
+    ``iterations`` is the total of the inner iterations; ``extra`` holds
     ``outer_iterations``, ``inner_iterations`` (list), ``pcg_iterations``,
     ``total_iterations``, ``n_active``, ``n_contact``, ``energy``,
     ``kkt_residual`` and its four parts (SMALBE also its counters, ``penalty``,
@@ -42,17 +55,9 @@ def solve_contact_spec(spec: ProblemSpec, problem: ContactProblem, result: Solve
     would not see a rigid shift of it) and ``lambda_error_vs_direct`` that of
     the multipliers.
     """
-    sol = run_contact_method(spec.method, problem, rtol=float(spec.rtol), maxiter=int(spec.maxiter))
     kkt = problem.kkt(sol.u, sol.lam)
-    result.u = sol.u
-    result.converged, result.reason = bool(sol.converged), sol.reason
-    result.iterations = sol.total_iterations
-    result.nlambda = int(sol.extra.get("nlambda", problem.n_contact))
-    result.n_factorizations = int(sol.n_factorizations)
     setup = float(sol.extra.get("setup_seconds", 0.0))
-    result.setup_seconds = setup
-    result.solve_seconds = max(sol.seconds - setup, 0.0)
-    result.extra.update({
+    extra: dict[str, Any] = {
         "outer_iterations": int(sol.outer_iterations),
         "inner_iterations": [int(k) for k in sol.inner_iterations],
         "pcg_iterations": int(sol.pcg_iterations),
@@ -61,14 +66,15 @@ def solve_contact_spec(spec: ProblemSpec, problem: ContactProblem, result: Solve
         "n_contact": int(problem.n_contact),
         "energy": problem.energy(sol.u),
         **kkt.as_dict(),
-    })
-    for key in ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty", "rho_bar", "force_error",
-                "polish", "polish_iterations"):
-        if key in sol.extra:
-            result.extra[key] = sol.extra[key]
+    }
+    extra.update({key: sol.extra[key] for key in SMALBE_KEYS if key in sol.extra})
+    fields: dict[str, Any] = dict(
+        u=sol.u, converged=bool(sol.converged), reason=sol.reason, iterations=sol.total_iterations,
+        nlambda=int(sol.extra.get("nlambda", problem.n_contact)), n_factorizations=int(sol.n_factorizations),
+        setup_seconds=setup, solve_seconds=max(sol.seconds - setup, 0.0), extra=extra)
     if spec.check:
         ref = sol if spec.method == "direct" else solve_contact_direct(problem)
-        result.error_vs_direct = float(np.linalg.norm(sol.u - ref.u) / max(np.linalg.norm(ref.u), 1e-300))
-        result.extra["lambda_error_vs_direct"] = float(
+        fields["error_vs_direct"] = float(np.linalg.norm(sol.u - ref.u) / max(np.linalg.norm(ref.u), 1e-300))
+        extra["lambda_error_vs_direct"] = float(
             np.linalg.norm(sol.lam - ref.lam) / max(np.linalg.norm(ref.lam), 1e-300))
-    return sol
+    return fields
