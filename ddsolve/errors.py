@@ -1,10 +1,62 @@
 """Exceptions raised by ddsolve.
 
 Every error caused by bad user input is an :class:`InputError`. Its message is
-one line that names the offending field, so that the command line can print it
-as it is and exit with status 2.
+one short line that names the offending field, so that the command line can
+print it as it is and exit with status 2. Offending values are quoted with
+:func:`brief` (a bounded ``repr``: a 10 MB string or an alias-expanded YAML
+structure is never rendered whole), and :class:`InputError` itself clips the
+field and the message and escapes control characters and unencodable text, so
+that no input can make the error longer than :data:`MAX_FIELD` +
+:data:`MAX_MESSAGE` characters or spread it over several lines.
 """
 from __future__ import annotations
+
+import reprlib
+from typing import Any
+
+#: Longest rendering of an offending value inside a message (characters).
+MAX_VALUE = 80
+#: Longest field name printed (characters).
+MAX_FIELD = 32
+#: Longest message printed after the field (characters).
+MAX_MESSAGE = 150
+
+_repr = reprlib.Repr()
+_repr.maxstring = MAX_VALUE
+_repr.maxother = MAX_VALUE
+_repr.maxlong = 40
+_repr.maxlevel = 2
+_repr.maxlist = _repr.maxtuple = _repr.maxset = _repr.maxdict = 4
+
+
+def clip(text: str, limit: int) -> str:
+    """``text`` on one line, at most ``limit`` characters (middle elided with ``...``).
+
+    Control characters (newlines included) and text that cannot be encoded as
+    UTF-8 (lone surrogates from undecodable command-line bytes) are escaped.
+    """
+    if len(text) > 4 * limit:                 # escape only what can be shown
+        text = text[:2 * limit] + text[-2 * limit:]
+    text = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    text = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+    if len(text) <= limit:
+        return text
+    head = (limit - 3) * 2 // 3
+    return text[:head] + "..." + text[len(text) - (limit - 3 - head):]
+
+
+def brief(value: Any) -> str:
+    """A bounded ``repr`` of an offending value: at most :data:`MAX_VALUE` characters.
+
+    Nested containers are shown to depth 2 with at most 4 items each, so that
+    the cost does not depend on the size of ``value`` (a YAML alias bomb
+    expands to a huge structure only if it is walked).
+    """
+    try:
+        text = _repr.repr(value)
+    except Exception:                          # a hostile __repr__
+        text = f"<{type(value).__name__}>"
+    return clip(text, MAX_VALUE)
 
 
 class InputError(ValueError):
@@ -15,10 +67,14 @@ class InputError(ValueError):
     field : str
         Name of the offending field, e.g. ``"subdomains"``.
     message : str
-        What is wrong, in one line.
+        What is wrong, in one line. Quote offending values with :func:`brief`;
+        the message is clipped to :data:`MAX_MESSAGE` characters regardless.
     """
 
     def __init__(self, field: str, message: str) -> None:
-        self.field = field
-        self.message = message
-        super().__init__(f"{field}: {message}")
+        self.field = clip(str(field), MAX_FIELD)
+        self.message = clip(str(message), MAX_MESSAGE)
+        super().__init__(f"{self.field}: {self.message}")
+
+
+__all__ = ["InputError", "brief", "clip", "MAX_VALUE", "MAX_FIELD", "MAX_MESSAGE"]

@@ -1,53 +1,126 @@
 """Problem specification: the validated description of one solve.
 
-A :class:`ProblemSpec` is what the command line, a YAML scene file and the
-Snakemake pipeline all produce. :meth:`ProblemSpec.from_mapping` validates every
-field and raises :class:`~ddsolve.errors.InputError` naming the first bad one.
+A :class:`ProblemSpec` is what the command line, a YAML scene file, the Python
+API and the Snakemake pipeline all produce. It validates itself when it is
+constructed (``ProblemSpec(gamma=-1)`` raises), and
+:meth:`ProblemSpec.from_mapping` and :meth:`ProblemSpec.from_yaml` go through
+the same validation; every error is an :class:`~ddsolve.errors.InputError`
+naming the first bad field.
+
+Fields that do not apply
+------------------------
+A field whose value is its default is always accepted. A *non-default* value
+for a field that the chosen problem or method does not use is an error, never
+silently ignored:
+
+- ``contact`` (active area): problem ``multibody`` only;
+- ``rho: body-checkerboard:V``: problems with several bodies (``multibody``, ``contact``);
+- ``f: dostal[:F1,F2]``: problem ``contact`` only;
+- ``cond``: the Krylov methods of poisson and multibody (:data:`COND_METHODS`; the
+  hybrid method's PCR has no Lanczos estimate and reports none);
+- ``check``, ``scaling``, ``gamma``, ``rtol``, ``maxiter``: not with method ``direct``;
+- ``gamma``: scaling ``rho`` only (the exponent of the rho-scaling);
+- ``norm``, ``projection``: the hybrid method only.
+
+Scene files are read with hard limits (:data:`MAX_SCENE_BYTES`, a regular
+file, UTF-8, :class:`SceneLoader`'s bounds on nesting and alias expansion), so
+a hostile file is refused cheaply.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import re
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import yaml
 
-from .errors import InputError
+from .errors import InputError, brief
 from .options import CONTACTS, DEFAULT_F, DEFAULT_RTOL, METHODS, NORMS, PCR_METHODS, PROJECTIONS, SCALINGS
 
+#: Largest scene file read (bytes).
+MAX_SCENE_BYTES = 1 << 20
+#: Default iteration limit.
+DEFAULT_MAXITER = 1000
+#: Largest integer field value (sizes, iteration limit, random seed).
+MAX_INT = 2**31 - 1
+#: Methods that compute a Lanczos condition estimate when ``cond`` is set (hybrid: accepted, reports none).
+COND_METHODS: tuple[str, ...] = ("feti", "fetidp", "bddc", "feti-feti", "hybrid")
 
-def _as_int(field: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
-        raise InputError(field, f"must be an integer >= {minimum}, got {value!r}")
-    try:
-        as_float = float(value)
-    except ValueError:
-        raise InputError(field, f"must be an integer >= {minimum}, got {value!r}") from None
-    if not math.isfinite(as_float) or as_float != int(as_float):
-        raise InputError(field, f"must be an integer >= {minimum}, got {value!r}")
-    if int(as_float) < minimum:
-        raise InputError(field, f"must be an integer >= {minimum}, got {value!r}")
-    return int(as_float)
+#: A decimal number: optional sign, digits with an optional point, optional exponent (no '_', no hex).
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_PATTERN = re.compile(r"(?P<kind>body-checkerboard|checkerboard)(?:\s*:\s*(?P<value>.*))?", re.IGNORECASE | re.DOTALL)
+_RANDOM = re.compile(r"random(?:\s*:\s*(?P<seed>.*))?", re.IGNORECASE | re.DOTALL)
+_DOSTAL = re.compile(r"dostal(?:\s*:(?P<rest>.*))?", re.IGNORECASE | re.DOTALL)
+#: Longest string parsed as a number or pattern (longer ones are refused unread).
+_MAX_TEXT = 200
 
 
-def _as_positive_float(field: str, value: Any) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise InputError(field, f"must be a positive number, got {value!r}") from None
-    if isinstance(value, bool) or not math.isfinite(out) or out <= 0:
-        raise InputError(field, f"must be a positive number, got {value!r}")
+def _plain(value: Any) -> Any:
+    """Numpy scalars (``np.int64``, ``np.float64``, ``np.bool_``, ``np.str_``) as Python scalars."""
+    if type(value).__module__ == "numpy" and getattr(value, "ndim", None) == 0 and hasattr(value, "item"):
+        return value.item()
+    return value
+
+
+def _number(field: str, value: Any, what: str) -> float:
+    """``value`` (a real number or a decimal string) as a float; InputError(field) otherwise."""
+    value = _plain(value)
+    if isinstance(value, bool):
+        raise InputError(field, f"must be {what}, got {brief(value)}")
+    if isinstance(value, int):
+        try:
+            return float(value)
+        except OverflowError:
+            raise InputError(field, f"must be {what}, got a {len(str(abs(value)))}-digit integer") from None
+    if isinstance(value, float):
+        return value
+    if isinstance(value, str) and len(value) <= _MAX_TEXT and _NUMBER.fullmatch(value.strip()):
+        return float(value.strip())
+    raise InputError(field, f"must be {what}, got {brief(value)}")
+
+
+def _as_int(field: str, value: Any, minimum: int, maximum: int = MAX_INT) -> int:
+    """``value`` as an integer in [minimum, maximum] (integral floats and decimal strings accepted)."""
+    what = f"an integer in [{minimum}, {maximum}]"
+    value = _plain(value)
+    if isinstance(value, int) and not isinstance(value, bool):
+        out = value
+    else:
+        as_float = _number(field, value, what)
+        if not math.isfinite(as_float) or as_float != int(as_float):
+            raise InputError(field, f"must be {what}, got {brief(value)}")
+        out = int(as_float)
+    if not minimum <= out <= maximum:
+        raise InputError(field, f"must be {what}, got {brief(value)}")
     return out
 
 
-def _choice(field: str, value: Any, choices: tuple[str, ...]) -> str:
+def _as_positive_float(field: str, value: Any) -> float:
+    out = _number(field, value, "a positive number")
+    if not math.isfinite(out) or out <= 0:
+        raise InputError(field, f"must be a positive finite number, got {brief(_plain(value))}")
+    return out
+
+
+def _as_bool(field: str, value: Any) -> bool:
+    value = _plain(value)
+    if not isinstance(value, bool):
+        raise InputError(field, f"must be true or false, got {brief(value)}")
+    return value
+
+
+def _choice(field: str, value: Any, choices: tuple[str, ...], what: str | None = None, where: str = "") -> str:
     """``value`` as one of ``choices`` (matched case-insensitively, returned as spelled there)."""
     by_lower = {c.lower(): c for c in choices}
+    value = _plain(value)
     key = value.strip().lower() if isinstance(value, str) else None
     if key not in by_lower:
-        raise InputError(field, f"unknown {field} {value!r} (choose from {', '.join(choices)})")
+        raise InputError(field, f"unknown {what or field} {brief(value)}{where} (choose from {', '.join(choices)})")
     return by_lower[key]
 
 
@@ -62,35 +135,44 @@ def parse_rho(value: Any) -> tuple[str, float]:
         chess board; for several bodies the board runs across the subdomains
         of all bodies) or ``"body-checkerboard:V"`` (rho constant on each body,
         alternating between 1 and V across bodies: jumps between bodies only).
+        Pattern names are matched case-insensitively and exactly
+        (``"checkerboardz:5"`` is an error).
 
     Returns
     -------
     (kind, value) : tuple
         ``("constant", rho)``, ``("checkerboard", V)`` or ``("body-checkerboard", V)``.
+
+    Raises
+    ------
+    InputError
+        ``rho``, for anything else.
     """
-    if isinstance(value, str) and value.strip().lower().startswith("body-checkerboard"):
-        _, _, rest = value.partition(":")
-        if not rest:
-            raise InputError("rho", f"body-checkerboard needs a value, e.g. 'body-checkerboard:100', got {value!r}")
-        return "body-checkerboard", _as_positive_float("rho", rest)
-    if isinstance(value, str) and value.strip().lower().startswith("checkerboard"):
-        _, _, rest = value.partition(":")
-        if not rest:
-            raise InputError("rho", f"checkerboard needs a value, e.g. 'checkerboard:100', got {value!r}")
-        return "checkerboard", _as_positive_float("rho", rest)
+    value = _plain(value)
+    if isinstance(value, str) and len(value) <= _MAX_TEXT:
+        text = value.strip()
+        match = _PATTERN.fullmatch(text)
+        if match:
+            kind = match["kind"].lower()
+            if not (match["value"] or "").strip():
+                raise InputError("rho", f"{kind} needs a value, e.g. '{kind}:100', got {brief(value)}")
+            return kind, _as_positive_float("rho", match["value"])
+        if text[:1].isalpha():
+            raise InputError("rho", f"must be a positive number, 'checkerboard:V' or 'body-checkerboard:V', "
+                                    f"got {brief(value)}")
     return "constant", _as_positive_float("rho", value)
 
 
-def parse_f(value: Any) -> tuple[str, float]:
+def parse_f(value: Any) -> tuple[str, Any]:
     """Parse the right-hand side specification.
 
     Parameters
     ----------
     value : float or str
-        A number (constant load) or ``"random:SEED"``: element-wise constant
-        loads drawn uniformly from [-1, 1] with numpy's default generator
-        seeded by the integer SEED (a generic load that excites the whole
-        spectrum, unlike f = 1 on a symmetric decomposition).
+        A number (constant load) or ``"random:SEED"`` (``"random"``: seed 0):
+        element-wise constant loads drawn uniformly from [-1, 1] with numpy's
+        default generator seeded by the integer SEED (a generic load that
+        excites the whole spectrum, unlike f = 1 on a symmetric decomposition).
 
         ``"dostal"`` or ``"dostal:F1,F2"`` (contact only): f = F1 on
         (0, 1) x [0.75, 1), F2 on (1, 2) x (0, 0.25), zero elsewhere; the
@@ -100,19 +182,27 @@ def parse_f(value: Any) -> tuple[str, float]:
     -------
     (kind, value) : tuple
         ``("constant", f)``, ``("random", seed)`` or ``("dostal", (F1, F2))``.
+
+    Raises
+    ------
+    InputError
+        ``f``, for anything else.
     """
-    if isinstance(value, str) and value.strip().lower().startswith("random"):
-        _, _, rest = value.partition(":")
-        return "random", _as_int("f", rest or "0", 0)
-    if isinstance(value, str) and value.strip().lower().startswith("dostal"):
-        _, _, rest = value.partition(":")
-        return "dostal", parse_dostal(rest)
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise InputError("f", f"must be a number or 'random:SEED', got {value!r}") from None
-    if isinstance(value, bool) or not math.isfinite(out):
-        raise InputError("f", f"must be a finite number or 'random:SEED', got {value!r}")
+    value = _plain(value)
+    if isinstance(value, str) and len(value) <= _MAX_TEXT:
+        text = value.strip()
+        match = _RANDOM.fullmatch(text)
+        if match:
+            seed = match["seed"]
+            if seed is not None and not re.fullmatch(r"\s*\d+\s*", seed):
+                raise InputError("f", f"'random:SEED' needs an integer seed in [0, {MAX_INT}], got {brief(value)}")
+            return "random", _as_int("f", (seed or "0").strip(), 0)
+        match = _DOSTAL.fullmatch(text)
+        if match:
+            return "dostal", parse_dostal(match["rest"] or "")
+    out = _number("f", value, "a number, 'random:SEED' or 'dostal:F1,F2'")
+    if not math.isfinite(out):
+        raise InputError("f", f"must be a finite number, 'random:SEED' or 'dostal:F1,F2', got {brief(value)}")
     return "constant", out
 
 
@@ -120,14 +210,200 @@ def parse_dostal(rest: str) -> tuple[float, float]:
     """The two patch loads of ``"dostal:F1,F2"`` (empty: the benchmark's (-3, -1))."""
     if not rest.strip():
         return (-3.0, -1.0)
-    parts = rest.split(",")
+    parts = [p.strip() for p in rest.split(",")]
+    if len(parts) != 2 or not all(_NUMBER.fullmatch(p) for p in parts):
+        raise InputError("f", f"'dostal:F1,F2' needs two finite numbers, got {brief(rest)}")
+    values = (float(parts[0]), float(parts[1]))
+    if not all(math.isfinite(v) for v in values):
+        raise InputError("f", f"'dostal:F1,F2' needs two finite numbers, got {brief(rest)}")
+    return values
+
+
+def _inapplicable(field: str, value: Any, why: str) -> InputError:
+    """The error of a non-default value of a field that the problem or method does not use."""
+    shown = "true" if value is True else brief(value)
+    return InputError(field, f"{shown} does not apply: {why} (only the default is accepted)")
+
+
+def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
+    """The normalised fields of a spec, or InputError naming the first bad one (in field order).
+
+    ``raw`` holds every field; ``None`` for ``method``, ``f`` and ``rtol``
+    takes the problem's default.
+    """
+    problem = _choice("problem", raw["problem"], tuple(METHODS))
+    method = raw["method"]
+    method = METHODS[problem][0] if method is None else _choice(
+        "method", method, METHODS[problem], where=f" for problem {problem!r}")
+    bodies = _as_int("bodies", raw["bodies"], 1)
+    if problem == "poisson" and bodies != 1:
+        raise InputError("bodies", f"problem 'poisson' has exactly one body, got {bodies}")
+    if problem == "contact":
+        if bodies not in (1, 2):
+            raise InputError("bodies", f"problem 'contact' has exactly two bodies (the membranes of (3.1)), "
+                                       f"got {bodies}")
+        bodies = 2
+    subdomains = _as_int("subdomains", raw["subdomains"], 1)
+    elements = _as_int("elements", raw["elements"], 1)
+    if elements < 2:
+        raise InputError("elements", f"mesh too small for the decomposition: each subdomain needs "
+                                     f">= 2 elements per side to have interior nodes, got {elements}")
+    rho = _plain(raw["rho"])
+    rho_kind = parse_rho(rho)[0]
+    if rho_kind == "body-checkerboard" and problem == "poisson":
+        raise _inapplicable("rho", rho, "problem 'poisson' has one body (use checkerboard:V)")
+    f = _plain(raw["f"])
+    if f is None:
+        f = DEFAULT_F.get(problem, 1.0)
+    f_kind, f_value = parse_f(f)
+    if f_kind == "constant":
+        f = f_value
+    if f_kind == "dostal" and problem != "contact":
+        raise InputError("f", f"'dostal' loads are defined for problem 'contact' only, not {problem!r}")
+    contact = _choice("contact", raw["contact"], CONTACTS, what="contact area")
+    if contact != CONTACTS[0] and problem != "multibody":
+        raise _inapplicable("contact", contact, f"the active area is a field of problem 'multibody', not {problem!r}")
+    direct = method == "direct"
+    scaling = _choice("scaling", raw["scaling"], SCALINGS)
+    if scaling != SCALINGS[0] and direct:
+        raise _inapplicable("scaling", scaling, "method 'direct' has no interface scaling")
+    gamma = _as_positive_float("gamma", raw["gamma"])
+    if gamma < 0.5:
+        raise InputError("gamma", f"must be >= 1/2 (Section 2.3), got {gamma:g}")
+    if gamma != 1.0 and (direct or scaling != "rho"):
+        raise _inapplicable("gamma", gamma, "it is the exponent of the rho-scaling" if not direct
+                            else "method 'direct' has no interface scaling")
+    norm = _choice("norm", raw["norm"], NORMS)
+    projection = _choice("projection", raw["projection"], PROJECTIONS)
+    for field, value, default in (("norm", norm, NORMS[0]), ("projection", projection, PROJECTIONS[0])):
+        if value != default and method not in PCR_METHODS:
+            raise InputError(field, f"{value!r} applies to the hybrid method only, not {method!r} "
+                                    f"(use {default!r})")
+    default_rtol = DEFAULT_RTOL.get(problem, 1e-6)
+    rtol = default_rtol if raw["rtol"] is None else _as_positive_float("rtol", raw["rtol"])
+    if rtol >= 1:
+        raise InputError("rtol", f"must be in (0, 1), got {rtol:g}")
+    if rtol != default_rtol and direct:
+        raise _inapplicable("rtol", rtol, "method 'direct' does not iterate")
+    maxiter = _as_int("maxiter", raw["maxiter"], 1)
+    if maxiter != DEFAULT_MAXITER and direct:
+        raise _inapplicable("maxiter", maxiter, "method 'direct' does not iterate")
+    cond = _as_bool("cond", raw["cond"])
+    if cond and method not in COND_METHODS:
+        raise _inapplicable("cond", cond, f"method {method!r} computes no Lanczos estimate")
+    check = _as_bool("check", raw["check"])
+    if check and direct:
+        raise _inapplicable("check", check, "method 'direct' is the direct solve")
+    return dict(problem=problem, method=method, bodies=bodies, subdomains=subdomains, elements=elements,
+                rho=rho, f=f, contact=contact, scaling=scaling, gamma=gamma, norm=norm, projection=projection,
+                rtol=rtol, maxiter=maxiter, cond=cond, check=check)
+
+
+class SceneLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` with bounds: nesting depth, number of nodes and alias-expanded size.
+
+    The size of a node is the number of nodes it stands for once every alias is
+    expanded (1 for a scalar, 1 + the sizes of the items for a collection); it
+    is computed while composing, from the sizes of the already composed
+    anchors, so an alias bomb ("billion laughs") is refused after reading a few
+    hundred bytes and before anything is expanded. Exceeding a bound raises
+    :class:`~ddsolve.errors.InputError` (field ``scene``).
+    """
+
+    #: Deepest nesting of collections.
+    max_depth = 32
+    #: Largest number of nodes of the document, as written and alias-expanded (a scene has 16 fields).
+    max_nodes = 1000
+
+    def __init__(self, stream: Any) -> None:
+        super().__init__(stream)
+        self._depth = 0
+        self._composed = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        self._depth += 1
+        self._composed += 1
+        try:
+            if self._depth > self.max_depth:
+                raise InputError("scene", f"nesting deeper than {self.max_depth} levels")
+            if self._composed > self.max_nodes:
+                raise InputError("scene", f"more than {self.max_nodes} values")
+            node = super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+        if not hasattr(node, "_ddsolve_size"):
+            if isinstance(node, yaml.MappingNode):
+                size = 1 + sum(getattr(k, "_ddsolve_size", 1) + getattr(v, "_ddsolve_size", 1)
+                               for k, v in node.value)
+            elif isinstance(node, yaml.SequenceNode):
+                size = 1 + sum(getattr(v, "_ddsolve_size", 1) for v in node.value)
+            else:
+                size = 1
+            if size > self.max_nodes:
+                raise InputError("scene", f"more than {self.max_nodes} values once aliases are expanded "
+                                          f"(an alias bomb?)")
+            node._ddsolve_size = size
+        return node
+
+
+def read_scene(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The mapping of a YAML scene file, read with hard limits.
+
+    The file must be a regular file (checked with ``stat`` before it is opened:
+    a FIFO, a device such as ``/dev/zero`` or a directory is refused unread) of
+    at most :data:`MAX_SCENE_BYTES`, UTF-8, and YAML within
+    :class:`SceneLoader`'s bounds. An empty file is an empty mapping.
+
+    Raises
+    ------
+    InputError
+        ``scene``, with one line saying why.
+    """
+    name = os.fspath(path) if not isinstance(path, (str, bytes)) else path
+    if isinstance(name, bytes) or not isinstance(name, str):
+        raise InputError("scene", f"must be a file path, got {brief(path)}")
+    if not name.strip():
+        raise InputError("scene", "empty file name")
+    shown = brief(name)
     try:
-        values = tuple(float(v) for v in parts)
-    except ValueError:
-        values = ()
-    if len(values) != 2 or not all(math.isfinite(v) for v in values):
-        raise InputError("f", f"'dostal:F1,F2' needs two finite numbers, got {rest!r}")
-    return values  # type: ignore[return-value]
+        info = os.stat(name)
+    except (OSError, ValueError) as exc:
+        raise InputError("scene", f"cannot read {shown}: {getattr(exc, 'strerror', None) or exc}") from None
+    if not stat.S_ISREG(info.st_mode):
+        kind = "a directory" if stat.S_ISDIR(info.st_mode) else "not a regular file"
+        raise InputError("scene", f"{shown} is {kind}")
+    if info.st_size > MAX_SCENE_BYTES:
+        raise InputError("scene", f"{shown} is larger than {MAX_SCENE_BYTES // 1024} KiB ({info.st_size} bytes)")
+    try:
+        fd = os.open(name, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
+        with os.fdopen(fd, "rb") as stream:
+            if not stat.S_ISREG(os.fstat(stream.fileno()).st_mode):   # replaced since the stat
+                raise InputError("scene", f"{shown} is not a regular file")
+            data = stream.read(MAX_SCENE_BYTES + 1)
+    except OSError as exc:
+        raise InputError("scene", f"cannot read {shown}: {exc.strerror or exc}") from None
+    if len(data) > MAX_SCENE_BYTES:
+        raise InputError("scene", f"{shown} is larger than {MAX_SCENE_BYTES // 1024} KiB")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError("scene", f"{shown} is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset "
+                                  f"{exc.start})") from None
+    try:
+        loaded = yaml.load(text, Loader=SceneLoader)   # noqa: S506 (a SafeLoader subclass)
+    except InputError:
+        raise
+    except yaml.YAMLError as exc:
+        where = getattr(exc, "problem_mark", None)
+        at = f" at line {where.line + 1}" if where is not None else ""
+        raise InputError("scene", f"malformed YAML in {shown}{at}") from None
+    except (ValueError, TypeError, OverflowError, RecursionError):   # e.g. an invalid timestamp
+        raise InputError("scene", f"malformed YAML in {shown}") from None
+    if loaded is None:
+        return {}
+    if not isinstance(loaded, Mapping):
+        raise InputError("scene", f"{shown} must hold a mapping of fields, got {type(loaded).__name__}")
+    return dict(loaded)
 
 
 @dataclass(frozen=True)
@@ -206,20 +482,15 @@ class ProblemSpec:
     norm: str = "l2"
     projection: str = "orthogonal"
     rtol: float | None = None
-    maxiter: int = 1000
+    maxiter: int = DEFAULT_MAXITER
     cond: bool = False
     check: bool = False
 
     def __post_init__(self) -> None:
-        # problem-dependent defaults (also when the dataclass is built directly)
-        if self.method is None and self.problem in METHODS:
-            object.__setattr__(self, "method", METHODS[self.problem][0])
-        if self.f is None:
-            object.__setattr__(self, "f", DEFAULT_F.get(self.problem, 1.0))
-        if self.rtol is None:
-            object.__setattr__(self, "rtol", DEFAULT_RTOL.get(self.problem, 1e-6))
-        if self.problem == "contact" and self.bodies == 1:
-            object.__setattr__(self, "bodies", 2)
+        # One validation for the constructor, from_mapping, from_yaml and dataclasses.replace;
+        # it also fills the problem-dependent defaults (method, f, rtol; bodies = 2 for contact).
+        for name, value in _validated({f.name: getattr(self, f.name) for f in dataclasses.fields(self)}).items():
+            object.__setattr__(self, name, value)
 
     @classmethod
     def fields(cls) -> tuple[str, ...]:
@@ -230,6 +501,8 @@ class ProblemSpec:
     def from_mapping(cls, data: Mapping[str, Any]) -> "ProblemSpec":
         """Validate a mapping (YAML scene, CLI flags) and build a spec.
 
+        Keys must be field names; a value ``None`` takes the field's default.
+
         Raises
         ------
         InputError
@@ -237,92 +510,17 @@ class ProblemSpec:
         """
         if not isinstance(data, Mapping):
             raise InputError("scene", f"must be a mapping of fields, got {type(data).__name__}")
-        known = set(cls.fields())
+        known = cls.fields()
         for key in data:
-            if key not in known:
-                raise InputError(str(key), f"unknown field (known: {', '.join(sorted(known))})")
-        defaults = {f.name: f.default for f in dataclasses.fields(cls)}
-        merged = {**defaults, **{k: v for k, v in data.items() if v is not None}}
-        if merged["f"] is None:
-            merged["f"] = DEFAULT_F.get(str(merged["problem"]).strip().lower(), 1.0)
-        if merged["rtol"] is None:
-            merged["rtol"] = DEFAULT_RTOL.get(str(merged["problem"]).strip().lower(), 1e-6)
-
-        problem = str(merged["problem"]).strip().lower()
-        if problem not in METHODS:
-            raise InputError("problem", f"unknown problem {merged['problem']!r} (choose from {', '.join(METHODS)})")
-        if merged["method"] is None:
-            merged["method"] = METHODS[problem][0]
-        method = str(merged["method"]).strip().lower()
-        if method not in METHODS[problem]:
-            raise InputError("method", f"unknown method {merged['method']!r} for problem {problem!r} "
-                                       f"(choose from {', '.join(METHODS[problem])})")
-        bodies = _as_int("bodies", merged["bodies"], 1)
-        subdomains = _as_int("subdomains", merged["subdomains"], 1)
-        elements = _as_int("elements", merged["elements"], 1)
-        if problem == "poisson" and bodies != 1:
-            raise InputError("bodies", f"problem 'poisson' has exactly one body, got {bodies}")
-        if problem == "contact":
-            if bodies not in (1, 2):
-                raise InputError("bodies", f"problem 'contact' has exactly two bodies (the membranes of (3.1)), "
-                                           f"got {bodies}")
-            bodies = 2
-        if elements < 2:
-            raise InputError("elements", f"mesh too small for the decomposition: each subdomain needs "
-                                         f">= 2 elements per side to have interior nodes, got {elements}")
-        contact = str(merged["contact"]).strip().lower()
-        if contact not in CONTACTS:
-            raise InputError("contact", f"unknown contact area {merged['contact']!r} (choose from {', '.join(CONTACTS)})")
-        rho = merged["rho"]
-        parse_rho(rho)
-        f = merged["f"]
-        f_kind = parse_f(f)[0]
-        if f_kind == "constant":
-            f = float(f)
-        if f_kind == "dostal" and problem != "contact":
-            raise InputError("f", f"'dostal' loads are defined for problem 'contact' only, not {problem!r}")
-        scaling = str(merged["scaling"]).strip().lower()
-        if scaling not in SCALINGS:
-            raise InputError("scaling", f"unknown scaling {merged['scaling']!r} (choose from {', '.join(SCALINGS)})")
-        gamma = _as_positive_float("gamma", merged["gamma"])
-        if gamma < 0.5:
-            raise InputError("gamma", f"must be >= 1/2 (Section 2.3), got {gamma}")
-        norm = _choice("norm", merged["norm"], NORMS)
-        projection = _choice("projection", merged["projection"], PROJECTIONS)
-        for field, value, default in (("norm", norm, NORMS[0]), ("projection", projection, PROJECTIONS[0])):
-            if value != default and method not in PCR_METHODS:
-                raise InputError(field, f"{value!r} applies to the hybrid method only, not {method!r} "
-                                        f"(use {default!r})")
-        rtol = _as_positive_float("rtol", merged["rtol"])
-        if rtol >= 1:
-            raise InputError("rtol", f"must be in (0, 1), got {rtol}")
-        maxiter = _as_int("maxiter", merged["maxiter"], 1)
-        for flag in ("cond", "check"):
-            if not isinstance(merged[flag], bool):
-                raise InputError(flag, f"must be true or false, got {merged[flag]!r}")
-        return cls(problem=problem, method=method, bodies=bodies, subdomains=subdomains,
-                   elements=elements, rho=rho, f=f, contact=contact, scaling=scaling, gamma=gamma, norm=norm,
-                   projection=projection, rtol=rtol, maxiter=maxiter, cond=merged["cond"], check=merged["check"])
+            if not isinstance(key, str) or key not in known:
+                raise InputError(str(key) if isinstance(key, str) else brief(key),
+                                 f"unknown field (known: {', '.join(known)})")
+        return cls(**{k: v for k, v in data.items() if v is not None})
 
     @classmethod
     def from_yaml(cls, path: str | Path, overrides: Mapping[str, Any] | None = None) -> "ProblemSpec":
-        """Read a YAML scene file; ``overrides`` (e.g. CLI flags) take precedence."""
-        path = Path(path)
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise InputError("scene", f"cannot read {str(path)!r}: {exc.strerror}") from None
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            where = getattr(exc, "problem_mark", None)
-            at = f" at line {where.line + 1}" if where is not None else ""
-            raise InputError("scene", f"malformed YAML in {str(path)!r}{at}") from None
-        if data is None:
-            data = {}
-        if not isinstance(data, Mapping):
-            raise InputError("scene", f"{str(path)!r} must hold a mapping of fields, got {type(data).__name__}")
-        return cls.from_mapping({**data, **(overrides or {})})
+        """Read a YAML scene file (:func:`read_scene`); ``overrides`` (e.g. CLI flags) take precedence."""
+        return cls.from_mapping({**read_scene(path), **(overrides or {})})
 
     def to_dict(self) -> dict[str, Any]:
         """All fields as a plain dictionary."""
