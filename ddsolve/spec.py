@@ -390,7 +390,7 @@ def read_scene(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise InputError("scene", f"{shown} is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset "
                                   f"{exc.start})") from None
     try:
-        loaded = yaml.load(text, Loader=SceneLoader)   # noqa: S506 (a SafeLoader subclass)
+        loaded = yaml.load(text, Loader=SceneLoader)   # a SafeLoader subclass: no arbitrary objects
     except InputError:
         raise
     except yaml.YAMLError as exc:
