@@ -1,7 +1,11 @@
 """Command line: ``ddsolve solve`` (also ``python -m ddsolve solve``).
 
 Bad input prints one line ``ddsolve: error: <field>: <message>`` on stderr and
-exits with status 2, without a traceback.
+exits with status 2, without a traceback: malformed values, hostile scene
+files (see :func:`ddsolve.spec.read_scene`), a flag that does not apply to the
+chosen problem or method (see :mod:`ddsolve.spec`), and a problem whose
+estimated memory or set-up time exceeds this machine
+(:func:`ddsolve.limits.check_resources`, checked before anything is built).
 """
 from __future__ import annotations
 
@@ -12,9 +16,18 @@ import sys
 from typing import Any, Sequence
 
 from .errors import InputError
+from .limits import check_resources, parse_size
 from .spec import ProblemSpec
 
 EXIT_INPUT = 2
+
+_EPILOG = ("A flag left at its default is always accepted; a non-default value for a flag that the chosen "
+           "problem or method does not use is an error (e.g. --contact middle outside multibody, "
+           "--rho body-checkerboard:V for poisson, --cond with direct or contact methods, --check, --rtol, "
+           "--maxiter, --scaling or --gamma with --method direct, --gamma with --scaling multiplicity, "
+           "--norm/--projection outside hybrid). Scene files: a regular UTF-8 file of at most 1 MiB. "
+           "Problems whose estimated memory exceeds the available memory (or --max-memory) are refused "
+           "before anything is built.")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -28,7 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="ddsolve", description="Substructuring domain decomposition solvers (Lee 2009).")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    s = commands.add_parser("solve", help="solve one scene and report iterations, condition estimate, timings")
+    s = commands.add_parser("solve", help="solve one scene and report iterations, condition estimate, timings",
+                            description="Solve one scene and report iterations, condition estimate, timings.",
+                            epilog=_EPILOG)
     s.add_argument("scene", nargs="?", help="YAML scene file (flags override its fields)")
     s.add_argument("--problem", help="poisson (default), multibody or contact")
     s.add_argument("--method", help="poisson: fetidp (default), feti, bddc, direct; "
@@ -46,20 +61,72 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--norm", help="hybrid: PCR stopping norm, l2 (default, the thesis's) or M (the preconditioner's)")
     s.add_argument("--projection", help="hybrid: projection onto ker(G^T), orthogonal (default, the thesis's), "
                                         "dirichlet or lumped (rho-weighted, robust for jumps)")
-    s.add_argument("--rtol", help="relative residual tolerance (default 1e-6)")
-    s.add_argument("--maxiter", help="iteration limit (default 1000)")
-    s.add_argument("--cond", action="store_const", const=True, help="compute the Lanczos condition estimate")
-    s.add_argument("--check", action="store_const", const=True, help="also solve directly and report the error")
+    s.add_argument("--rtol", help="relative residual tolerance (default 1e-6; contact 1e-5); not with direct")
+    s.add_argument("--maxiter", help="iteration limit (default 1000); not with direct")
+    s.add_argument("--cond", action="store_const", const=True,
+                   help="compute the Lanczos condition estimate (feti, fetidp, bddc, feti-feti; hybrid reports none)")
+    s.add_argument("--check", action="store_const", const=True,
+                   help="also solve directly and report the error (iterative methods)")
+    s.add_argument("--max-memory", dest="max_memory",
+                   help="memory limit for the size check, e.g. 500M or 16G (default: 90%% of the available memory)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     return parser
+
+
+def _value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """Option strings of ``parser`` and its subparsers that take one value."""
+    out: set[str] = set()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                out |= _value_options(sub)
+        elif action.option_strings and action.nargs is None:
+            out.update(action.option_strings)
+    return out
+
+
+def _attach_values(argv: Sequence[str], value_options: set[str], known: set[str]) -> list[str]:
+    """``--flag VALUE`` as ``--flag=VALUE`` where VALUE starts with '-' but is no option (e.g. ``-1e-6``).
+
+    argparse takes ``-1e-6`` or ``-inf`` for an option and reports "expected one
+    argument"; attached, the value reaches the field's own validation.
+    """
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        token = argv[i]
+        if (token in value_options and i + 1 < len(argv) and argv[i + 1].startswith("-")
+                and argv[i + 1] not in known and argv[i + 1].split("=", 1)[0] not in known and argv[i + 1] != "--"):
+            out.append(f"{token}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(token)
+        i += 1
+    return out
 
 
 def _spec_from_args(args: argparse.Namespace) -> ProblemSpec:
     flags: dict[str, Any] = {name: getattr(args, name) for name in ProblemSpec.fields()
                              if getattr(args, name, None) is not None}
-    if args.scene:
+    if args.scene is not None:
         return ProblemSpec.from_yaml(args.scene, flags)
     return ProblemSpec.from_mapping(flags)
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """Parse the command line (negative numeric values attached to their flags, see :func:`_attach_values`)."""
+    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    known: set[str] = set()
+
+    def collect(p: argparse.ArgumentParser) -> None:
+        for action in p._actions:
+            known.update(action.option_strings)
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    collect(sub)
+    collect(parser)
+    return parser.parse_args(_attach_values(argv, _value_options(parser), known))
 
 
 def _human(summary: dict[str, Any]) -> str:
@@ -81,10 +148,12 @@ def _human(summary: dict[str, Any]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status."""
     try:
-        args = build_parser().parse_args(argv)
+        args = parse_args(argv)
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                             format="%(levelname)s %(name)s: %(message)s")
+        max_memory = None if args.max_memory is None else parse_size(args.max_memory, "max-memory")
         spec = _spec_from_args(args)
+        check_resources(spec, max_memory=max_memory)   # before NGSolve is imported or anything is built
         from .api import solve
         result = solve(spec)
     except InputError as exc:

@@ -53,7 +53,7 @@ COND_METHODS: tuple[str, ...] = ("feti", "fetidp", "bddc", "feti-feti", "hybrid"
 
 #: A decimal number: optional sign, digits with an optional point, optional exponent (no '_', no hex).
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
-_PATTERN = re.compile(r"(?P<kind>body-checkerboard|checkerboard)\s*:\s*(?P<value>.*)", re.IGNORECASE | re.DOTALL)
+_PATTERN = re.compile(r"(?P<kind>body-checkerboard|checkerboard)(?:\s*:\s*(?P<value>.*))?", re.IGNORECASE | re.DOTALL)
 _RANDOM = re.compile(r"random(?:\s*:\s*(?P<seed>.*))?", re.IGNORECASE | re.DOTALL)
 _DOSTAL = re.compile(r"dostal(?:\s*:(?P<rest>.*))?", re.IGNORECASE | re.DOTALL)
 #: Longest string parsed as a number or pattern (longer ones are refused unread).
@@ -154,7 +154,7 @@ def parse_rho(value: Any) -> tuple[str, float]:
         match = _PATTERN.fullmatch(text)
         if match:
             kind = match["kind"].lower()
-            if not match["value"].strip():
+            if not (match["value"] or "").strip():
                 raise InputError("rho", f"{kind} needs a value, e.g. '{kind}:100', got {brief(value)}")
             return kind, _as_positive_float("rho", match["value"])
         if text[:1].isalpha():
@@ -220,7 +220,9 @@ def parse_dostal(rest: str) -> tuple[float, float]:
 
 
 def _inapplicable(field: str, value: Any, why: str) -> InputError:
-    return InputError(field, f"{brief(value)} does not apply: {why} (leave it at its default)")
+    """The error of a non-default value of a field that the problem or method does not use."""
+    shown = "true" if value is True else brief(value)
+    return InputError(field, f"{shown} does not apply: {why} (only the default is accepted)")
 
 
 def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
@@ -298,7 +300,7 @@ def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
 
 
 class SceneLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` with bounds: nesting depth and alias-expanded size.
+    """``yaml.SafeLoader`` with bounds: nesting depth, number of nodes and alias-expanded size.
 
     The size of a node is the number of nodes it stands for once every alias is
     expanded (1 for a scalar, 1 + the sizes of the items for a collection); it
@@ -310,18 +312,22 @@ class SceneLoader(yaml.SafeLoader):
 
     #: Deepest nesting of collections.
     max_depth = 32
-    #: Largest alias-expanded number of nodes of the document.
-    max_nodes = 10_000
+    #: Largest number of nodes of the document, as written and alias-expanded (a scene has 16 fields).
+    max_nodes = 1000
 
     def __init__(self, stream: Any) -> None:
         super().__init__(stream)
         self._depth = 0
+        self._composed = 0
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         self._depth += 1
+        self._composed += 1
         try:
             if self._depth > self.max_depth:
                 raise InputError("scene", f"nesting deeper than {self.max_depth} levels")
+            if self._composed > self.max_nodes:
+                raise InputError("scene", f"more than {self.max_nodes} values")
             node = super().compose_node(parent, index)
         finally:
             self._depth -= 1
@@ -384,7 +390,7 @@ def read_scene(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise InputError("scene", f"{shown} is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset "
                                   f"{exc.start})") from None
     try:
-        loaded = yaml.load(text, Loader=SceneLoader)   # noqa: S506 (a SafeLoader subclass)
+        loaded = yaml.load(text, Loader=SceneLoader)   # a SafeLoader subclass: no arbitrary objects
     except InputError:
         raise
     except yaml.YAMLError as exc:
