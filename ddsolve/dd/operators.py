@@ -595,6 +595,75 @@ class PrimalConstrainedSolver:
         return np.where(mask, x, 0.0)
 
 
+class PairJump:
+    """A jump operator between pairs of entries of one vector space, given by index arrays.
+
+    Row k of B is ``+c1_k`` at entry ``first[k]`` and ``-c2_k`` at entry ``second[k]``:
+    the jump (B u)_k = u_first - u_second (coefficients None), or a scaled jump B_D with
+    each copy weighted by the other copy's weight (the delta-dagger / rho scaling of
+    Section 2.5 at the level of bodies, ``coef_first`` = weight of the second copy).
+
+    Parameters
+    ----------
+    first, second : ndarray of int, shape (n_rows,)
+        Entry of the first and of the second copy of every pair.
+    n : int
+        Dimension of the vector space the entries index.
+    coef_first, coef_second : ndarray, shape (n_rows,), optional
+        Coefficients of the two copies (None: 1).
+    """
+
+    def __init__(self, first: np.ndarray, second: np.ndarray, n: int,
+                 coef_first: np.ndarray | None = None, coef_second: np.ndarray | None = None) -> None:
+        self.first, self.second, self.n = first, second, int(n)
+        self.coef_first, self.coef_second = coef_first, coef_second
+        self.shape = (first.size, self.n)
+
+    def matvec(self, u: np.ndarray) -> np.ndarray:
+        """B u, shape (n,) -> (n_rows,)."""
+        if self.coef_first is None:
+            return u[self.first] - u[self.second]
+        return self.coef_first * u[self.first] - self.coef_second * u[self.second]
+
+    def rmatvec(self, lam: np.ndarray) -> np.ndarray:
+        """B^T lam, shape (n_rows,) -> (n,)."""
+        if self.coef_first is None:
+            return (np.bincount(self.first, weights=lam, minlength=self.n)
+                    - np.bincount(self.second, weights=lam, minlength=self.n))
+        return (np.bincount(self.first, weights=self.coef_first * lam, minlength=self.n)
+                - np.bincount(self.second, weights=self.coef_second * lam, minlength=self.n))
+
+
+def scaled_jump(B_D, schur):
+    """The Dirichlet preconditioner pattern lam -> B_D S B_D^T lam (Section 2.5).
+
+    Used for the FETI/FETI-DP/FETI-FETI preconditioner M_D^{-1} = B_D S B_D^T, the
+    multiplier block Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z of the hybrid's (4.11)
+    and the preconditioner B^_D S^_c B^_D^T of the active set method (Chapter 5).
+
+    Parameters
+    ----------
+    B_D : sparse matrix or :class:`PairJump`, shape (n_lambda, n)
+        Scaled jump operator.
+    schur : callable
+        (n,) -> (n,): the (possibly inexact) Schur complement S.
+
+    Returns
+    -------
+    callable
+        (n_lambda,) -> (n_lambda,).
+    """
+    if sp.issparse(B_D):
+        B_DT = B_D.T.tocsr()
+
+        def apply(lam: np.ndarray) -> np.ndarray:
+            return B_D @ schur(B_DT @ lam)
+    else:
+        def apply(lam: np.ndarray) -> np.ndarray:
+            return B_D.matvec(schur(B_D.rmatvec(lam)))
+    return apply
+
+
 def linear_operator(n: int, matvec) -> spla.LinearOperator:
     """Wrap a matvec as a symmetric scipy LinearOperator of shape (n, n)."""
     return spla.LinearOperator((n, n), matvec=matvec, rmatvec=matvec, dtype=float)
