@@ -46,7 +46,8 @@ from scipy.sparse.linalg import LinearOperator
 
 from ..errors import InputError
 from .mprgp import (ALPHA_FACTOR, _mprgp_core, _start_vector, as_operator, as_vector,
-                    check_count, check_positive, estimate_norm)
+                    check_count, check_positive)
+from .norm import estimate_norm
 from .result import QPResult
 
 log = logging.getLogger(__name__)
