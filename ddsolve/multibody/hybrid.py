@@ -84,6 +84,8 @@ class InterfaceSpace:
         Global dof of each compact index (sorted).
     n : int
         Dimension of the space.
+    key : tuple
+        Cache key (index bytes) of the operators built on the space.
     """
 
     def __init__(self, sub: Substructures, mask: np.ndarray) -> None:
@@ -92,6 +94,8 @@ class InterfaceSpace:
         self.dofs = np.unique(sub.l2g[self.idx])
         self.pos = np.searchsorted(self.dofs, sub.l2g[self.idx])
         self.n = int(self.dofs.size)
+        #: cache key of the space for the operators handed out on it (its index bytes)
+        self.key = (self.idx.tobytes(), self.pos.tobytes(), self.n)
 
     def scatter(self, v: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
         """W vector holding v (times ``weights`` of the entries) on every copy, zero elsewhere."""
@@ -199,6 +203,10 @@ class HybridSolver:
         self.n_factorizations = (self.schur.II.n_new_factorizations + self.body_solver.n_factorizations
                                  + self.local_interface_solver.n_factorizations)
         self._reported = False
+        # interface restrictions of the two primal-constrained solvers (explicit dense blocks where they
+        # pay off) and their operators on u_Gamma and Gamma_0, built on first use
+        self._bddc_space_solve = None
+        self._local_space_solve = None
 
         self.delta_gamma = sub.delta[self.gamma_space.idx]
         # diagonal of the body stiffness on the global interface (sum of the subdomain copies)
@@ -246,7 +254,10 @@ class HybridSolver:
         R_D scales the subdomain copies by delta-dagger (within the body); the
         primal copies are summed inside :class:`PrimalConstrainedSolver`.
         """
-        return self.body_solver.space_solve(r, self.gamma_space, self.delta_gamma, self.schur.gamma)
+        if self._bddc_space_solve is None:
+            self._bddc_space_solve = (self.body_solver.interface(self.schur.gamma)
+                                      .space_operator(self.gamma_space, self.delta_gamma))
+        return self._bddc_space_solve.apply(r)
 
     def P_R(self, u: np.ndarray) -> np.ndarray:
         """P_R = I - R_c (R_c^T R_c)^{-1} R_c^T: remove the mean on every floating body."""
@@ -305,7 +316,10 @@ class HybridSolver:
         # (4.10) on the interface: the same operator as A_GG - A_GI A~_II^{-1} A_IG with A~_II^{-1}
         # of (4.9) (:meth:`inexact_interior_solve`), without interior solves when S is explicit.
         r0 = self.schur.space_matvec(v, self.global_space, self.local_space)
-        x0 = self.local_interface_solver.space_solve(r0, self.local_space, self.delta_local, self.schur.gamma)
+        if self._local_space_solve is None:
+            self._local_space_solve = (self.local_interface_solver.interface(self.schur.gamma)
+                                       .space_operator(self.local_space, self.delta_local))
+        x0 = self._local_space_solve.apply(r0)
         return self.schur.space_matvec((v, -x0), (self.global_space, self.local_space), self.global_space)
 
     # ------------------------------------------------------------ active set
