@@ -441,7 +441,7 @@ class PrimalConstrainedSolver:
         self._interfaces: dict[tuple, InterfaceSolve] = {}  # by (mask bytes, n_W, explicit option)
 
     @property
-    def _Psi_global(self) -> sp.csr_matrix:
+    def Psi_global(self) -> sp.csr_matrix:
         """Psi as one sparse (n_W, n_primal) matrix: column c of entry e goes to its coarse dof."""
         if self._psi_global is None:
             sub = self.sub
@@ -453,10 +453,10 @@ class PrimalConstrainedSolver:
         return self._psi_global
 
     @property
-    def _Psi_global_T(self) -> sp.csr_matrix:
+    def Psi_global_T(self) -> sp.csr_matrix:
         """Psi^T as sparse (n_primal, n_W)."""
         if self._psi_global_T is None:
-            self._Psi_global
+            self.Psi_global
         return self._psi_global_T
 
     def solve(self, b: np.ndarray) -> np.ndarray:
@@ -470,10 +470,10 @@ class PrimalConstrainedSolver:
         if self.n_primal == 0:
             return x
         b_pi = np.bincount(self.coarse_of_W[self.primal], weights=b[self.primal], minlength=self.n_primal)
-        b_pi -= self._Psi_global_T @ br                 # assembled Psi^T b_r
+        b_pi -= self.Psi_global_T @ br                 # assembled Psi^T b_r
         b_pi[self.pinned] = 0.0
         u_pi = self.coarse.solve(b_pi)
-        x -= self._Psi_global @ u_pi
+        x -= self.Psi_global @ u_pi
         x[self.primal] = u_pi[self.coarse_of_W[self.primal]]
         return x
 
@@ -677,15 +677,15 @@ class ExplicitInterfaceSolve(InterfaceSolve):
                                                   np.where(cc >= 0, cc, solver.n_primal)))
                     else:
                         coarse = None
-        db = DenseBlocks(blocks)
+        dense = DenseBlocks(blocks)
         if not solver.n_primal:
-            return InterfaceBlocks(db)
+            return InterfaceBlocks(dense)
         if coarse is not None:
             flat = (np.concatenate([c.coarse_index.ravel() for c in coarse]) if coarse
                     else np.zeros(0, dtype=np.int64))
-            return InterfaceBlocks(db, coarse=coarse, coarse_flat=flat)
-        psi_rows = solver._Psi_global[db.flat].tocsr()
-        return InterfaceBlocks(db, psi=psi_rows, psi_T=psi_rows.T.tocsr())
+            return InterfaceBlocks(dense, coarse=coarse, coarse_flat=flat)
+        psi_rows = solver.Psi_global[dense.flat].tocsr()
+        return InterfaceBlocks(dense, psi=psi_rows, psi_T=psi_rows.T.tocsr())
 
     def coarse_step(self, bs: np.ndarray, xs: np.ndarray, b_pi: np.ndarray) -> np.ndarray:
         """The coarse part of A~^{-1} on the interface blocks (shared by the two interface solves).
@@ -694,51 +694,51 @@ class ExplicitInterfaceSolve(InterfaceSolve):
         in place by -Psi u_Pi; ``b_pi`` (n_primal + 1,): the primal right-hand side (last slot a
         sink). Returns u_Pi with a trailing zero (``u_ext``).
         """
-        solver, ib = self.solver, self.blocks
-        db = ib.blocks
-        if ib.coarse is not None:       # b_pi -= sum_i R_Pi^T Psi_D^T bs (dense per group)
+        solver, iface_blocks = self.solver, self.blocks
+        dense = iface_blocks.blocks
+        if iface_blocks.coarse is not None:       # b_pi -= sum_i R_Pi^T Psi_D^T bs (dense per group)
             parts = []
-            for (A, off, n, n_m, _), cb in zip(db.parts, ib.coarse):
-                parts.append((cb.psi.T @ bs[off:off + n * n_m].reshape(n, n_m)).ravel())
+            for (A, off, n, n_m, _), coarse_block in zip(dense.parts, iface_blocks.coarse):
+                parts.append((coarse_block.psi.T @ bs[off:off + n * n_m].reshape(n, n_m)).ravel())
             if parts:
-                b_pi -= np.bincount(ib.coarse_flat, weights=np.concatenate(parts), minlength=b_pi.size)
+                b_pi -= np.bincount(iface_blocks.coarse_flat, weights=np.concatenate(parts), minlength=b_pi.size)
         else:
-            b_pi[:-1] -= ib.psi_T @ bs
+            b_pi[:-1] -= iface_blocks.psi_T @ bs
         b_pi = b_pi[:-1]
         b_pi[solver.pinned] = 0.0
         u_ext = np.append(solver.coarse.solve(b_pi), 0.0)
-        if ib.coarse is not None:       # xs -= Psi_D u_Pi (dense per group)
-            for (A, off, n, n_m, _), cb in zip(db.parts, ib.coarse):
+        if iface_blocks.coarse is not None:       # xs -= Psi_D u_Pi (dense per group)
+            for (A, off, n, n_m, _), coarse_block in zip(dense.parts, iface_blocks.coarse):
                 out = xs[off:off + n * n_m].reshape(n, n_m)
-                out -= cb.psi @ u_ext[cb.coarse_index]
+                out -= coarse_block.psi @ u_ext[coarse_block.coarse_index]
         else:
-            xs -= ib.psi @ u_ext[:-1]
+            xs -= iface_blocks.psi @ u_ext[:-1]
         return u_ext
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         solver = self.solver
-        db = self.blocks.blocks
-        bs = b[db.flat]
-        xs = db.apply(bs)
+        dense = self.blocks.blocks
+        bs = b[dense.flat]
+        xs = dense.apply(bs)
         x = np.zeros(solver.sub.n_W)
         if solver.n_primal:
             b_pi = np.bincount(solver.coarse_of_W[solver.primal], weights=b[solver.primal],
                                minlength=solver.n_primal + 1)
             u_ext = self.coarse_step(bs, xs, b_pi)
             x[solver.primal] = u_ext[solver.coarse_of_W[solver.primal]]
-        x[db.flat] = xs
+        x[dense.flat] = xs
         return np.where(self.mask, x, 0.0)
 
     def space_operator(self, space, weights: np.ndarray) -> "ExplicitSpaceSolve":
         solver = self.solver
-        db = self.blocks.blocks
+        dense = self.blocks.blocks
         look = np.full(solver.sub.n_W, -1, dtype=np.int64)
         look[space.idx] = np.arange(space.idx.size)
-        ent = look[db.flat]
+        ent = look[dense.flat]
         sel = np.flatnonzero(ent >= 0)
-        index_in = np.full(db.flat.size, space.n, dtype=np.int64)
+        index_in = np.full(dense.flat.size, space.n, dtype=np.int64)
         index_in[sel] = space.pos[ent[sel]]
-        weight_in = np.zeros(db.flat.size)
+        weight_in = np.zeros(dense.flat.size)
         weight_in[sel] = weights[ent[sel]]
         primal_entries = look[np.flatnonzero(solver.primal)]
         primal_entries = primal_entries[primal_entries >= 0]
