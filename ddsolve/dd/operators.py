@@ -237,7 +237,8 @@ class DirichletSchur:
             Values in ``space_in`` (one array per space if a sequence).
         space_in : space or sequence of spaces
             Objects with ``idx`` (W positions), ``pos`` (compact index of each
-            position) and ``n`` (dimension), e.g. the hybrid's ``_Space``;
+            position) and ``n`` (dimension), e.g. the hybrid's ``InterfaceSpace``
+            (its ``key``, when present, keys the cache);
             scatter_in puts ``u[pos]`` on every W position ``idx`` (the spaces
             of a sequence must not overlap). Entries must lie on Gamma.
         space_out : space
@@ -267,7 +268,7 @@ class DirichletSchur:
             op = self._space_operators[key] = self._build_space_operator(spaces, space_out)
         return op.apply(us)
 
-    def _build_space_operator(self, spaces, space_out) -> "SchurSpaceMatvec":
+    def _build_space_operator(self, spaces, space_out) -> SchurSpaceMatvec:
         n_W = self.sub.n_W
         lin = np.full(n_W, -1, dtype=np.int64)
         off = 0
@@ -456,7 +457,7 @@ class PrimalConstrainedSolver:
     def Psi_global_T(self) -> sp.csr_matrix:
         """Psi^T as sparse (n_primal, n_W)."""
         if self._psi_global_T is None:
-            self.Psi_global
+            self._psi_global_T = self.Psi_global.T.tocsr()
         return self._psi_global_T
 
     def solve(self, b: np.ndarray) -> np.ndarray:
@@ -464,7 +465,6 @@ class PrimalConstrainedSolver:
 
         Returns a W vector whose primal entries all hold the (continuous) primal value.
         """
-        sub = self.sub
         br = np.where(self.r, b, 0.0)
         x = self.rr.solve(br)
         if self.n_primal == 0:
@@ -498,7 +498,7 @@ class PrimalConstrainedSolver:
                   "explicit" if explicit else "implicit", cols, biggest)
         return explicit
 
-    def interface(self, mask: np.ndarray, explicit: bool | None = None) -> "InterfaceSolve":
+    def interface(self, mask: np.ndarray, explicit: bool | None = None) -> InterfaceSolve:
         """A~^{-1} restricted to the interface ``mask`` (explicit dense blocks or implicit solves).
 
         ``mask`` (an interface: every interior entry of the subdomains is outside it).
@@ -583,7 +583,7 @@ class ImplicitInterfaceSolve(InterfaceSolve):
     def solve(self, b: np.ndarray) -> np.ndarray:
         return np.where(self.mask, self.solver.solve(np.where(self.mask, b, 0.0)), 0.0)
 
-    def space_operator(self, space, weights: np.ndarray) -> "ImplicitSpaceSolve":
+    def space_operator(self, space, weights: np.ndarray) -> ImplicitSpaceSolve:
         return ImplicitSpaceSolve(self.solver, space, weights)
 
 
@@ -729,7 +729,7 @@ class ExplicitInterfaceSolve(InterfaceSolve):
         x[dense.flat] = xs
         return np.where(self.mask, x, 0.0)
 
-    def space_operator(self, space, weights: np.ndarray) -> "ExplicitSpaceSolve":
+    def space_operator(self, space, weights: np.ndarray) -> ExplicitSpaceSolve:
         solver = self.solver
         dense = self.blocks.blocks
         look = np.full(solver.sub.n_W, -1, dtype=np.int64)

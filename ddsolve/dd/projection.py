@@ -23,7 +23,8 @@ floating subdomains or bodies) is factored once in the constructor.
 from __future__ import annotations
 
 import logging
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import scipy.linalg as la

@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 from scipy.sparse.linalg import aslinearoperator
 
-__all__ = ["estimate_norm", "DENSE_MAX"]
+__all__ = ["DENSE_MAX", "estimate_norm"]
 
 #: Operators of at most this size are estimated exactly from their dense columns.
 DENSE_MAX = 50
