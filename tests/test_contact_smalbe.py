@@ -157,7 +157,7 @@ def test_norm_estimate_and_steplength():
     B_gl, _ = p.gi.operators(None)
     B = sp.vstack([ff.B_loc, B_gl]).tocsr()
     n = B.shape[0]
-    F = np.column_stack([B @ ff.At.solve(B.T @ e) for e in np.eye(n)])
+    F = np.column_stack([B @ ff.primal_solver.solve(B.T @ e) for e in np.eye(n)])
     G = np.asarray(B @ ff.R.toarray()).ravel()
     G /= np.linalg.norm(G)
     P = np.eye(n) - np.outer(G, G)

@@ -61,7 +61,7 @@ def _exact_cond(nb, ns, m):
     B = sp.vstack([ff.B_loc, B_gl]).tocsr()
     B_D = sp.vstack([ff.B_loc_D, B_gl_D]).tocsr()
     n = B.shape[0]
-    F = dense(lambda x: B @ ff.At.solve(B.T @ x), n)
+    F = dense(lambda x: B @ ff.primal_solver.solve(B.T @ x), n)
     M = dense(lambda x: B_D @ ff._tilde_schur(B_D.T @ x), n)
     ev = np.real(la.eigvals(M @ F))
     ev = ev[ev > 1e-9]

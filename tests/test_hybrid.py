@@ -55,8 +55,8 @@ def test_matches_direct_solution(nb, ns, m, n_float, case):
     a = hs.active_set(active)
     u_g = res.extra["u_gamma"]
     scale = np.abs(u_g).max()
-    assert np.abs(u_g[a.ia] - u_g[a.ib]).max() < 1e-8 * scale
-    resid = hs.g_hat - hs.S_hat(u_g) - hs._BT(a, res.extra["lambda"])
+    assert np.abs(a.jump.matvec(u_g)).max() < 1e-8 * scale
+    resid = hs.g_hat - hs.S_hat(u_g) - hs.jump_transpose(a, res.extra["lambda"])
     assert np.abs(resid).max() < 1e-7 * np.abs(hs.g_hat).max()
 
 
@@ -98,10 +98,10 @@ def test_inexact_body_schur_complement():
     # so S~_OL equals the exact body Schur complement S_OL
     for m, exact in ((1, True), (2, False)):
         sub, gi, hs = problem(3, 2, m, random=False)
-        n = hs.gl.n
+        n = hs.global_space.n
         S_t = np.column_stack([hs.S_ol(e) for e in np.eye(n)])
         A = sub.global_matrix().toarray()
-        G = hs.gl.dofs
+        G = hs.global_space.dofs
         I = np.setdiff1d(np.arange(sub.ndof), G)
         S = A[np.ix_(G, G)] - A[np.ix_(G, I)] @ np.linalg.solve(A[np.ix_(I, I)], A[np.ix_(I, G)])
         np.testing.assert_allclose(S_t, S_t.T, atol=1e-13)
@@ -117,11 +117,11 @@ def test_preconditioned_spectrum_small():
     """B^{-1} A on range(P_R) x (V^k cap range(Z B^)): indefinite, bounded, away from 0."""
     sub, gi, hs = problem(3, 2, 2)
     a = hs.active_set(gi.contact_mask("full"))
-    ng, na = hs.n_gamma, a.ia.size
+    ng, na = hs.n_gamma, a.n_active
     eye_g, eye_l = np.eye(ng), np.eye(na)
     S = np.column_stack([hs.S_hat(e) for e in eye_g])
-    B = np.column_stack([hs._B(a, e) for e in eye_g])
-    P = np.column_stack([hs._P(a, e) for e in eye_l])
+    B = np.column_stack([hs.jump(a, e) for e in eye_g])
+    P = np.column_stack([a.projection.apply(e) for e in eye_l])
     PR = np.column_stack([hs.P_R(e) for e in eye_g])
     MB = np.column_stack([hs.M_bddc(e) for e in eye_g])
     MD = np.column_stack([hs.M_D(a, e) for e in eye_l])

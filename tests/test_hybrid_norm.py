@@ -145,8 +145,8 @@ def test_hybrid_m_norm_matches_direct(projection, contact):
     # no jump on the active pairs; lambda balances S^ u - g^ (the first equation of (4.2))
     a = hs.active_set(active)
     u_g = out.extra["u_gamma"]
-    assert np.abs(u_g[a.ia] - u_g[a.ib]).max() <= 1e-8 * np.abs(u_g).max()
-    resid = hs.g_hat - hs.S_hat(u_g) - hs._BT(a, out.extra["lambda"])
+    assert np.abs(a.jump.matvec(u_g)).max() <= 1e-8 * np.abs(u_g).max()
+    resid = hs.g_hat - hs.S_hat(u_g) - hs.jump_transpose(a, out.extra["lambda"])
     assert np.abs(resid).max() <= 1e-7 * np.abs(hs.g_hat).max()
 
 
@@ -155,22 +155,23 @@ def test_weighted_projection_properties(projection):
     """P = I - QG(G^T Q G)^{-1} G^T: a projection onto ker(G^T), P^T kills range(G), Q P^T symmetric."""
     _, gi, hs = hybrid(4, 2, 2, "checkerboard:1e4")
     a = hs.active_set(gi.contact_mask("full"))
-    q = hs._weighted(a, projection)
-    n = a.ia.size
+    proj = hs.projection(a, projection)
+    n = a.n_active
     eye = np.eye(n)
-    P = np.column_stack([hs._Pq(a, q, e) for e in eye])
-    PT = np.column_stack([hs._PqT(a, q, e) for e in eye])
+    P = np.column_stack([proj.apply(e) for e in eye])
+    PT = np.column_stack([proj.apply_transpose(e) for e in eye])
     G = a.G.toarray()
     np.testing.assert_allclose(PT, P.T, atol=1e-12)
     np.testing.assert_allclose(P @ P, P, atol=1e-10)
     assert np.abs(G.T @ P).max() <= 1e-10 * np.abs(G).max()
     assert np.abs(PT @ G).max() <= 1e-10
-    Q = np.column_stack([(hs.M_D if projection == "dirichlet" else hs._M_lumped)(a, e) for e in eye])
+    Q = np.column_stack([(hs.M_D if projection == "dirichlet" else hs.M_lumped)(a, e) for e in eye])
     QPT = Q @ PT
     np.testing.assert_allclose(QPT, QPT.T, atol=1e-10 * np.abs(Q).max())
-    assert hs._weighted(a, "orthogonal") is None
+    assert hs.projection(a, "orthogonal") is a.projection and a.projection.orthogonal
+    assert hs.projection(a, projection) is proj                     # cached on the active set
     with pytest.raises(ValueError, match="projection"):
-        hs._weighted(a, "oblique")
+        hs.projection(a, "oblique")
 
 
 @pytest.mark.parametrize("rho", ["checkerboard:1e-4", "checkerboard:1e4", "body-checkerboard:1e-4",

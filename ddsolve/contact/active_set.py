@@ -57,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from ..dd.operators import linear_operator
+from ..dd.operators import linear_operator, scaled_jump
 from ..krylov import pcg
 from ..krylov.result import KrylovResult
 from ..multibody.hybrid import HybridSolver
@@ -91,16 +91,17 @@ class ActiveSetHybrid:
         self.problem = problem
         self.hybrid = hybrid if hybrid is not None else HybridSolver(problem.sub, problem.gi)
         self.n_contact = problem.n_contact
-        self._all = self.hybrid.active_set(np.ones(self.n_contact, dtype=bool))
+        #: every contact pair active: B^_{Gamma,c}, its scaled version and G = B^ R_c
+        self.all_pairs = self.hybrid.active_set(np.ones(self.n_contact, dtype=bool))
 
     # ------------------------------------------------------------- operators
     def B(self, u: np.ndarray) -> np.ndarray:
         """B^_{Gamma,c} u, shape (n_gamma,) -> (n_c,)."""
-        return self.hybrid._B(self._all, u)
+        return self.hybrid.jump(self.all_pairs, u)
 
     def BT(self, lam: np.ndarray) -> np.ndarray:
         """B^_{Gamma,c}^T lam, shape (n_c,) -> (n_gamma,)."""
-        return self.hybrid._BT(self._all, lam)
+        return self.hybrid.jump_transpose(self.all_pairs, lam)
 
     def S_dagger(self, r: np.ndarray) -> np.ndarray:
         """P_R M_BDDC^{-1} P_R r, the stand-in for S^_c^dagger in (5.4), shape (n_gamma,)."""
@@ -117,11 +118,7 @@ class ActiveSetHybrid:
         B^_D scales the entry of the Omega^1 copy by the body weight of the
         Omega^2 copy and vice versa (``gi.weight``).
         """
-        a, h = self._all, self.hybrid
-        n = h.gam.n
-        v = np.bincount(a.ia, weights=a.wb * lam, minlength=n) - np.bincount(a.ib, weights=a.wa * lam, minlength=n)
-        s = h.S_hat(v)
-        return a.wb * s[a.ia] - a.wa * s[a.ib]
+        return scaled_jump(self.all_pairs.scaled_jump_gamma, self.hybrid.S_hat)(lam)
 
     # ---------------------------------------------------------- initial guess
     def initial_multipliers(self, rtol: float = 1e-5, maxiter: int = 1000
@@ -136,16 +133,15 @@ class ActiveSetHybrid:
         projection : QPResult
             MPRGP on the dual of the projection problem.
         """
-        h, a = self.hybrid, self._all
+        h, pairs = self.hybrid, self.all_pairs
         n = self.n_contact
         d = self.B(self.S_dagger(h.g_hat))
         P_op = None
         lam0 = np.zeros(n)
         if h.floating.size:
-            on = h._rc_col >= 0
-            e = np.bincount(h._rc_col[on], weights=h.g_hat[on], minlength=h.floating.size)
-            lam0 = a.G @ h._GtG_solve(a, e)
-            P_op = linear_operator(n, lambda v: h._P(a, v))
+            # (2.13): lambda_0 with G^T lambda_0 = e = R_c^T g^_c, and P = I - G (G^T G)^{-1} G^T
+            lam0 = pairs.projection.particular(h.kernel_load())
+            P_op = linear_operator(n, pairs.projection.apply)
         F = linear_operator(n, self.F)
         M = linear_operator(n, self.preconditioner)
         b = d - self.F(lam0)

@@ -174,13 +174,16 @@ import logging
 import math
 import numbers
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..dd.projection import Projection
 from ..multibody.fetifeti import FetiFetiSolver
-from ..qp import smalbe
+from ..qp import estimate_norm, smalbe
+from ..qp.result import QPResult
 from .direct import ContactSolution
 from .problem import ContactProblem
 
@@ -203,33 +206,269 @@ STATIONARITY_FACTOR = 100.0
 POLISH_MAXITER = 100
 
 
-def _norm_estimate(op: spla.LinearOperator, n: int, seed: int = 0) -> tuple[float, int]:
-    """Largest eigenvalue of a symmetric positive semidefinite operator (deterministic).
+# ----------------------------------------------------------------------------- the chain of transforms
+# As PERMON prepares a FETI problem: dualize -> homogenize (Lemma 6.4.1) -> enforce the equality by
+# projector and penalty (6.17) -> solve (SMALBE/MPRGP) -> map back. Each step is a small function
+# returning the transformed problem, which carries the back-map to the previous one.
 
-    ARPACK Lanczos from a seeded start vector; for ``n <= 50`` a dense eigensolve of
-    the operator's columns.
+@dataclass
+class DualProblem:
+    """The FETI-DP dual (6.14)-(6.15) of (6.13), and the primal recovery (its back-map).
+
+    Attributes
+    ----------
+    solver : FetiFetiSolver
+        A~^+ (``solver.primal_solver``), B_loc and R.
+    B, BT : sparse matrix, shapes (n_lambda, n_W) and (n_W, n_lambda)
+        [B_loc; B_gl] and its transpose.
+    B_contact : sparse matrix, shape (n_c, n_W)
+        B_gl = B_I, one row per contact pair.
+    n_local, n_contact : int
+        Row counts of B_loc and B_gl (n_lambda = n_local + n_contact).
+    kernel : ndarray, shape (n_W,)
+        R: the constants on the W entries of the floating body Omega^2.
+    G : ndarray, shape (n_lambda,)
+        The orthonormalized row G = T G~, G~ = R^T B^T, T = 1 / ||G~|| (||G|| = 1).
+    e : float
+        e = T e~, e~ = R^T f_W (< 0).
+    e_tilde : float
+    net_load : float
+        -e~: the load on Omega^2 that sum(lambda) must carry (> 0).
+    n_F : list of int
+        One-element counter of products with F.
+    """
+
+    problem: ContactProblem
+    solver: FetiFetiSolver
+    B: sp.csr_matrix
+    BT: sp.csr_matrix
+    B_contact: sp.csr_matrix
+    n_local: int
+    n_contact: int
+    kernel: np.ndarray
+    G: np.ndarray
+    e: float
+    e_tilde: float
+    net_load: float
+    n_F: list = field(default_factory=lambda: [0])
+
+    @property
+    def n(self) -> int:
+        """n_lambda."""
+        return self.n_local + self.n_contact
+
+    def F(self, v: np.ndarray) -> np.ndarray:
+        """F v = B A~^+ B^T v, shape (n_lambda,)."""
+        self.n_F[0] += 1
+        return self.B @ self.solver.primal_solver.solve(self.BT @ v)
+
+    def primal_solve(self, lam: np.ndarray) -> np.ndarray:
+        """A~^+ (f_W - B^T lam), shape (n_lambda,) -> (n_W,)."""
+        return self.solver.primal_solver.solve(self.problem.sub.f_W - self.BT @ lam)
+
+    def back(self, lam_balanced: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Primal recovery from a balanced multiplier (module docstring, "Primal recovery").
+
+        u~ = A~^+ (f_W - B^T lambda_bal) + R alpha, alpha minimizing ||B_A u~|| over the active
+        pairs (all pairs when none is active).
+
+        Returns
+        -------
+        (u_W, u, alpha) : ndarray (n_W,), ndarray (ndof,), float
+        """
+        u0 = self.primal_solve(lam_balanced)
+        Bu0 = self.B_contact @ u0
+        BR = np.asarray(self.B_contact @ self.kernel).ravel()         # -1 on every contact row
+        rows = active if active.any() else np.ones(self.n_contact, dtype=bool)
+        alpha = -float(BR[rows] @ Bu0[rows]) / float(BR[rows] @ BR[rows])
+        u_W = u0 + alpha * self.kernel
+        return u_W, self.problem.sub.average(u_W), alpha
+
+
+def dualize(problem: ContactProblem, solver: FetiFetiSolver) -> DualProblem | str:
+    """(6.13) -> (6.14)-(6.15): B = [B_loc; B_gl], G~ = R^T B^T, e~ = R^T f_W, orthonormalized.
+
+    Returns the reason as a string for data that (6.17) cannot handle.
+    """
+    if solver.floating.size != 1:
+        return f"expected exactly one floating body (Omega^2), found {solver.floating.size}"
+    sub = problem.sub
+    B_contact, _ = problem.gi.operators(None)
+    B = sp.vstack([solver.B_loc, B_contact]).tocsr()
+    kernel = solver.R.toarray().ravel()                       # (n_W,) constants on Omega^2
+    G_tilde = np.asarray(B @ kernel).ravel()                  # (n_lambda,)
+    e_tilde = float(kernel @ sub.f_W)
+    norm_G_tilde = float(np.linalg.norm(G_tilde))
+    if norm_G_tilde == 0.0 or not e_tilde < 0.0:
+        return (f"the floating body is not pressed onto the contact interface "
+                f"(R^T f_W = {e_tilde:.3g}, ||G~|| = {norm_G_tilde:.3g})")
+    return DualProblem(problem=problem, solver=solver, B=B, BT=B.T.tocsr(), B_contact=B_contact,
+                       n_local=solver.B_loc.shape[0], n_contact=B_contact.shape[0], kernel=kernel,
+                       G=G_tilde / norm_G_tilde, e=e_tilde / norm_G_tilde, e_tilde=e_tilde, net_load=-e_tilde)
+
+
+@dataclass
+class HomogeneousProblem:
+    """(6.16): lambda = lambda_full - lambda~ with G lambda = 0 (Lemma 6.4.1); back-map lambda + lambda~.
+
+    Attributes
+    ----------
+    dual : DualProblem
+    lambda_tilde : ndarray, shape (n_lambda,)
+        0 on local rows, the uniform pressure -e~ / n_c on contact rows (G lambda~ = e).
+    d : ndarray, shape (n_lambda,)
+        d~ - F lambda~ = B A~^+ (f_W - B^T lambda~).
+    lower : ndarray, shape (n_lambda,)
+        Bounds: -inf on local rows, -lambda~ on contact rows.
+    """
+
+    dual: DualProblem
+    lambda_tilde: np.ndarray
+    d: np.ndarray
+    lower: np.ndarray
+
+    def back(self, lam: np.ndarray) -> np.ndarray:
+        """lambda_full = lambda + lambda~."""
+        return lam + self.lambda_tilde
+
+
+def homogenize(dual: DualProblem) -> HomogeneousProblem | str:
+    """(6.15) -> (6.16) by Lemma 6.4.1 (uniform contact pressure carrying the load of Omega^2)."""
+    n_local, n = dual.n_local, dual.n
+    lambda_tilde = np.zeros(n)
+    lambda_tilde[n_local:] = -dual.e_tilde / dual.n_contact
+    if not np.isclose(dual.G @ lambda_tilde, dual.e, rtol=1e-12, atol=0.0):
+        return "G~ is not -1 on the contact rows and 0 on the local rows"
+    d = dual.B @ dual.primal_solve(lambda_tilde)
+    lower = np.full(n, -np.inf)
+    lower[n_local:] = -lambda_tilde[n_local:]
+    return HomogeneousProblem(dual=dual, lambda_tilde=lambda_tilde, d=d, lower=lower)
+
+
+@dataclass
+class EnforcedProblem:
+    """(6.17): min 1/2 l^T (P F P + rho_bar Q) l - l^T P d  s.t.  l_I >= lower_I, G l = 0.
+
+    Back-map: the balanced multiplier P lambda + lambda~ (G~ of it is e~ exactly).
+
+    Attributes
+    ----------
+    homogeneous : HomogeneousProblem
+    projection : Projection
+        P = I - G^T G (orthonormal row; Q = I - P).
+    hessian : LinearOperator, shape (n_lambda, n_lambda)
+        P F P + rho_bar Q.
+    equality : sparse matrix, shape (1, n_lambda)
+        The row G of G lambda = 0.
+    b : ndarray, shape (n_lambda,)
+        P d.
+    norm_b, norm_PFP, rho_bar : float
+    n_norm_estimate : int
+        Products with P F P used by the norm estimate.
+    """
+
+    homogeneous: HomogeneousProblem
+    projection: Projection
+    hessian: spla.LinearOperator
+    equality: sp.csr_matrix
+    b: np.ndarray
+    norm_b: float
+    norm_PFP: float
+    n_norm_estimate: int
+    rho_bar: float
+
+    def back(self, lam: np.ndarray) -> np.ndarray:
+        """lambda_bal = P lambda + lambda~."""
+        return self.homogeneous.back(self.projection.apply(lam))
+
+
+def enforce(homogeneous: HomogeneousProblem, rho_bar: float | None) -> EnforcedProblem | str:
+    """(6.16) -> (6.17): the equality G lambda = 0 by the projector P and the penalty rho_bar Q.
+
+    ||P F P|| is estimated (:func:`ddsolve.qp.estimate_norm`) for SMALBE's steplength;
+    ``rho_bar=None`` takes it as rho_bar.
+    """
+    dual = homogeneous.dual
+    n = dual.n
+    G = dual.G
+    P = Projection(G, orthonormal=True)
+    b = P.apply(homogeneous.d)
+    PFP = spla.LinearOperator((n, n), matvec=lambda v: P.apply(dual.F(P.apply(np.ravel(v)))), dtype=np.float64)
+    norm_PFP, n_est = estimate_norm(PFP)
+    if rho_bar is None:
+        rho_bar = norm_PFP
+    elif isinstance(rho_bar, bool) or not (isinstance(rho_bar, numbers.Real) and math.isfinite(rho_bar)
+                                           and rho_bar > 0.0):
+        return f"rho_bar must be a positive number, got {rho_bar!r}"
+    rho_bar = float(rho_bar)
+
+    def hessian(v: np.ndarray) -> np.ndarray:
+        """(P F P + rho_bar Q) v of (6.17)."""
+        v = np.ravel(v)
+        Gv = G @ v
+        return P.apply(dual.F(v - G * Gv)) + rho_bar * G * Gv
+
+    return EnforcedProblem(homogeneous=homogeneous, projection=P,
+                           hessian=spla.LinearOperator((n, n), matvec=hessian, rmatvec=hessian, dtype=np.float64),
+                           equality=sp.csr_matrix(G[None, :]), b=b, norm_b=float(np.linalg.norm(b)),
+                           norm_PFP=norm_PFP, n_norm_estimate=n_est, rho_bar=rho_bar)
+
+
+def solve_enforced(enforced: EnforcedProblem, *, eps: float, M: float, rho0: float, Gamma: float,
+                   maxiter: int | None, max_outer: int) -> tuple[QPResult, float | None]:
+    """SMALBE (Figure 6.7) with MPRGP inner solves (Figure 6.6) on (6.17).
+
+    Stopping rule ||g^P|| <= eps ||b|| and ||G lambda|| <= eps min(||b||, ||e||) (module
+    docstring, "Stopping rule"); steplength from ``norm_A = NORM_SAFETY max(||P F P||, rho_bar)``.
 
     Returns
     -------
-    norm : float
-        Estimate of ``||op||_2``.
-    n_matvec : int
-        Multiplications by ``op`` used.
+    (result, tol_equality)
+
+    Raises
+    ------
+    ValueError
+        Invalid SMALBE parameters.
     """
-    count = [0]
+    e = enforced.homogeneous.dual.e
+    tol_eq = eps * min(enforced.norm_b, abs(e)) if isinstance(eps, numbers.Real) and math.isfinite(eps) else 0.0
+    tol_eq = tol_eq if tol_eq > 0.0 else None              # invalid eps: smalbe reports it; b = 0: its rule
+    result = smalbe(enforced.hessian, enforced.b, enforced.homogeneous.lower, enforced.equality, None, None,
+                    M=M, rho0=rho0, Gamma=Gamma, eps=eps, maxiter=maxiter,
+                    norm_A=NORM_SAFETY * max(enforced.norm_PFP, enforced.rho_bar), norm_BE=1.0,
+                    feas_tol=tol_eq, max_outer=max_outer)
+    return result, tol_eq
 
-    def mv(v: np.ndarray) -> np.ndarray:
-        count[0] += 1
-        return op.matvec(np.ravel(v))
 
-    wrapped = spla.LinearOperator((n, n), matvec=mv, dtype=np.float64)
-    v0 = np.random.default_rng(seed).standard_normal(n)
-    if n <= 50:
-        dense = np.column_stack([mv(e) for e in np.eye(n)])
-        return float(np.abs(np.linalg.eigvalsh(0.5 * (dense + dense.T))).max()), count[0]
-    ev = spla.eigsh(wrapped, k=1, which="LA", v0=v0, tol=1e-6, return_eigenvectors=False,
-                    ncv=min(n, 20), maxiter=100 * n)
-    return float(ev[0]), count[0]
+@dataclass
+class RecoveredSolution:
+    """What the chain maps back: the balanced multiplier, the contact multipliers and u."""
+
+    lambda_balanced: np.ndarray     # (n_lambda,)
+    lam_contact: np.ndarray         # (n_c,) >= 0, 0 off the active set
+    active: np.ndarray              # (n_c,) bool
+    u_W: np.ndarray                 # (n_W,)
+    u: np.ndarray                   # (ndof,)
+    rigid_alpha: float
+    equality_defect: float          # G lambda
+
+
+def map_back(enforced: EnforcedProblem, lam: np.ndarray) -> RecoveredSolution:
+    """SMALBE's lambda of (6.17) -> (u, lambda) of (6.13) (module docstring, "Primal recovery").
+
+    Active set: the contact rows off their bound in the SMALBE iterate with positive balanced
+    multiplier.
+    """
+    homogeneous = enforced.homogeneous
+    dual = homogeneous.dual
+    n_local = dual.n_local
+    lam_bal = enforced.back(lam)
+    free = lam[n_local:] > homogeneous.lower[n_local:]           # contact rows off their bound in SMALBE
+    active = free & (lam_bal[n_local:] > 0.0)
+    lam_contact = np.where(active, lam_bal[n_local:], 0.0)
+    u_W, u, alpha = dual.back(lam_bal, active)
+    return RecoveredSolution(lambda_balanced=lam_bal, lam_contact=lam_contact, active=active, u_W=u_W, u=u,
+                             rigid_alpha=alpha, equality_defect=float(dual.G @ lam))
 
 
 def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float = 1.0, rho0: float = 30.0,
@@ -313,132 +552,58 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
     t0 = time.perf_counter()
     if polish not in ("auto", True, False):
         return _failure(problem, t0, f"polish must be 'auto', True or False, got {polish!r}")
-    sub, gi = problem.sub, problem.gi
     new_factorizations = solver is None
     if solver is None:
-        solver = FetiFetiSolver(sub, gi)
-    if solver.floating.size != 1:
-        return _failure(problem, t0, f"expected exactly one floating body (Omega^2), "
-                                     f"found {solver.floating.size}")
-    B_gl, _ = gi.operators(None)
-    B = sp.vstack([solver.B_loc, B_gl]).tocsr()
-    BT = B.T.tocsr()
-    n_loc, n_c = solver.B_loc.shape[0], B_gl.shape[0]
-    n = n_loc + n_c
-    f_W = sub.f_W
-    R = solver.R.toarray().ravel()                           # (n_W,) constants on Omega^2
-
-    # (6.14): G~ = R^T B^T (one row), e~ = R^T f_W; orthonormalization T = 1/||G~||
-    G_t = np.asarray(B @ R).ravel()                          # (n_lambda,)
-    e_t = float(R @ f_W)
-    norm_Gt = float(np.linalg.norm(G_t))
-    if norm_Gt == 0.0 or not e_t < 0.0:
-        return _failure(problem, t0, f"the floating body is not pressed onto the contact interface "
-                                     f"(R^T f_W = {e_t:.3g}, ||G~|| = {norm_Gt:.3g})")
-    G = G_t / norm_Gt                                        # (n_lambda,), ||G|| = 1
-    e = e_t / norm_Gt
-    net = -e_t                                               # the load sum(lambda) must carry (> 0)
-    # Lemma 6.4.1: uniform pressure on the contact rows (G~ = -1 there, 0 on local rows)
-    lam_tilde = np.zeros(n)
-    lam_tilde[n_loc:] = -e_t / n_c
-    if not np.isclose(G @ lam_tilde, e, rtol=1e-12, atol=0.0):
-        return _failure(problem, t0, "G~ is not -1 on the contact rows and 0 on the local rows")
-
-    n_F = [0]
-
-    def F(v: np.ndarray) -> np.ndarray:
-        """F v = B A~^+ B^T v, shape (n_lambda,)."""
-        n_F[0] += 1
-        return B @ solver.At.solve(BT @ v)
-
-    def P(v: np.ndarray) -> np.ndarray:
-        return v - G * (G @ v)
-
-    # (6.16): d = B A~^+ (f_W - B^T lambda~)
-    d = B @ solver.At.solve(f_W - BT @ lam_tilde)
-    b = P(d)
-    norm_b = float(np.linalg.norm(b))
-    lb = np.full(n, -np.inf)
-    lb[n_loc:] = -lam_tilde[n_loc:]
-
-    PFP = spla.LinearOperator((n, n), matvec=lambda v: P(F(P(np.ravel(v)))), dtype=np.float64)
-    norm_PFP, n_est = _norm_estimate(PFP, n)
-    if rho_bar is None:
-        rho_bar = norm_PFP
-    elif isinstance(rho_bar, bool) or not (isinstance(rho_bar, numbers.Real) and math.isfinite(rho_bar)
-                                           and rho_bar > 0.0):
-        return _failure(problem, t0, f"rho_bar must be a positive number, got {rho_bar!r}")
-    rho_bar = float(rho_bar)
-
-    def A(v: np.ndarray) -> np.ndarray:
-        """(P F P + rho_bar Q) v of (6.17)."""
-        v = np.ravel(v)
-        Gv = G @ v
-        return P(F(v - G * Gv)) + rho_bar * G * Gv
-
-    opA = spla.LinearOperator((n, n), matvec=A, rmatvec=A, dtype=np.float64)
-    opG = sp.csr_matrix(G[None, :])
-    # stopping rule: Section 6.4's ||G lambda|| <= eps ||b||, and relative to the right-hand side
-    # ||e|| of G lambda = e (6.15) (module docstring, "Stopping rule")
-    tol_eq = eps * min(norm_b, abs(e)) if isinstance(eps, numbers.Real) and math.isfinite(eps) else 0.0
-    tol_eq = tol_eq if tol_eq > 0.0 else None              # invalid eps: smalbe reports it; b = 0: its rule
+        solver = FetiFetiSolver(problem.sub, problem.gi)
+    # dualize (6.14) -> homogenize (6.16) -> enforce (6.17)
+    dual = dualize(problem, solver)
+    if isinstance(dual, str):
+        return _failure(problem, t0, dual)
+    homogeneous = homogenize(dual)
+    if isinstance(homogeneous, str):
+        return _failure(problem, t0, homogeneous)
+    enforced = enforce(homogeneous, rho_bar)
+    if isinstance(enforced, str):
+        return _failure(problem, t0, enforced)
+    rho_bar, norm_b, net = enforced.rho_bar, enforced.norm_b, dual.net_load
+    n, n_local, n_contact = dual.n, dual.n_local, dual.n_contact
     setup = time.perf_counter() - t0
     log.info("SMALBE dual setup: n_lambda = %d (%d local + %d contact), ||PFP|| = %.4g (%d F-mults), "
-             "lambda~ = %.4g", n, n_loc, n_c, norm_PFP, n_est, lam_tilde[-1])
-
+             "lambda~ = %.4g", n, n_local, n_contact, enforced.norm_PFP, enforced.n_norm_estimate,
+             homogeneous.lambda_tilde[-1])
+    # solve (SMALBE/MPRGP)
     try:
-        res = smalbe(opA, b, lb, opG, None, None, M=M, rho0=rho0, Gamma=Gamma, eps=eps, maxiter=maxiter,
-                     norm_A=NORM_SAFETY * max(norm_PFP, rho_bar), norm_BE=1.0, feas_tol=tol_eq,
-                     max_outer=max_outer)
+        res, tol_eq = solve_enforced(enforced, eps=eps, M=M, rho0=rho0, Gamma=Gamma, maxiter=maxiter,
+                                     max_outer=max_outer)
     except ValueError as exc:                                # invalid parameters: report, do not raise
         return _failure(problem, t0, f"invalid SMALBE input: {exc}")
-
-    # primal recovery from the balanced multiplier P lambda + lambda~ (G~ (P lambda + lambda~) = e~, so
-    # f_W - B^T lambda_bal lies in range A~ and u0 + R alpha solves A~ u = f_W - B^T lambda_bal exactly)
-    x = res.x
-    Gx = float(G @ x)
-    lam_bal = P(x) + lam_tilde
-    free = x[n_loc:] > lb[n_loc:]                              # contact rows off their bound in SMALBE
-    active = free & (lam_bal[n_loc:] > 0.0)
-    lam_c = np.where(active, lam_bal[n_loc:], 0.0)
-    u0 = solver.At.solve(f_W - BT @ lam_bal)
-    Bu0 = B_gl @ u0
-    BR = np.asarray(B_gl @ R).ravel()                         # -1 on every contact row
-    rows = active if active.any() else np.ones(n_c, dtype=bool)
-    alpha_rb = -float(BR[rows] @ Bu0[rows]) / float(BR[rows] @ BR[rows])
-    u_W = u0 + alpha_rb * R
-    u = sub.average(u_W)
+    # map back: balanced multiplier P lambda + lambda~, primal recovery
+    rec = map_back(enforced, res.x)
+    u, lam_c, active, Gx = rec.u, rec.lam_contact, rec.active, rec.equality_defect
     seconds = time.perf_counter() - t0
     log.info("SMALBE dual (3.1): %s; %d outer, inner %s, %d active pairs of %d, %.3f s",
-             res.reason, res.outer_iterations, res.inner_iterations, int(active.sum()), n_c, seconds)
+             res.reason, res.outer_iterations, res.inner_iterations, int(active.sum()), n_contact, seconds)
     extra = {
-        "nlambda": n, "n_local": n_loc, "n_contact": n_c,
+        "nlambda": n, "n_local": n_local, "n_contact": n_contact,
         "n_hessian": res.n_hessian, "n_cg": res.n_cg, "n_expansion": res.n_expansion,
-        "n_proportioning": res.n_proportioning, "n_Fmult": n_F[0], "n_norm_estimate": n_est,
-        "penalty": res.penalty, "rho_bar": rho_bar, "norm_PFP": norm_PFP, "alpha": res.alpha,
-        "lambda_tilde": float(lam_tilde[-1]), "mu": res.mu, "rigid_alpha": alpha_rb,
-        "norm_b": norm_b, "norm_e": abs(e), "tol_equality": tol_eq, "net_load": net,
+        "n_proportioning": res.n_proportioning, "n_Fmult": dual.n_F[0], "n_norm_estimate": enforced.n_norm_estimate,
+        "penalty": res.penalty, "rho_bar": rho_bar, "norm_PFP": enforced.norm_PFP, "alpha": res.alpha,
+        "lambda_tilde": float(homogeneous.lambda_tilde[-1]), "mu": res.mu, "rigid_alpha": rec.rigid_alpha,
+        "norm_b": norm_b, "norm_e": abs(dual.e), "tol_equality": tol_eq, "net_load": net,
         "gradient_norms": res.gradient_norms, "constraint_norms": res.constraint_norms,
-        "local_jump": float(np.linalg.norm(solver.B_loc @ u_W)),
+        "local_jump": float(np.linalg.norm(solver.B_loc @ rec.u_W)),
         "equality_defect": Gx, "setup_seconds": setup, "qp_seconds": res.seconds,
-        "lambda": lam_bal,
+        "lambda": rec.lambda_balanced,
     }
-    converged, reason = bool(res.converged), res.reason
+    converged, reason = _judge(problem, res, rec, enforced, eps, tol_eq, extra)
     # the rule of Section 6.4 alone (||G lambda|| <= eps ||b||): met, but the contact force is not resolved
     gp_last = float(res.gradient_norms[-1]) if res.gradient_norms.size else math.inf
     section_64 = gp_last <= eps * norm_b and abs(Gx) <= eps * norm_b
-    if not converged and section_64:
-        reason = (f"SMALBE met the rule of Section 6.4 (||G lambda|| = {abs(Gx):.2e} <= eps ||b||) but not "
-                  f"||G lambda|| <= eps ||e|| = {tol_eq or 0.0:.2e}: the contact force (net load {net:.3g}) "
-                  f"is not resolved ({res.reason})")
-    ok, why = _accept(problem, u, lam_c, net, eps, extra)
-    if converged and not ok:
-        converged, reason = False, f"{reason}; acceptance check failed: {why}"
     rescue = polish == "auto" and not converged and (section_64 or res.converged)
     refine = polish == "auto" and converged
     if (polish is True and converged or rescue or refine) and active.any():
         kkt_smalbe = problem.kkt(u, lam_c).max
-        out = _polish(problem, solver, active, lam_bal, n_loc, eps, net, extra)
+        out = _polish(problem, solver, active, rec.lambda_balanced, n_local, eps, net, extra)
         if out is None:
             reason = f"{reason}; polish on the active set rejected ({extra['polish_reason']})"
         elif polish == "auto" and not problem.kkt(*out).max < kkt_smalbe:
@@ -461,6 +626,24 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
                            seconds=seconds,
                            n_factorizations=solver.n_factorizations if new_factorizations else 0,
                            extra=extra)
+
+
+def _judge(problem: ContactProblem, res: QPResult, rec: RecoveredSolution, enforced: EnforcedProblem,
+           eps: float, tol_eq: float | None, extra: dict) -> tuple[bool, str]:
+    """SMALBE's verdict, the note when only the rule of Section 6.4 is met, and the acceptance check."""
+    converged, reason = bool(res.converged), res.reason
+    norm_b, Gx = enforced.norm_b, rec.equality_defect
+    net = enforced.homogeneous.dual.net_load
+    gp_last = float(res.gradient_norms[-1]) if res.gradient_norms.size else math.inf
+    section_64 = gp_last <= eps * norm_b and abs(Gx) <= eps * norm_b
+    if not converged and section_64:
+        reason = (f"SMALBE met the rule of Section 6.4 (||G lambda|| = {abs(Gx):.2e} <= eps ||b||) but not "
+                  f"||G lambda|| <= eps ||e|| = {tol_eq or 0.0:.2e}: the contact force (net load {net:.3g}) "
+                  f"is not resolved ({res.reason})")
+    ok, why = _accept(problem, rec.u, rec.lam_contact, net, eps, extra)
+    if converged and not ok:
+        converged, reason = False, f"{reason}; acceptance check failed: {why}"
+    return converged, reason
 
 
 def _accept(problem: ContactProblem, u: np.ndarray, lam: np.ndarray, net: float, eps: float,

@@ -34,29 +34,29 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     """
     t0 = time.perf_counter()
     cache: dict = {}
-    gam = sub.interface
-    schur = DirichletSchur(sub, gam, cache)
-    At = PrimalConstrainedSolver(sub, sub.vertex, cache)
-    g_idx = np.flatnonzero(gam)
-    dofs = np.unique(sub.l2g[g_idx])
+    gamma_mask = sub.interface
+    schur = DirichletSchur(sub, gamma_mask, cache)
+    primal_solver = PrimalConstrainedSolver(sub, sub.vertex, cache)
+    gamma_entries = np.flatnonzero(gamma_mask)
+    dofs = np.unique(sub.l2g[gamma_entries])
     n_g = dofs.size
-    gi = np.searchsorted(dofs, sub.l2g[g_idx])            # global interface index of each Gamma entry
-    delta_g = sub.delta[g_idx]
+    gamma_pos = np.searchsorted(dofs, sub.l2g[gamma_entries])    # global interface index of each Gamma entry
+    delta_g = sub.delta[gamma_entries]
 
     def scatter(u_g: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
         w = np.zeros(sub.n_W)
-        w[g_idx] = u_g[gi] if weights is None else weights * u_g[gi]
+        w[gamma_entries] = u_g[gamma_pos] if weights is None else weights * u_g[gamma_pos]
         return w
 
     def gather(w: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-        vals = w[g_idx] if weights is None else weights * w[g_idx]
-        return np.bincount(gi, weights=vals, minlength=n_g)
+        vals = w[gamma_entries] if weights is None else weights * w[gamma_entries]
+        return np.bincount(gamma_pos, weights=vals, minlength=n_g)
 
     def S_hat(u_g: np.ndarray) -> np.ndarray:
         return gather(schur.matvec(scatter(u_g)))
 
     def M(r_g: np.ndarray) -> np.ndarray:
-        x = At.solve(scatter(r_g, delta_g))
+        x = primal_solver.solve(scatter(r_g, delta_g))
         return gather(x, delta_g)
 
     g = gather(schur.harmonic_extension_rhs(sub.f_W))
@@ -65,5 +65,5 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
              M=linear_operator(n_g, M), cond=cond)
     u_W = schur.interior_solution(sub.f_W, scatter(kr.x))
     return MethodOutput(u=sub.average(u_W), krylov=kr, nlambda=0,
-                        n_factorizations=At.n_factorizations + schur.II.n_new_factorizations,
-                        setup_seconds=setup, extra={"n_primal": At.n_primal, "n_interface": int(n_g)})
+                        n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
+                        setup_seconds=setup, extra={"n_primal": primal_solver.n_primal, "n_interface": int(n_g)})

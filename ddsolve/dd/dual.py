@@ -7,8 +7,9 @@ preconditioner M and the natural coarse space G = B R, e = R^T f, solve
 
 with the Q-weighted projection P = I - Q G (G^T Q G)^{-1} G^T, Q diagonal
 (Q = I is the orthogonal projection of the thesis). It is run as the
-orthogonal projection of the similar system in mu = Q^{-1/2} lambda. Without a
-kernel (no floating subdomains or bodies), P and lambda_0 are skipped.
+orthogonal projection (:class:`~ddsolve.dd.projection.Projection`) of the
+similar system in mu = Q^{-1/2} lambda. Without a kernel (no floating
+subdomains or bodies), P and lambda_0 are skipped.
 """
 from __future__ import annotations
 
@@ -17,10 +18,10 @@ from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ..krylov import KrylovResult, pcg
-from .operators import linear_operator
+from .operators import linear_operator, scaled_jump
+from .projection import Projection
 
 Matvec = Callable[[np.ndarray], np.ndarray]
 
@@ -42,15 +43,12 @@ def dual_operators(B: sp.spmatrix, B_D: sp.spmatrix, primal_solve: Matvec,
     -------
     (F, M) : tuple of callables, shape (n_lambda,) -> (n_lambda,)
     """
-    BT, B_DT = B.T.tocsr(), B_D.T.tocsr()
+    BT = B.T.tocsr()
 
     def F(lam: np.ndarray) -> np.ndarray:
         return B @ primal_solve(BT @ lam)
 
-    def M(lam: np.ndarray) -> np.ndarray:
-        return B_D @ schur(B_DT @ lam)
-
-    return F, M
+    return F, scaled_jump(B_D, schur)
 
 
 @dataclass
@@ -91,26 +89,21 @@ def solve_dual(F: Matvec, M: Matvec, d: np.ndarray, G: sp.spmatrix | None, e: np
     n = d.shape[0]
     sq = np.ones(n) if q is None else np.sqrt(q)
 
-    def Fs(mu: np.ndarray) -> np.ndarray:
+    def F_scaled(mu: np.ndarray) -> np.ndarray:
         return sq * F(sq * mu)
 
-    def Ms(mu: np.ndarray) -> np.ndarray:
+    def M_scaled(mu: np.ndarray) -> np.ndarray:
         return M(mu / sq) / sq
 
-    ds = sq * d
+    d_scaled = sq * d
     mu0 = np.zeros(n) if lam0 is None else lam0 / sq
-    P_op = None
-    Gs = None
+    projection = None
     if G is not None and G.shape[1] > 0:
-        Gs = (sp.diags(sq) @ G).tocsc()
-        GtG = spla.splu((Gs.T @ Gs).tocsc())
-
-        def P(mu: np.ndarray) -> np.ndarray:
-            return mu - Gs @ GtG.solve(Gs.T @ mu)
-
-        P_op = linear_operator(n, P)
-        mu0 = P(mu0) + Gs @ GtG.solve(e)
-    kr = pcg(linear_operator(n, Fs), ds, mu0, rtol=rtol, maxiter=maxiter, M=linear_operator(n, Ms),
-             P=P_op, cond=cond)
-    alpha = GtG.solve(Gs.T @ (Fs(kr.x) - ds)) if Gs is not None else None
+        # (2.13) for the scaled coarse space Q^{1/2} G: the orthogonal projection in mu
+        projection = Projection((sp.diags(sq) @ G).tocsc(), sparse=True)
+        mu0 = projection.apply(mu0) + projection.particular(e)
+    kr = pcg(linear_operator(n, F_scaled), d_scaled, mu0, rtol=rtol, maxiter=maxiter,
+             M=linear_operator(n, M_scaled), P=None if projection is None else linear_operator(n, projection.apply),
+             cond=cond)
+    alpha = projection.coefficients(F_scaled(kr.x) - d_scaled) if projection is not None else None
     return DualSolution(lam=sq * kr.x, alpha=alpha, krylov=kr)

@@ -37,16 +37,16 @@ def solve_fetidp(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000,
     cache: dict = {}
     dual = sub.interface & ~sub.vertex
     B, B_D = sub.jump_operators(dual)
-    At = PrimalConstrainedSolver(sub, sub.vertex, cache)
+    primal_solver = PrimalConstrainedSolver(sub, sub.vertex, cache)
     schur = DirichletSchur(sub, sub.interface, cache)
     n_lam = B.shape[0]
 
-    F, M = dual_operators(B, B_D, At.solve, schur.matvec)
-    d = B @ At.solve(sub.f_W)
+    F, M = dual_operators(B, B_D, primal_solver.solve, schur.matvec)
+    d = B @ primal_solver.solve(sub.f_W)
     setup = time.perf_counter() - t0
     kr = pcg(linear_operator(n_lam, F), d, None, rtol=rtol, maxiter=maxiter,
              M=linear_operator(n_lam, M), cond=cond)
-    u_W = At.solve(sub.f_W - B.T @ kr.x)
+    u_W = primal_solver.solve(sub.f_W - B.T @ kr.x)
     return MethodOutput(u=sub.average(u_W), krylov=kr, nlambda=n_lam,
-                        n_factorizations=At.n_factorizations + schur.II.n_new_factorizations,
-                        setup_seconds=setup, extra={"n_primal": At.n_primal})
+                        n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
+                        setup_seconds=setup, extra={"n_primal": primal_solver.n_primal})

@@ -17,6 +17,7 @@ directly between compact spaces of interface values (no W vectors).
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -36,6 +37,74 @@ EXPLICIT_MAX_BLOCK = 4000
 #: Memory budget of the explicit harmonic extensions K_II^{-1} K_IG kept by an explicit
 #: :class:`DirichletSchur` (dense n_I x n_G per group) for :meth:`DirichletSchur.interior_solution`.
 EXPLICIT_EXTENSION_BYTES = 512 * 2**20
+
+
+@dataclass
+class _SchurGroup:
+    """Subdomains sharing one explicit local Schur complement: template, local interior/interface sets."""
+
+    template: int
+    interior_local: np.ndarray
+    gamma_local: np.ndarray
+    members: list[int]
+
+
+@dataclass
+class ExtensionBlock:
+    """Explicit harmonic extension K_II^{-1} K_IG of one group and the W positions of its members."""
+
+    extension: np.ndarray           # (n_i, n_g)
+    gamma_index: np.ndarray         # (n_g, n_members)
+    interior_index: np.ndarray      # (n_i, n_members)
+
+
+@dataclass
+class HarmonicExtensions:
+    """All explicit harmonic extensions, with the flat W positions of their interface and interior entries."""
+
+    blocks: list[ExtensionBlock]
+    flat_gamma: np.ndarray
+    flat_interior: np.ndarray
+
+
+@dataclass
+class _InteriorLoad:
+    """The last interior load A_II^{-1} f (``source`` the array passed, ``values`` its copy)."""
+
+    source: np.ndarray
+    values: np.ndarray
+    solution: np.ndarray
+
+
+@dataclass
+class SchurSpaceMatvec:
+    """gather_out(S scatter_in(u)) on compact index maps (:meth:`DirichletSchur.space_matvec`).
+
+    Attributes
+    ----------
+    blocks : DenseBlocks
+        The local Schur complements of the subdomains touching both spaces.
+    index_in : ndarray of int, shape (blocks.size,)
+        Index into the concatenated input values (their total size: the appended zero).
+    index_out : ndarray of int, shape (blocks.size,)
+        Output index of every block entry (-1 outside the output space).
+    out_select : ndarray of int or None
+        Block entries inside the output space (None: all).
+    n_out : int
+    """
+
+    blocks: DenseBlocks
+    index_in: np.ndarray
+    index_out: np.ndarray
+    out_select: np.ndarray | None
+    n_out: int
+
+    def apply(self, us: list[np.ndarray]) -> np.ndarray:
+        u_ext = np.concatenate(list(us) + [np.zeros(1)])
+        ys = self.blocks.apply(u_ext[self.index_in])
+        if self.out_select is None:
+            return np.bincount(self.index_out, weights=ys, minlength=self.n_out)
+        return np.bincount(self.index_out[self.out_select], weights=ys[self.out_select], minlength=self.n_out)
 
 
 class DirichletSchur:
@@ -73,15 +142,16 @@ class DirichletSchur:
         self.interior = ~gamma_mask if exclude is None else ~gamma_mask & ~exclude
         self.II = BatchedSolver(sub, self.interior, cache)
         self._cache = cache
-        self._explicit_opt = explicit
+        self._explicit_option = explicit
         self._blocks: DenseBlocks | None | bool = None      # None: not decided yet; False: implicit
-        self._space_ops: dict = {}
-        self._ext: tuple | None = None          # explicit harmonic extensions (with explicit S)
-        self._zf: tuple | None = None
+        self._space_operators: dict[tuple, SchurSpaceMatvec] = {}     # by the spaces' keys
+        self._extensions: HarmonicExtensions | None = None  # explicit harmonic extensions (with explicit S)
+        self._last_load: _InteriorLoad | None = None
 
-    def _explicit_groups(self) -> dict:
+    def _explicit_groups(self) -> list[_SchurGroup]:
+        """Subdomains grouped by (template, interior set, interface set): one dense S_t each."""
         sub = self.sub
-        groups: dict[bytes, tuple[int, np.ndarray, np.ndarray, list[int]]] = {}
+        groups: dict[bytes, _SchurGroup] = {}
         for s in range(sub.n_sub):
             lo, hi = sub.offsets[s], sub.offsets[s + 1]
             loc = sub.local_index[lo:hi]
@@ -93,15 +163,15 @@ class DirichletSchur:
             key = (t.to_bytes(8, "little") + loc_i.size.to_bytes(8, "little")
                    + loc_i.astype(np.int64).tobytes() + loc_g.astype(np.int64).tobytes())
             if key not in groups:
-                groups[key] = (t, loc_i, loc_g, [])
-            groups[key][3].append(s)
-        return groups
+                groups[key] = _SchurGroup(template=t, interior_local=loc_i, gamma_local=loc_g, members=[])
+            groups[key].members.append(s)
+        return list(groups.values())
 
     def _build_explicit(self) -> DenseBlocks | bool:
         groups = self._explicit_groups()
-        setup_cols = sum(g[2].size for g in groups.values())
-        biggest = max((g[2].size for g in groups.values()), default=0)
-        explicit = self._explicit_opt
+        setup_cols = sum(g.gamma_local.size for g in groups)
+        biggest = max((g.gamma_local.size for g in groups), default=0)
+        explicit = self._explicit_option
         if explicit is None:
             explicit = (setup_cols <= EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1)
                         and biggest <= EXPLICIT_MAX_BLOCK)
@@ -109,9 +179,10 @@ class DirichletSchur:
             return False
         sub = self.sub
         blocks = []
-        keep_ext = sum(g[1].size * g[2].size for g in groups.values()) * 8 <= EXPLICIT_EXTENSION_BYTES
-        ext = []
-        for t, loc_i, loc_g, members in groups.values():
+        keep_ext = sum(g.interior_local.size * g.gamma_local.size for g in groups) * 8 <= EXPLICIT_EXTENSION_BYTES
+        ext: list[ExtensionBlock] = []
+        for group in groups:
+            t, loc_i, loc_g, members = group.template, group.interior_local, group.gamma_local, group.members
             K = sub.stiffness[t]
             Kg = K[loc_g]
             S = Kg[:, loc_g].toarray()
@@ -126,22 +197,29 @@ class DirichletSchur:
                 S = 0.5 * (S + S.T)
                 if keep_ext:
                     index_i = np.stack([sub.position(s, loc_i) for s in members_arr], axis=1)
-                    ext.append((np.ascontiguousarray(X), index, index_i))
+                    ext.append(ExtensionBlock(np.ascontiguousarray(X), index, index_i))
             blocks.append((S, index, sub.rho[members_arr]))
         if keep_ext:
-            self._ext = (ext, np.concatenate([e[1].ravel() for e in ext]) if ext else np.zeros(0, np.int64),
-                         np.concatenate([e[2].ravel() for e in ext]) if ext else np.zeros(0, np.int64))
+            self._extensions = HarmonicExtensions(
+                blocks=ext,
+                flat_gamma=np.concatenate([e.gamma_index.ravel() for e in ext]) if ext else np.zeros(0, np.int64),
+                flat_interior=np.concatenate([e.interior_index.ravel() for e in ext]) if ext else np.zeros(0, np.int64))
         log.debug("DirichletSchur: %d explicit local Schur complements (largest %d)", len(blocks), biggest)
         return DenseBlocks(blocks)
 
     def _interior_load(self, f: np.ndarray) -> np.ndarray:
         """A_II^{-1} f_I (zero off the interior), cached for the last f (same array, same values)."""
-        hit = self._zf
-        if hit is not None and hit[0] is f and np.array_equal(hit[1], f):
-            return hit[2]
+        hit = self._last_load
+        if hit is not None and hit.source is f and np.array_equal(hit.values, f):
+            return hit.solution
         z = self.II.solve(f)
-        self._zf = (f, f.copy(), z)
+        self._last_load = _InteriorLoad(source=f, values=f.copy(), solution=z)
         return z
+
+    @property
+    def extensions(self) -> HarmonicExtensions | None:
+        """The explicit harmonic extensions K_II^{-1} K_IG (None: implicit, or over the memory budget)."""
+        return self._extensions if self.explicit else None
 
     @property
     def explicit(self) -> bool:
@@ -159,7 +237,8 @@ class DirichletSchur:
             Values in ``space_in`` (one array per space if a sequence).
         space_in : space or sequence of spaces
             Objects with ``idx`` (W positions), ``pos`` (compact index of each
-            position) and ``n`` (dimension), e.g. the hybrid's ``_Space``;
+            position) and ``n`` (dimension), e.g. the hybrid's ``InterfaceSpace``
+            (its ``key``, when present, keys the cache);
             scatter_in puts ``u[pos]`` on every W position ``idx`` (the spaces
             of a sequence must not overlap). Entries must lie on Gamma.
         space_out : space
@@ -183,19 +262,13 @@ class DirichletSchur:
                 w[sp_.idx] = v[sp_.pos]
             y = self.matvec(w)
             return np.bincount(space_out.pos, weights=y[space_out.idx], minlength=space_out.n)
-        key = tuple(id(x) for x in spaces) + (id(space_out),)
-        hit = self._space_ops.get(key)
-        if hit is None or any(a is not b for a, b in zip(hit[0], spaces + [space_out])):
-            hit = (spaces + [space_out], self._build_space_op(spaces, space_out))
-            self._space_ops[key] = hit
-        blocks, cin, cout, osel = hit[1]
-        u_ext = np.concatenate(us + [np.zeros(1)])
-        ys = blocks.apply(u_ext[cin])
-        if osel is None:
-            return np.bincount(cout, weights=ys, minlength=space_out.n)
-        return np.bincount(cout[osel], weights=ys[osel], minlength=space_out.n)
+        key = tuple(space_key(x) for x in spaces) + (space_key(space_out),)
+        op = self._space_operators.get(key)
+        if op is None:
+            op = self._space_operators[key] = self._build_space_operator(spaces, space_out)
+        return op.apply(us)
 
-    def _build_space_op(self, spaces, space_out):
+    def _build_space_operator(self, spaces, space_out) -> SchurSpaceMatvec:
         n_W = self.sub.n_W
         lin = np.full(n_W, -1, dtype=np.int64)
         off = 0
@@ -215,7 +288,7 @@ class DirichletSchur:
         cin[cin < 0] = off                      # the zero appended to u
         cout = lout[blocks.flat]
         osel = None if (cout >= 0).all() else np.flatnonzero(cout >= 0)
-        return blocks, cin, cout, osel
+        return SchurSpaceMatvec(blocks=blocks, index_in=cin, index_out=cout, out_select=osel, n_out=space_out.n)
 
     def matvec(self, w: np.ndarray) -> np.ndarray:
         """S w for a W vector (read on Gamma); result is zero off Gamma."""
@@ -238,21 +311,21 @@ class DirichletSchur:
     def interior_solution(self, f: np.ndarray, w_gamma: np.ndarray) -> np.ndarray:
         """Complete interface values by u_I = A_II^{-1} (f_I - A_IG w_Gamma); returns a full W vector."""
         w = np.where(self.gamma, w_gamma, 0.0)
-        if self.explicit and self._ext is not None:
+        if self.explicit and self._extensions is not None:
             # u_I = A_II^{-1} f_I - (A_II^{-1} A_IG) w_G: the cached interior load and one GEMM per group
-            ext, flat_g, flat_i = self._ext
-            wg = w[flat_g]
-            out = np.empty(flat_i.size)
+            ext = self._extensions
+            wg = w[ext.flat_gamma]
+            out = np.empty(ext.flat_interior.size)
             og = oi = 0
-            for X, index, index_i in ext:
-                n_g, n_m = index.shape
-                n_i = index_i.shape[0]
-                np.matmul(X, wg[og:og + n_g * n_m].reshape(n_g, n_m),
+            for block in ext.blocks:
+                n_g, n_m = block.gamma_index.shape
+                n_i = block.interior_index.shape[0]
+                np.matmul(block.extension, wg[og:og + n_g * n_m].reshape(n_g, n_m),
                           out=out[oi:oi + n_i * n_m].reshape(n_i, n_m))
                 og += n_g * n_m
                 oi += n_i * n_m
             x = w + self._interior_load(f)
-            x[flat_i] -= out
+            x[ext.flat_interior] -= out
             return x
         return w + self.II.solve(f - self.sub.K_W @ w)
 
@@ -364,58 +437,55 @@ class PrimalConstrainedSolver:
         self.S_PiPi = S_PiPi.tocsc()
         self.coarse = spla.splu(self.S_PiPi, permc_spec="MMD_AT_PLUS_A") if self.n_primal else None
         self.n_factorizations = self.rr.n_new_factorizations + (1 if self.n_primal else 0)
-        self._psi_csr: tuple | None = None       # (Psi, Psi^T) as sparse (n_W, n_primal), on first use
-        self._iface: dict[int, tuple] = {}
-        self._explicit_iface: dict[int, tuple] = {}
-        self._space_ops: dict = {}
+        self._psi_global: sp.csr_matrix | None = None      # Psi as sparse (n_W, n_primal), on first use
+        self._psi_global_T: sp.csr_matrix | None = None
+        self._interfaces: dict[tuple, InterfaceSolve] = {}  # by (mask bytes, n_W, explicit option)
 
     @property
-    def _Psi_global(self) -> sp.csr_matrix:
+    def Psi_global(self) -> sp.csr_matrix:
         """Psi as one sparse (n_W, n_primal) matrix: column c of entry e goes to its coarse dof."""
-        if self._psi_csr is None:
+        if self._psi_global is None:
             sub = self.sub
             entry_cols = self.coarse_cols[sub.sub_of_W] if self.p_max else np.zeros((sub.n_W, 0), dtype=int)
             ok = entry_cols >= 0
             rows = np.broadcast_to(np.arange(sub.n_W)[:, None], ok.shape)[ok]
             P = sp.csr_matrix((self.Psi[ok], (rows, entry_cols[ok])), shape=(sub.n_W, self.n_primal))
-            self._psi_csr = (P, P.T.tocsr())
-        return self._psi_csr[0]
+            self._psi_global, self._psi_global_T = P, P.T.tocsr()
+        return self._psi_global
 
     @property
-    def _Psi_global_T(self) -> sp.csr_matrix:
-        self._Psi_global
-        return self._psi_csr[1]
+    def Psi_global_T(self) -> sp.csr_matrix:
+        """Psi^T as sparse (n_primal, n_W)."""
+        if self._psi_global_T is None:
+            self._psi_global_T = self.Psi_global.T.tocsr()
+        return self._psi_global_T
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         """x = A~^{-1} b for a W vector b; primal copies of b are summed (assembled).
 
         Returns a W vector whose primal entries all hold the (continuous) primal value.
         """
-        sub = self.sub
         br = np.where(self.r, b, 0.0)
         x = self.rr.solve(br)
         if self.n_primal == 0:
             return x
         b_pi = np.bincount(self.coarse_of_W[self.primal], weights=b[self.primal], minlength=self.n_primal)
-        b_pi -= self._Psi_global_T @ br                 # assembled Psi^T b_r
+        b_pi -= self.Psi_global_T @ br                 # assembled Psi^T b_r
         b_pi[self.pinned] = 0.0
         u_pi = self.coarse.solve(b_pi)
-        x -= self._Psi_global @ u_pi
+        x -= self.Psi_global @ u_pi
         x[self.primal] = u_pi[self.coarse_of_W[self.primal]]
         return x
 
-    def _explicit_interface(self, mask: np.ndarray) -> bool:
+    def _explicit_pays_off(self, mask: np.ndarray) -> bool:
         """Whether the dense interface blocks of ``mask`` pay off (the rule of ``DirichletSchur``).
 
         Forming them costs one local solve per interface unknown of each distinct
         (template, r set, interface pattern); one implicit :meth:`solve` costs one per
         subdomain. Explicit when the former is at most ``EXPLICIT_SETUP_MATVECS`` of the
-        latter and no block exceeds ``EXPLICIT_MAX_BLOCK`` (cached per mask). With few,
-        large subdomains (H/h = 128 or more) the implicit solve is cheaper over a solve.
+        latter and no block exceeds ``EXPLICIT_MAX_BLOCK``. With few, large subdomains
+        (H/h = 128 or more) the implicit solve is cheaper over a solve.
         """
-        hit = self._explicit_iface.get(id(mask))
-        if hit is not None and hit[0] is mask:
-            return hit[1]
         cols, biggest = 0, 0
         for g in self.rr.groups:
             pattern = np.ascontiguousarray(np.packbits(mask[g.index], axis=0).T)   # one row per member
@@ -426,23 +496,170 @@ class PrimalConstrainedSolver:
         explicit = cols <= EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1) and biggest <= EXPLICIT_MAX_BLOCK
         log.debug("PrimalConstrainedSolver: %s interface blocks (%d setup columns, largest %d)",
                   "explicit" if explicit else "implicit", cols, biggest)
-        self._explicit_iface[id(mask)] = (mask, explicit)
         return explicit
 
-    def _interface_blocks(self, mask: np.ndarray) -> tuple:
-        """(DenseBlocks of (A_rr^{-1})_{DD}, Psi rows on D, their transpose) for D = r & mask (cached)."""
-        hit = self._iface.get(id(mask))
-        if hit is not None and hit[0] is mask:
-            return hit[1]
+    def interface(self, mask: np.ndarray, explicit: bool | None = None) -> InterfaceSolve:
+        """A~^{-1} restricted to the interface ``mask`` (explicit dense blocks or implicit solves).
+
+        ``mask`` (an interface: every interior entry of the subdomains is outside it).
+        ``explicit=None`` decides by :meth:`_explicit_pays_off`. Cached on this solver by the
+        mask's bytes and ``explicit``.
+        """
+        key = (np.packbits(mask).tobytes(), mask.size, explicit)
+        hit = self._interfaces.get(key)
+        if hit is None:
+            use_explicit = self._explicit_pays_off(mask) if explicit is None else bool(explicit)
+            hit = (ExplicitInterfaceSolve if use_explicit else ImplicitInterfaceSolve)(self, mask.copy())
+            self._interfaces[key] = hit
+        return hit
+
+    def space_solve(self, r: np.ndarray, space, weights: np.ndarray, mask: np.ndarray,
+                    explicit: bool | None = None) -> np.ndarray:
+        """gather_w(A~^{-1} scatter_w(r)) in a space of continuous values on an interface.
+
+        Convenience for ``interface(mask, explicit).space_operator(space, weights).apply(r)``
+        (the operator cached by the space's ``key`` and the weights' bytes); hold the
+        operator of :meth:`InterfaceSolve.space_operator` where it is applied repeatedly.
+        """
+        iface = self.interface(mask, explicit)
+        key = (space_key(space), np.asarray(weights).tobytes())
+        op = iface.space_operators.get(key)
+        if op is None:
+            op = iface.space_operators[key] = iface.space_operator(space, weights)
+        return op.apply(r)
+
+    def solve_interface(self, b: np.ndarray, mask: np.ndarray, explicit: bool | None = None) -> np.ndarray:
+        """:meth:`solve` for a right-hand side supported on ``mask`` (zero on every other entry),
+        returning the solution on ``mask`` only (zero elsewhere); see :meth:`interface`."""
+        return self.interface(mask, explicit).solve(b)
+
+
+def space_key(space) -> tuple:
+    """Cache key of a space (``idx``, ``pos``, ``n``): its ``key`` attribute, else its index bytes."""
+    key = getattr(space, "key", None)
+    if key is not None:
+        return key
+    return (np.asarray(space.idx).tobytes(), np.asarray(space.pos).tobytes(), int(space.n))
+
+
+class InterfaceSolve:
+    """A~^{-1} of a :class:`PrimalConstrainedSolver` on an interface ``mask`` (base class).
+
+    Attributes
+    ----------
+    solver : PrimalConstrainedSolver
+    mask : ndarray of bool, shape (n_W,)
+    explicit : bool
+    space_operators : dict
+        Space operators handed out by :meth:`PrimalConstrainedSolver.space_solve`.
+    """
+
+    explicit = False
+
+    def __init__(self, solver: PrimalConstrainedSolver, mask: np.ndarray) -> None:
+        self.solver = solver
+        self.mask = mask
+        self.space_operators: dict = {}
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """A~^{-1} b for b supported on the mask, returned on the mask (zero elsewhere)."""
+        raise NotImplementedError
+
+    def space_operator(self, space, weights: np.ndarray):
+        """An object whose ``apply(r)`` is gather_w(A~^{-1} scatter_w(r)) in ``space``.
+
+        scatter_w puts ``weights * r[pos]`` on the W positions ``space.idx``, gather_w
+        sums ``weights`` times the copies (R_D^T A~^{-1} R_D of BDDC when ``weights`` are
+        the delta-dagger scalings). ``space`` (with ``idx``, ``pos``, ``n``, see
+        :meth:`DirichletSchur.space_matvec`) must lie in the mask; no W vector is formed
+        by the explicit variant.
+        """
+        raise NotImplementedError
+
+
+class ImplicitInterfaceSolve(InterfaceSolve):
+    """Interface solves through the full batched :meth:`PrimalConstrainedSolver.solve`."""
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return np.where(self.mask, self.solver.solve(np.where(self.mask, b, 0.0)), 0.0)
+
+    def space_operator(self, space, weights: np.ndarray) -> ImplicitSpaceSolve:
+        return ImplicitSpaceSolve(self.solver, space, weights)
+
+
+class ImplicitSpaceSolve:
+    """Scatter, the implicit solve, gather (see :meth:`InterfaceSolve.space_operator`)."""
+
+    def __init__(self, solver: PrimalConstrainedSolver, space, weights: np.ndarray) -> None:
+        self.solver, self.space, self.weights = solver, space, weights
+
+    def apply(self, r: np.ndarray) -> np.ndarray:
+        space, weights = self.space, self.weights
+        w = np.zeros(self.solver.sub.n_W)
+        w[space.idx] = weights * r[space.pos]
+        x = self.solver.solve(w)
+        return np.bincount(space.pos, weights=weights * x[space.idx], minlength=space.n)
+
+
+@dataclass
+class CoarseBlock:
+    """Psi on the interface entries D of one block group, shared by its members.
+
+    ``psi`` (n_d, p_max): the rows of Psi = A_rr^{-1} A_rPi on D; ``coarse_index``
+    (p_max, n_members): coarse dof of each member's primal column (n_primal: none).
+    """
+
+    psi: np.ndarray
+    coarse_index: np.ndarray
+
+
+@dataclass
+class InterfaceBlocks:
+    """The dense interface blocks (A_rr^{-1})_{DD} on D = r & mask and the coarse coupling on D.
+
+    Either ``coarse`` (one :class:`CoarseBlock` per group of ``blocks``, when Psi on D is shared by
+    the members of each group) or the sparse ``psi`` / ``psi_T`` rows of Psi on D; neither
+    without primal unknowns.
+    """
+
+    blocks: DenseBlocks
+    psi: sp.csr_matrix | None = None
+    psi_T: sp.csr_matrix | None = None
+    coarse: list[CoarseBlock] | None = None
+    coarse_flat: np.ndarray | None = None           # all coarse indices of ``coarse``, group by group
+
+
+class ExplicitInterfaceSolve(InterfaceSolve):
+    """Interface solves with dense blocks (A_rr^{-1})_{DD} = S_DD^{-1} on D = r & mask.
+
+    Formed on first use from the existing factorizations (no new factorization), so one
+    application costs one GEMM per group of the interface size plus the coarse solve.
+    """
+
+    explicit = True
+
+    def __init__(self, solver: PrimalConstrainedSolver, mask: np.ndarray) -> None:
+        super().__init__(solver, mask)
+        self._blocks: InterfaceBlocks | None = None
+
+    @property
+    def blocks(self) -> InterfaceBlocks:
+        """The dense interface blocks (formed on first use)."""
+        if self._blocks is None:
+            self._blocks = self._build_blocks()
+        return self._blocks
+
+    def _build_blocks(self) -> InterfaceBlocks:
+        solver, mask = self.solver, self.mask
         blocks = []
-        coarse: list | None = [] if self.n_primal else None
-        for g in self.rr.groups:
+        coarse: list[CoarseBlock] | None = [] if solver.n_primal else None
+        for g in solver.rr.groups:
             n_loc = g.index.shape[0]
             pattern = mask[g.index]                             # (n_loc, n_members)
-            keys: dict[bytes, list[int]] = {}
+            by_pattern: dict[bytes, list[int]] = {}
             for j in range(pattern.shape[1]):
-                keys.setdefault(pattern[:, j].tobytes(), []).append(j)
-            for members in keys.values():
+                by_pattern.setdefault(pattern[:, j].tobytes(), []).append(j)
+            for members in by_pattern.values():
                 d = np.flatnonzero(pattern[:, members[0]])
                 if d.size == 0:
                     continue
@@ -453,146 +670,195 @@ class PrimalConstrainedSolver:
                 # Psi on D: shared by the members (same template, r set and primal set), with the
                 # coarse dof of each member's primal column (n_primal: none)
                 if coarse is not None:
-                    psi = self.Psi[g.index[d][:, members]]              # (n_d, n_members, p_max)
+                    psi = solver.Psi[g.index[d][:, members]]               # (n_d, n_members, p_max)
                     if np.array_equal(psi, np.broadcast_to(psi[:, :1], psi.shape)):
-                        cc = self.coarse_cols[g.members[members]].T       # (p_max, n_members)
-                        coarse.append((np.ascontiguousarray(psi[:, 0]), np.where(cc >= 0, cc, self.n_primal)))
+                        cc = solver.coarse_cols[g.members[members]].T        # (p_max, n_members)
+                        coarse.append(CoarseBlock(np.ascontiguousarray(psi[:, 0]),
+                                                  np.where(cc >= 0, cc, solver.n_primal)))
                     else:
                         coarse = None
-        db = DenseBlocks(blocks)
-        if not self.n_primal:
-            out = (db, None, None, None)
-        elif coarse is not None:
-            out = (db, None, None, coarse)
-        else:
-            P = self._Psi_global[db.flat].tocsr()
-            out = (db, P, P.T.tocsr(), None)
-        self._iface[id(mask)] = (mask, out)
-        return out
+        dense = DenseBlocks(blocks)
+        if not solver.n_primal:
+            return InterfaceBlocks(dense)
+        if coarse is not None:
+            flat = (np.concatenate([c.coarse_index.ravel() for c in coarse]) if coarse
+                    else np.zeros(0, dtype=np.int64))
+            return InterfaceBlocks(dense, coarse=coarse, coarse_flat=flat)
+        psi_rows = solver.Psi_global[dense.flat].tocsr()
+        return InterfaceBlocks(dense, psi=psi_rows, psi_T=psi_rows.T.tocsr())
 
-    def _coarse_rhs(self, db: DenseBlocks, coarse: list, xs: np.ndarray, b_pi: np.ndarray) -> None:
-        """b_pi -= sum_i R_Pi^T Psi_D^T xs (dense per group), in place; b_pi has n_primal + 1 slots."""
-        parts = []
-        for (A, off, n, n_m, _), (psi, cc) in zip(db.parts, coarse):
-            parts.append((psi.T @ xs[off:off + n * n_m].reshape(n, n_m)).ravel())
-        if parts:
-            b_pi -= np.bincount(self._coarse_index(db, coarse), weights=np.concatenate(parts),
-                                minlength=b_pi.size)
-
-    @staticmethod
-    def _coarse_index(db: DenseBlocks, coarse: list) -> np.ndarray:
-        if not hasattr(db, "_cc_flat"):
-            db._cc_flat = np.concatenate([cc.ravel() for _, cc in coarse])
-        return db._cc_flat
-
-    @staticmethod
-    def _coarse_correct(db: DenseBlocks, coarse: list, ys: np.ndarray, u_ext: np.ndarray) -> None:
-        """ys -= Psi_D u_Pi (dense per group), in place; u_ext has a zero in slot n_primal."""
-        for (A, off, n, n_m, _), (psi, cc) in zip(db.parts, coarse):
-            out = ys[off:off + n * n_m].reshape(n, n_m)
-            out -= psi @ u_ext[cc]
-
-    def _coarse_step(self, blocks: tuple, bs: np.ndarray, xs: np.ndarray, b_pi: np.ndarray) -> np.ndarray:
+    def coarse_step(self, bs: np.ndarray, xs: np.ndarray, b_pi: np.ndarray) -> np.ndarray:
         """The coarse part of A~^{-1} on the interface blocks (shared by the two interface solves).
 
         ``bs``: the right-hand side on the blocks' entries; ``xs``: A_rr^{-1} of it there, corrected
         in place by -Psi u_Pi; ``b_pi`` (n_primal + 1,): the primal right-hand side (last slot a
         sink). Returns u_Pi with a trailing zero (``u_ext``).
         """
-        db, P, PT, coarse = blocks
-        if coarse is not None:
-            self._coarse_rhs(db, coarse, bs, b_pi)
+        solver, iface_blocks = self.solver, self.blocks
+        dense = iface_blocks.blocks
+        if iface_blocks.coarse is not None:       # b_pi -= sum_i R_Pi^T Psi_D^T bs (dense per group)
+            parts = []
+            for (A, off, n, n_m, _), coarse_block in zip(dense.parts, iface_blocks.coarse):
+                parts.append((coarse_block.psi.T @ bs[off:off + n * n_m].reshape(n, n_m)).ravel())
+            if parts:
+                b_pi -= np.bincount(iface_blocks.coarse_flat, weights=np.concatenate(parts), minlength=b_pi.size)
         else:
-            b_pi[:-1] -= PT @ bs
+            b_pi[:-1] -= iface_blocks.psi_T @ bs
         b_pi = b_pi[:-1]
-        b_pi[self.pinned] = 0.0
-        u_ext = np.append(self.coarse.solve(b_pi), 0.0)
-        if coarse is not None:
-            self._coarse_correct(db, coarse, xs, u_ext)
+        b_pi[solver.pinned] = 0.0
+        u_ext = np.append(solver.coarse.solve(b_pi), 0.0)
+        if iface_blocks.coarse is not None:       # xs -= Psi_D u_Pi (dense per group)
+            for (A, off, n, n_m, _), coarse_block in zip(dense.parts, iface_blocks.coarse):
+                out = xs[off:off + n * n_m].reshape(n, n_m)
+                out -= coarse_block.psi @ u_ext[coarse_block.coarse_index]
         else:
-            xs -= P @ u_ext[:-1]
+            xs -= iface_blocks.psi @ u_ext[:-1]
         return u_ext
 
-    def space_solve(self, r: np.ndarray, space, weights: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """gather_w(A~^{-1} scatter_w(r)) in a space of continuous values on an interface.
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        solver = self.solver
+        dense = self.blocks.blocks
+        bs = b[dense.flat]
+        xs = dense.apply(bs)
+        x = np.zeros(solver.sub.n_W)
+        if solver.n_primal:
+            b_pi = np.bincount(solver.coarse_of_W[solver.primal], weights=b[solver.primal],
+                               minlength=solver.n_primal + 1)
+            u_ext = self.coarse_step(bs, xs, b_pi)
+            x[solver.primal] = u_ext[solver.coarse_of_W[solver.primal]]
+        x[dense.flat] = xs
+        return np.where(self.mask, x, 0.0)
 
-        scatter_w puts ``weights * r[pos]`` on the W positions ``space.idx``,
-        gather_w sums ``weights`` times the copies (R_D^T A~^{-1} R_D of BDDC
-        when ``weights`` are the delta-dagger scalings). ``space`` (with
-        ``idx``, ``pos``, ``n``, see :meth:`DirichletSchur.space_matvec`) must
-        lie in ``mask``, an interface (see :meth:`solve_interface`); no W
-        vector is formed.
+    def space_operator(self, space, weights: np.ndarray) -> ExplicitSpaceSolve:
+        solver = self.solver
+        dense = self.blocks.blocks
+        look = np.full(solver.sub.n_W, -1, dtype=np.int64)
+        look[space.idx] = np.arange(space.idx.size)
+        ent = look[dense.flat]
+        sel = np.flatnonzero(ent >= 0)
+        index_in = np.full(dense.flat.size, space.n, dtype=np.int64)
+        index_in[sel] = space.pos[ent[sel]]
+        weight_in = np.zeros(dense.flat.size)
+        weight_in[sel] = weights[ent[sel]]
+        primal_entries = look[np.flatnonzero(solver.primal)]
+        primal_entries = primal_entries[primal_entries >= 0]
+        # entries outside the space carry weight 0 and land in the extra slot space.n
+        return ExplicitSpaceSolve(interface=self, n=space.n, index_in=index_in, weight_in=weight_in,
+                                  primal_pos=space.pos[primal_entries], primal_weight=weights[primal_entries],
+                                  primal_coarse=solver.coarse_of_W[space.idx[primal_entries]])
 
-        Returns
-        -------
-        ndarray, shape (space.n,)
-        """
-        if not self._explicit_interface(mask):             # scatter, the implicit solve, gather
-            w = np.zeros(self.sub.n_W)
-            w[space.idx] = weights * r[space.pos]
-            x = self.solve(w)
-            return np.bincount(space.pos, weights=weights * x[space.idx], minlength=space.n)
-        key = (id(space), id(weights), id(mask))
-        hit = self._space_ops.get(key)
-        if hit is None or hit[0][0] is not space or hit[0][1] is not weights or hit[0][2] is not mask:
-            hit = ((space, weights, mask), self._build_space_solve(space, weights, mask))
-            self._space_ops[key] = hit
-        db, P, PT, coarse, cin, win, pp, pw, pc = hit[1]
+
+@dataclass
+class ExplicitSpaceSolve:
+    """gather_w(A~^{-1} scatter_w(r)) on compact index maps (see :meth:`InterfaceSolve.space_operator`).
+
+    Attributes
+    ----------
+    interface : ExplicitInterfaceSolve
+    n : int
+        Dimension of the space.
+    index_in : ndarray of int, shape (blocks.size,)
+        Space index of every block entry (``n`` outside the space).
+    weight_in : ndarray, shape (blocks.size,)
+        Weight of every block entry (0 outside the space).
+    primal_pos, primal_weight, primal_coarse : ndarray, shape (n_primal_entries,)
+        Space index, weight and coarse dof of the primal entries in the space.
+    """
+
+    interface: ExplicitInterfaceSolve
+    n: int
+    index_in: np.ndarray
+    weight_in: np.ndarray
+    primal_pos: np.ndarray
+    primal_weight: np.ndarray
+    primal_coarse: np.ndarray
+
+    def apply(self, r: np.ndarray) -> np.ndarray:
+        iface = self.interface
+        solver = iface.solver
         r_ext = np.concatenate([r, np.zeros(1)])
-        xs = r_ext[cin]
-        xs *= win
-        ys = db.apply(xs)
+        xs = r_ext[self.index_in]
+        xs *= self.weight_in
+        ys = iface.blocks.blocks.apply(xs)
         out = None
-        if self.n_primal:
-            b_pi = np.bincount(pc, weights=r[pp] * pw, minlength=self.n_primal + 1)
-            u_ext = self._coarse_step((db, P, PT, coarse), xs, ys, b_pi)
-            out = np.bincount(pp, weights=u_ext[pc] * pw, minlength=space.n)
-        ys *= win
-        y = np.bincount(cin, weights=ys, minlength=space.n + 1)[:-1]      # slot space.n: outside
+        if solver.n_primal:
+            b_pi = np.bincount(self.primal_coarse, weights=r[self.primal_pos] * self.primal_weight,
+                               minlength=solver.n_primal + 1)
+            u_ext = iface.coarse_step(xs, ys, b_pi)
+            out = np.bincount(self.primal_pos, weights=u_ext[self.primal_coarse] * self.primal_weight,
+                              minlength=self.n)
+        ys *= self.weight_in
+        y = np.bincount(self.index_in, weights=ys, minlength=self.n + 1)[:-1]      # slot n: outside
         return y if out is None else y + out
 
-    def _build_space_solve(self, space, weights, mask):
-        db, P, PT, coarse = self._interface_blocks(mask)
-        look = np.full(self.sub.n_W, -1, dtype=np.int64)
-        look[space.idx] = np.arange(space.idx.size)
-        ent = look[db.flat]
-        sel = np.flatnonzero(ent >= 0)
-        cin = np.full(db.flat.size, space.n, dtype=np.int64)
-        cin[sel] = space.pos[ent[sel]]
-        win = np.zeros(db.flat.size)
-        win[sel] = weights[ent[sel]]
-        pe = look[np.flatnonzero(self.primal)]
-        pw_ent = pe[pe >= 0]
-        pp = space.pos[pw_ent]
-        pw = weights[pw_ent]
-        pc = self.coarse_of_W[space.idx[pw_ent]]
-        # entries outside the space carry weight 0 and land in the extra slot space.n
-        return db, P, PT, coarse, cin, win, pp, pw, pc
 
-    def solve_interface(self, b: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """:meth:`solve` for a right-hand side supported on ``mask`` (zero on every other entry),
-        returning the solution on ``mask`` only (zero elsewhere).
+class PairJump:
+    """A jump operator between pairs of entries of one vector space, given by index arrays.
 
-        ``mask`` (an interface: every interior entry of the subdomains is
-        outside it) must be a persistent array, the cache key. Uses explicit
-        dense blocks (A_rr^{-1})_{DD} = S_DD^{-1} on D = r & mask, formed on
-        first use from the existing factorizations (no new factorization), so
-        one application costs one GEMM per group of the interface size, where that
-        pays off (:meth:`_explicit_interface`; otherwise :meth:`solve`).
-        """
-        if not self._explicit_interface(mask):
-            return np.where(mask, self.solve(np.where(mask, b, 0.0)), 0.0)
-        blocks = self._interface_blocks(mask)
-        db = blocks[0]
-        bs = b[db.flat]
-        xs = db.apply(bs)
-        x = np.zeros(self.sub.n_W)
-        if self.n_primal:
-            b_pi = np.bincount(self.coarse_of_W[self.primal], weights=b[self.primal], minlength=self.n_primal + 1)
-            u_ext = self._coarse_step(blocks, bs, xs, b_pi)
-            x[self.primal] = u_ext[self.coarse_of_W[self.primal]]
-        x[db.flat] = xs
-        return np.where(mask, x, 0.0)
+    Row k of B is ``+c1_k`` at entry ``first[k]`` and ``-c2_k`` at entry ``second[k]``:
+    the jump (B u)_k = u_first - u_second (coefficients None), or a scaled jump B_D with
+    each copy weighted by the other copy's weight (the delta-dagger / rho scaling of
+    Section 2.5 at the level of bodies, ``coef_first`` = weight of the second copy).
+
+    Parameters
+    ----------
+    first, second : ndarray of int, shape (n_rows,)
+        Entry of the first and of the second copy of every pair.
+    n : int
+        Dimension of the vector space the entries index.
+    coef_first, coef_second : ndarray, shape (n_rows,), optional
+        Coefficients of the two copies (None: 1).
+    """
+
+    def __init__(self, first: np.ndarray, second: np.ndarray, n: int,
+                 coef_first: np.ndarray | None = None, coef_second: np.ndarray | None = None) -> None:
+        self.first, self.second, self.n = first, second, int(n)
+        self.coef_first, self.coef_second = coef_first, coef_second
+        self.shape = (first.size, self.n)
+
+    def matvec(self, u: np.ndarray) -> np.ndarray:
+        """B u, shape (n,) -> (n_rows,)."""
+        if self.coef_first is None:
+            return u[self.first] - u[self.second]
+        return self.coef_first * u[self.first] - self.coef_second * u[self.second]
+
+    def rmatvec(self, lam: np.ndarray) -> np.ndarray:
+        """B^T lam, shape (n_rows,) -> (n,)."""
+        if self.coef_first is None:
+            return (np.bincount(self.first, weights=lam, minlength=self.n)
+                    - np.bincount(self.second, weights=lam, minlength=self.n))
+        return (np.bincount(self.first, weights=self.coef_first * lam, minlength=self.n)
+                - np.bincount(self.second, weights=self.coef_second * lam, minlength=self.n))
+
+
+def scaled_jump(B_D, schur):
+    """The Dirichlet preconditioner pattern lam -> B_D S B_D^T lam (Section 2.5).
+
+    Used for the FETI/FETI-DP/FETI-FETI preconditioner M_D^{-1} = B_D S B_D^T, the
+    multiplier block Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z of the hybrid's (4.11)
+    and the preconditioner B^_D S^_c B^_D^T of the active set method (Chapter 5).
+
+    Parameters
+    ----------
+    B_D : sparse matrix or :class:`PairJump`, shape (n_lambda, n)
+        Scaled jump operator.
+    schur : callable
+        (n,) -> (n,): the (possibly inexact) Schur complement S.
+
+    Returns
+    -------
+    callable
+        (n_lambda,) -> (n_lambda,).
+    """
+    if sp.issparse(B_D):
+        B_DT = B_D.T.tocsr()
+
+        def apply(lam: np.ndarray) -> np.ndarray:
+            return B_D @ schur(B_DT @ lam)
+    else:
+        def apply(lam: np.ndarray) -> np.ndarray:
+            return B_D.matvec(schur(B_D.rmatvec(lam)))
+    return apply
 
 
 def linear_operator(n: int, matvec) -> spla.LinearOperator:

@@ -47,28 +47,28 @@ class FetiFetiSolver:
         self.sub, self.gi = sub, gi
         cache: dict = {}
         self.floating = gi.floating_bodies()
-        self.At = PrimalConstrainedSolver(sub, sub.vertex, cache, fixed_bodies=self.floating)
+        self.primal_solver = PrimalConstrainedSolver(sub, sub.vertex, cache, fixed_bodies=self.floating)
         self.B_loc, self.B_loc_D = sub.jump_operators(sub.interface & ~sub.vertex)
         self.schur = DirichletSchur(sub, sub.interface | gi.mask, cache)
-        self.n_factorizations = self.At.n_factorizations + self.schur.II.n_new_factorizations
+        self.n_factorizations = self.primal_solver.n_factorizations + self.schur.II.n_new_factorizations
         # representative copy of every entry: primal copies -> designated (first) copy of the node
         first = np.full(sub.scene.n_nodes, -1)
         nodes, idx = np.unique(sub.node_of_W, return_index=True)
         first[nodes] = idx
-        self.rep = np.where(sub.vertex, first[sub.node_of_W], np.arange(sub.n_W))
+        self.representative = np.where(sub.vertex, first[sub.node_of_W], np.arange(sub.n_W))
         # kernel: constants on every W entry of each floating body
         body = sub.body_of_sub[sub.sub_of_W]
         col = np.full(sub.scene.n_bodies, -1)
         col[self.floating] = np.arange(self.floating.size)
         ent = np.flatnonzero(col[body] >= 0)
         self.R = sp.csr_matrix((np.ones(ent.size), (ent, col[body[ent]])), shape=(sub.n_W, self.floating.size))
-        self.d_full = self.At.solve(sub.f_W)
+        self.d_full = self.primal_solver.solve(sub.f_W)
         self.setup_seconds = time.perf_counter() - t0
 
     def _tilde_schur(self, w: np.ndarray) -> np.ndarray:
         """S~ w on W~_Gamma: copy primal values to all subdomain copies, apply S, sum the copies back."""
-        y = self.schur.matvec(w[self.rep])
-        return np.bincount(self.rep, weights=y, minlength=self.sub.n_W)
+        y = self.schur.matvec(w[self.representative])
+        return np.bincount(self.representative, weights=y, minlength=self.sub.n_W)
 
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
               lam0: np.ndarray | None = None) -> MethodOutput:
@@ -94,7 +94,7 @@ class FetiFetiSolver:
         B_D = sp.vstack([self.B_loc_D, B_gl_D]).tocsr()
         BT = B.T.tocsr()
 
-        F, M = dual_operators(B, B_D, self.At.solve, self._tilde_schur)
+        F, M = dual_operators(B, B_D, self.primal_solver.solve, self._tilde_schur)
         d = B @ self.d_full
         G = e = None
         if self.floating.size:
@@ -103,7 +103,7 @@ class FetiFetiSolver:
         q = None if sub.scaling == "multiplicity" else B_D.multiply(B_D) @ sub.rho[sub.sub_of_W]
         setup = time.perf_counter() - t0
         sol = solve_dual(F, M, d, G, e, q, rtol=rtol, maxiter=maxiter, cond=cond, lam0=lam0)
-        u_W = self.At.solve(sub.f_W - BT @ sol.lam)
+        u_W = self.primal_solver.solve(sub.f_W - BT @ sol.lam)
         if sol.alpha is not None:
             u_W = u_W + self.R @ sol.alpha
         n_loc = self.B_loc.shape[0]

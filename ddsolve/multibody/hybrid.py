@@ -43,11 +43,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.linalg as la
 import scipy.sparse as sp
 
 from ..dd.common import MethodOutput
-from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
+from ..dd.operators import DirichletSchur, PairJump, PrimalConstrainedSolver, linear_operator, scaled_jump
+from ..dd.projection import Projection
 from ..dd.substructure import Substructures
 from ..krylov import pcr
 from ..krylov.pcr import NORMS
@@ -56,7 +56,7 @@ from .interface import GlobalInterface
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HybridSolver", "PROJECTIONS", "NORMS"]
+__all__ = ["ActiveSet", "HybridSolver", "InterfaceSpace", "PROJECTIONS", "NORMS"]
 
 #: Projections onto V^k = ker(G^kT): ``"orthogonal"`` is P^k of Section 4.2;
 #: ``"dirichlet"`` and ``"lumped"`` are Q-weighted (FETI's P = I - QG(G^T Q G)^{-1} G^T)
@@ -64,7 +64,7 @@ __all__ = ["HybridSolver", "PROJECTIONS", "NORMS"]
 from ..options import PROJECTIONS  # noqa: E402
 
 
-class _Space:
+class InterfaceSpace:
     """A space of continuous (per body) nodal values on a subset of W entries.
 
     Parameters
@@ -84,6 +84,8 @@ class _Space:
         Global dof of each compact index (sorted).
     n : int
         Dimension of the space.
+    key : tuple
+        Cache key (index bytes) of the operators built on the space.
     """
 
     def __init__(self, sub: Substructures, mask: np.ndarray) -> None:
@@ -92,6 +94,8 @@ class _Space:
         self.dofs = np.unique(sub.l2g[self.idx])
         self.pos = np.searchsorted(self.dofs, sub.l2g[self.idx])
         self.n = int(self.dofs.size)
+        #: cache key of the space for the operators handed out on it (its index bytes)
+        self.key = (self.idx.tobytes(), self.pos.tobytes(), self.n)
 
     def scatter(self, v: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
         """W vector holding v (times ``weights`` of the entries) on every copy, zero elsewhere."""
@@ -106,20 +110,39 @@ class _Space:
 
 
 @dataclass
-class _ActiveSet:
-    """Objects of one active set Z^k (no factorizations): index arrays and G^kT G^k."""
+class ActiveSet:
+    """Objects of one active set Z^k (no factorizations): jump operators, G^k and its projection.
 
-    active: np.ndarray          # (n_gl,) bool
-    ia: np.ndarray              # (n_act,) u_Gamma index of the first copy of each active pair
-    ib: np.ndarray              # (n_act,) u_Gamma index of the second copy
-    da: np.ndarray              # (n_act,) GL-space index of the designated entry a
-    db: np.ndarray              # (n_act,) GL-space index of the designated entry b
-    wa: np.ndarray              # (n_act,) body-level weight of a (multiplies the entry of b in B_D)
-    wb: np.ndarray              # (n_act,) body-level weight of b
-    G: sp.csr_matrix            # (n_act, n_float) G^k = Z B^ R_c
-    GtG_chol: Any               # Cholesky factor of G^kT G^k (n_float x n_float) or None
-    # Q-weighted projections by kind: (Q G^k dense (n_act, n_float), ("cho" | "lu", factor of G^kT Q G^k))
+    Attributes
+    ----------
+    active : ndarray of bool, shape (n_gl,)
+        The diagonal of Z^k.
+    jump : PairJump, shape (n_act, n_gamma)
+        Z B^_{Gamma,c}: (B u)_k = u_a - u_b on the u_Gamma copies a, b of active pair k.
+    scaled_jump_gamma : PairJump, shape (n_act, n_gamma)
+        Z B^_{Gamma,c,D}: the entry of copy a multiplied by the body weight of b and vice versa.
+    scaled_jump_global : PairJump, shape (n_act, n_GL)
+        Z B_{Gamma_OL,D}: the same on the global-interface space (the entries of (4.11)).
+    G : sparse matrix, shape (n_act, n_float)
+        G^k = Z B^ R_c.
+    projection : Projection
+        P^k = I - G^k (G^kT G^k)^{-1} G^kT (Section 4.2); the identity without floating bodies.
+    weighted : dict
+        Q-weighted projections by kind (``"dirichlet"``, ``"lumped"``), built on demand.
+    """
+
+    active: np.ndarray
+    jump: PairJump
+    scaled_jump_gamma: PairJump
+    scaled_jump_global: PairJump
+    G: sp.csr_matrix
+    projection: Projection
     weighted: dict = field(default_factory=dict)
+
+    @property
+    def n_active(self) -> int:
+        """Number of active multipliers."""
+        return int(self.jump.first.size)
 
 
 class HybridSolver:
@@ -162,54 +185,60 @@ class HybridSolver:
         t0 = time.perf_counter()
         self.sub = sub
         self.gi = gi
-        self._cache: dict = {}
-        gam_mask = sub.interface | gi.mask
-        self.gam = _Space(sub, gam_mask)            # u_Gamma
-        self.gl = _Space(sub, gi.mask)              # Gamma_OL (global interface)
-        self.g0 = _Space(sub, sub.interface & ~gi.mask)   # Gamma_0 (local interface)
-        self.n_gamma = self.gam.n
+        self.factorization_cache: dict = {}
+        gamma_mask = sub.interface | gi.mask
+        self.gamma_space = InterfaceSpace(sub, gamma_mask)                  # u_Gamma
+        self.global_space = InterfaceSpace(sub, gi.mask)                    # Gamma_OL (global interface)
+        self.local_space = InterfaceSpace(sub, sub.interface & ~gi.mask)    # Gamma_0 (local interface)
+        self.n_gamma = self.gamma_space.n
 
         # S^_c through subdomain Dirichlet solves (interior = ~Gamma); the same
         # interior factorizations serve A_II^(i,j)^{-1} in (4.9)-(4.10).
-        self.schur = DirichletSchur(sub, gam_mask, self._cache)
+        self.schur = DirichletSchur(sub, gamma_mask, self.factorization_cache)
         self.floating = np.asarray(gi.floating_bodies(), dtype=np.int64)
         # M_BDDC: A~ of every body, vertices primal, floating bodies pinned (S~^dagger).
-        self.At = PrimalConstrainedSolver(sub, sub.vertex, self._cache, fixed_bodies=self.floating)
+        self.body_solver = PrimalConstrainedSolver(sub, sub.vertex, self.factorization_cache, fixed_bodies=self.floating)
         # S~_Gamma0^{-1} of (4.10): global-interface nodes held at zero (no floating body).
-        self.At0 = PrimalConstrainedSolver(sub, sub.vertex, self._cache, exclude=gi.mask)
-        self.n_factorizations = (self.schur.II.n_new_factorizations + self.At.n_factorizations
-                                 + self.At0.n_factorizations)
+        self.local_interface_solver = PrimalConstrainedSolver(sub, sub.vertex, self.factorization_cache, exclude=gi.mask)
+        self.n_factorizations = (self.schur.II.n_new_factorizations + self.body_solver.n_factorizations
+                                 + self.local_interface_solver.n_factorizations)
         self._reported = False
+        # interface restrictions of the two primal-constrained solvers (explicit dense blocks where they
+        # pay off) and their operators on u_Gamma and Gamma_0, built on first use
+        self._bddc_space_solve = None
+        self._local_space_solve = None
 
-        self.delta_gam = sub.delta[self.gam.idx]
+        self.delta_gamma = sub.delta[self.gamma_space.idx]
         # diagonal of the body stiffness on the global interface (sum of the subdomain copies)
-        self._K_gl_diag = self.gl.gather(sub.K_W.diagonal())
-        self.delta_g0 = sub.delta[self.g0.idx]
+        self._K_global_diag = self.global_space.gather(sub.K_W.diagonal())
+        self.delta_local = sub.delta[self.local_space.idx]
 
         # body of every u_Gamma dof; R_c columns (constants on floating bodies)
         body_of_entry = sub.body_of_sub[sub.sub_of_W]
-        body_gam = np.zeros(self.gam.n, dtype=np.int64)
-        body_gam[self.gam.pos] = body_of_entry[self.gam.idx]
-        self.body_gam = body_gam
-        col = np.full(sub.scene.n_bodies, -1)
-        col[self.floating] = np.arange(self.floating.size)
-        self._col_of_body = col
-        self._rc_col = col[body_gam]                           # (n_gamma,) column or -1
-        self._rc_count = np.bincount(self._rc_col[self._rc_col >= 0], minlength=self.floating.size)
+        body_of_gamma = np.zeros(self.gamma_space.n, dtype=np.int64)
+        body_of_gamma[self.gamma_space.pos] = body_of_entry[self.gamma_space.idx]
+        self.body_of_gamma = body_of_gamma
+        column = np.full(sub.scene.n_bodies, -1)
+        column[self.floating] = np.arange(self.floating.size)
+        self._column_of_body = column
+        #: (n_gamma,) column of R_c of every u_Gamma dof (its floating body), -1 on clamped bodies
+        self.kernel_column = column[body_of_gamma]
+        self._kernel_count = np.bincount(self.kernel_column[self.kernel_column >= 0],
+                                         minlength=self.floating.size)
 
         # global multipliers in the u_Gamma and GL index spaces
         pair_dofs = sub.dof_of_node[gi.pair_nodes]           # (n_gl, 2)
-        self._pair_gam = np.searchsorted(self.gam.dofs, pair_dofs)
-        self._pair_gl = np.searchsorted(self.gl.dofs, pair_dofs)
-        self._pair_w = gi.weight[gi.pairs]                    # (n_gl, 2) weights of a and b
+        self._pair_gamma = np.searchsorted(self.gamma_space.dofs, pair_dofs)
+        self._pair_global = np.searchsorted(self.global_space.dofs, pair_dofs)
+        self._pair_weight = gi.weight[gi.pairs]               # (n_gl, 2) weights of a and b
         self._pair_body = body_of_entry[gi.pairs]             # (n_gl, 2)
-        if not (np.array_equal(self.gam.dofs[self._pair_gam], pair_dofs)
-                and np.array_equal(self.gl.dofs[self._pair_gl], pair_dofs)):
+        if not (np.array_equal(self.gamma_space.dofs[self._pair_gamma], pair_dofs)
+                and np.array_equal(self.global_space.dofs[self._pair_global], pair_dofs)):
             raise ValueError("global multipliers act on dofs outside the global interface")
 
         # condensed load g^_c = R^T (f_Gamma - A_GI A_II^{-1} f_I)
-        self.g_hat = self.gam.gather(self.schur.harmonic_extension_rhs(sub.f_W))
-        self._active_cache: dict[bytes, _ActiveSet] = {}
+        self.g_hat = self.gamma_space.gather(self.schur.harmonic_extension_rhs(sub.f_W))
+        self._active_cache: dict[bytes, ActiveSet] = {}
         self.setup_seconds = time.perf_counter() - t0
         log.info("hybrid setup: n_gamma=%d, n_gl=%d, %d floating bodies, %d factorizations, %.3g s",
                  self.n_gamma, gi.n_gl, self.floating.size, self.n_factorizations, self.setup_seconds)
@@ -217,7 +246,7 @@ class HybridSolver:
     # ----------------------------------------------------------- operators
     def S_hat(self, u: np.ndarray) -> np.ndarray:
         """S^_c u, the per-body assembled Schur complement, shape (n_gamma,) -> (n_gamma,)."""
-        return self.schur.space_matvec(u, self.gam, self.gam)
+        return self.schur.space_matvec(u, self.gamma_space, self.gamma_space)
 
     def M_bddc(self, r: np.ndarray) -> np.ndarray:
         """M_BDDC^{-1} r = R_D^T S~^dagger R_D r on every body, shape (n_gamma,) -> (n_gamma,).
@@ -225,17 +254,26 @@ class HybridSolver:
         R_D scales the subdomain copies by delta-dagger (within the body); the
         primal copies are summed inside :class:`PrimalConstrainedSolver`.
         """
-        return self.At.space_solve(r, self.gam, self.delta_gam, self.schur.gamma)
+        if self._bddc_space_solve is None:
+            self._bddc_space_solve = (self.body_solver.interface(self.schur.gamma)
+                                      .space_operator(self.gamma_space, self.delta_gamma))
+        return self._bddc_space_solve.apply(r)
 
     def P_R(self, u: np.ndarray) -> np.ndarray:
         """P_R = I - R_c (R_c^T R_c)^{-1} R_c^T: remove the mean on every floating body."""
         if self.floating.size == 0:
             return u
-        on = self._rc_col >= 0
-        mean = np.bincount(self._rc_col[on], weights=u[on], minlength=self.floating.size) / self._rc_count
+        on = self.kernel_column >= 0
+        mean = (np.bincount(self.kernel_column[on], weights=u[on], minlength=self.floating.size)
+                / self._kernel_count)
         out = u.copy()
-        out[on] -= mean[self._rc_col[on]]
+        out[on] -= mean[self.kernel_column[on]]
         return out
+
+    def kernel_load(self) -> np.ndarray:
+        """e = R_c^T g^_c, shape (n_float,): G^kT lambda_0 = e fixes the multipliers' kernel part."""
+        on = self.kernel_column >= 0
+        return np.bincount(self.kernel_column[on], weights=self.g_hat[on], minlength=self.floating.size)
 
     def inexact_interior_solve(self, t: np.ndarray) -> np.ndarray:
         """A~_II^{-1} of (4.9)-(4.10) on every body, global-interface nodes held at zero.
@@ -254,9 +292,10 @@ class HybridSolver:
         """
         y = self.schur.II.solve(t)                              # A_II^(j)^{-1} b_I^(j)
         s = t - self.sub.K_W @ y                                # b_Gamma0 - A_Gamma0I A_II^{-1} b_I (per copy)
-        r0 = self.g0.gather(s)                                  # condensed residual of (4.10), assembled
-        x0 = self.g0.gather(self.At0.solve(self.g0.scatter(r0, self.delta_g0)), self.delta_g0)
-        xw = self.g0.scatter(x0)                                # x~_Gamma0 on all copies
+        r0 = self.local_space.gather(s)                         # condensed residual of (4.10), assembled
+        x0 = self.local_space.gather(self.local_interface_solver.solve(self.local_space.scatter(r0, self.delta_local)),
+                                     self.delta_local)
+        xw = self.local_space.scatter(x0)                       # x~_Gamma0 on all copies
         return y - self.schur.II.solve(self.sub.K_W @ xw) + xw  # (4.9)
 
     def S_ol(self, v: np.ndarray) -> np.ndarray:
@@ -276,13 +315,16 @@ class HybridSolver:
         # interface and x~_Gamma0 = M_0^{-1} (S w)_Gamma0, M_0^{-1} the primal-constrained solve of
         # (4.10) on the interface: the same operator as A_GG - A_GI A~_II^{-1} A_IG with A~_II^{-1}
         # of (4.9) (:meth:`inexact_interior_solve`), without interior solves when S is explicit.
-        r0 = self.schur.space_matvec(v, self.gl, self.g0)
-        x0 = self.At0.space_solve(r0, self.g0, self.delta_g0, self.schur.gamma)
-        return self.schur.space_matvec((v, -x0), (self.gl, self.g0), self.gl)
+        r0 = self.schur.space_matvec(v, self.global_space, self.local_space)
+        if self._local_space_solve is None:
+            self._local_space_solve = (self.local_interface_solver.interface(self.schur.gamma)
+                                       .space_operator(self.local_space, self.delta_local))
+        x0 = self._local_space_solve.apply(r0)
+        return self.schur.space_matvec((v, -x0), (self.global_space, self.local_space), self.global_space)
 
     # ------------------------------------------------------------ active set
-    def active_set(self, active: np.ndarray) -> _ActiveSet:
-        """Index arrays, G^k and the Cholesky factor of G^kT G^k for the mask Z^k (cached).
+    def active_set(self, active: np.ndarray) -> ActiveSet:
+        """Jump operators, G^k and the projection P^k for the mask Z^k (cached by the mask bytes).
 
         Raises
         ------
@@ -298,131 +340,82 @@ class HybridSolver:
         hit = self._active_cache.get(key)
         if hit is not None:
             return hit
-        ia, ib = self._pair_gam[active, 0], self._pair_gam[active, 1]
-        n_act = ia.size
-        nf = self.floating.size
-        ca = self._col_of_body[self._pair_body[active, 0]]
-        cb = self._col_of_body[self._pair_body[active, 1]]
-        rows = np.r_[np.flatnonzero(ca >= 0), np.flatnonzero(cb >= 0)]
-        cols = np.r_[ca[ca >= 0], cb[cb >= 0]]
-        vals = np.r_[np.ones(int((ca >= 0).sum())), -np.ones(int((cb >= 0).sum()))]
-        G = sp.csr_matrix((vals, (rows, cols)), shape=(n_act, nf))
-        chol = None
-        if nf:
-            GtG = (G.T @ G).toarray()
-            ev = np.linalg.eigvalsh(GtG)
-            if ev.min() <= 1e-10 * max(ev.max(), 1.0):
-                raise ValueError("G^T G is singular: some floating body is not tied to a clamped "
-                                 "body by active multipliers")
-            chol = la.cho_factor(GtG)
-        aset = _ActiveSet(active=active.copy(), ia=ia, ib=ib,
-                          da=self._pair_gl[active, 0], db=self._pair_gl[active, 1],
-                          wa=self._pair_w[active, 0], wb=self._pair_w[active, 1],
-                          G=G, GtG_chol=chol)
+        first_gamma, second_gamma = self._pair_gamma[active, 0], self._pair_gamma[active, 1]
+        weight_first, weight_second = self._pair_weight[active, 0], self._pair_weight[active, 1]
+        n_act = first_gamma.size
+        n_float = self.floating.size
+        column_first = self._column_of_body[self._pair_body[active, 0]]
+        column_second = self._column_of_body[self._pair_body[active, 1]]
+        rows = np.r_[np.flatnonzero(column_first >= 0), np.flatnonzero(column_second >= 0)]
+        cols = np.r_[column_first[column_first >= 0], column_second[column_second >= 0]]
+        vals = np.r_[np.ones(int((column_first >= 0).sum())), -np.ones(int((column_second >= 0).sum()))]
+        G = sp.csr_matrix((vals, (rows, cols)), shape=(n_act, n_float))
+        projection = Projection(G, singular_tol=1e-10,
+                                singular_message="G^T G is singular: some floating body is not tied to a "
+                                                 "clamped body by active multipliers")
+        n_gamma, n_global = self.gamma_space.n, self.global_space.n
+        aset = ActiveSet(
+            active=active.copy(),
+            jump=PairJump(first_gamma, second_gamma, n_gamma),
+            # B_D: the entry of copy a is multiplied by the weight of b and vice versa
+            scaled_jump_gamma=PairJump(first_gamma, second_gamma, n_gamma, weight_second, weight_first),
+            scaled_jump_global=PairJump(self._pair_global[active, 0], self._pair_global[active, 1], n_global,
+                                        weight_second, weight_first),
+            G=G, projection=projection)
         if len(self._active_cache) > 16:
             self._active_cache.clear()
         self._active_cache[key] = aset
         return aset
 
-    @staticmethod
-    def _B(a: _ActiveSet, u: np.ndarray) -> np.ndarray:
-        """Z B^_{Gamma,c} u, shape (n_gamma,) -> (n_act,)."""
-        return u[a.ia] - u[a.ib]
+    def projection(self, a: ActiveSet, kind: str = "orthogonal") -> Projection:
+        """The projection onto V^k = ker(G^kT) of the given kind (cached on ``a``).
 
-    def _BT(self, a: _ActiveSet, lam: np.ndarray) -> np.ndarray:
-        """(Z B^_{Gamma,c})^T lam, shape (n_act,) -> (n_gamma,)."""
-        n = self.gam.n
-        return np.bincount(a.ia, weights=lam, minlength=n) - np.bincount(a.ib, weights=lam, minlength=n)
-
-    @staticmethod
-    def _GtG_solve(a: _ActiveSet, x: np.ndarray) -> np.ndarray:
-        return la.cho_solve(a.GtG_chol, x)
-
-    def _P(self, a: _ActiveSet, lam: np.ndarray) -> np.ndarray:
-        """P^k = I - G (G^T G)^{-1} G^T, shape (n_act,) -> (n_act,)."""
-        if a.GtG_chol is None:
-            return lam
-        return lam - a.G @ self._GtG_solve(a, a.G.T @ lam)
-
-    def _weighted(self, a: _ActiveSet, kind: str) -> tuple[np.ndarray, Any] | None:
-        """(Q G^k, factor of G^kT Q G^k) of a Q-weighted projection (cached on ``a``).
-
-        None for ``"orthogonal"`` or without floating bodies. ``"dirichlet"``:
-        Q = M_D^{-1} of (4.11) (one application per floating body);
+        ``"orthogonal"`` (or no floating bodies): P^k = ``a.projection`` of Section 4.2.
+        ``"dirichlet"``: Q = M_D^{-1} of (4.11) (one application per floating body);
         ``"lumped"``: Q = Z B_{Gamma_OL,D} diag(K_GG) B_{Gamma_OL,D}^T Z, the
         super-lumped variant (diagonal of the stiffness on the global
-        interface instead of S~_OL; no solves).
+        interface instead of S~_OL; no solves). See :class:`~ddsolve.dd.projection.Projection`.
 
         Raises
         ------
         ValueError
-            If G^kT Q G^k is singular. An indefinite one (Q = M_D^{-1} not
-            positive definite) is factored by LU, with a warning.
+            For an unknown kind, or if G^kT Q G^k is singular. An indefinite one
+            (Q = M_D^{-1} not positive definite) is factored by LU, with a warning.
         """
-        if kind == "orthogonal" or a.GtG_chol is None:
-            return None
+        if kind not in PROJECTIONS:
+            raise ValueError(f"unknown projection {kind!r} (choose from {', '.join(PROJECTIONS)})")
+        if kind == "orthogonal" or a.projection.k == 0:
+            return a.projection
         hit = a.weighted.get(kind)
         if hit is not None:
             return hit
-        Gd = a.G.toarray()
-        if kind == "dirichlet":
-            QG = np.column_stack([self.M_D(a, g) for g in Gd.T])
-        elif kind == "lumped":
-            QG = np.column_stack([self._M_lumped(a, g) for g in Gd.T])
-        else:
-            raise ValueError(f"unknown projection {kind!r} (choose from {', '.join(PROJECTIONS)})")
-        GtQG = Gd.T @ QG
-        GtQG = 0.5 * (GtQG + GtQG.T)
-        ev = np.linalg.eigvalsh(GtQG)
-        if not np.abs(ev).min() > 1e-12 * np.abs(ev).max():
-            raise ValueError(f"G^T Q G of the {kind!r} projection is singular")
-        if ev.min() > 0:
-            out = (QG, ("cho", la.cho_factor(GtQG)))
-        else:
-            # M_D^{-1} indefinite (e.g. multiplicity scaling across a checkerboard): P is
-            # still a projection onto V^k, but PCR will meet the indefinite preconditioner.
-            log.warning("hybrid: G^T Q G of the %r projection is indefinite (min eigenvalue %.2e): "
-                        "M_D^{-1} is not positive definite", kind, ev.min())
-            out = (QG, ("lu", la.lu_factor(GtQG)))
+        Q = (lambda g: self.M_D(a, g)) if kind == "dirichlet" else (lambda g: self.M_lumped(a, g))
+        # M_D^{-1} indefinite (e.g. multiplicity scaling across a checkerboard): P is still a
+        # projection onto V^k, but PCR will meet the indefinite preconditioner (warning).
+        out = Projection(a.G, Q, singular_tol=1e-12,
+                         singular_message=f"G^T Q G of the {kind!r} projection is singular")
         a.weighted[kind] = out
         return out
 
-    @staticmethod
-    def _GtQG_solve(factor: tuple[str, Any], x: np.ndarray) -> np.ndarray:
-        kind, f = factor
-        return la.cho_solve(f, x) if kind == "cho" else la.lu_solve(f, x)
+    def jump(self, a: ActiveSet, u: np.ndarray) -> np.ndarray:
+        """Z B^_{Gamma,c} u, shape (n_gamma,) -> (n_act,)."""
+        return a.jump.matvec(u)
 
-    def _Pq(self, a: _ActiveSet, q: tuple[np.ndarray, Any] | None, lam: np.ndarray) -> np.ndarray:
-        """P = I - Q G (G^T Q G)^{-1} G^T onto V^k = ker(G^T) (``q`` None: P^k), (n_act,) -> (n_act,)."""
-        if q is None:
-            return self._P(a, lam)
-        QG, chol = q
-        return lam - QG @ self._GtQG_solve(chol, a.G.T @ lam)
+    def jump_transpose(self, a: ActiveSet, lam: np.ndarray) -> np.ndarray:
+        """(Z B^_{Gamma,c})^T lam, shape (n_act,) -> (n_gamma,)."""
+        return a.jump.rmatvec(lam)
 
-    def _PqT(self, a: _ActiveSet, q: tuple[np.ndarray, Any] | None, w: np.ndarray) -> np.ndarray:
-        """P^T = I - G (G^T Q G)^{-1} (Q G)^T, zero on range(G) (``q`` None: P^k), (n_act,) -> (n_act,)."""
-        if q is None:
-            return self._P(a, w)
-        QG, chol = q
-        return w - a.G @ self._GtQG_solve(chol, QG.T @ w)
-
-    def _M_lumped(self, a: _ActiveSet, lam: np.ndarray) -> np.ndarray:
+    def M_lumped(self, a: ActiveSet, lam: np.ndarray) -> np.ndarray:
         """Z B_{Gamma_OL,D} diag(K_GG) B_{Gamma_OL,D}^T Z lam: M_D^{-1} with S~_OL super-lumped."""
-        n = self.gl.n
-        v = np.bincount(a.da, weights=a.wb * lam, minlength=n) - np.bincount(a.db, weights=a.wa * lam, minlength=n)
-        s = self._K_gl_diag * v
-        return a.wb * s[a.da] - a.wa * s[a.db]
+        return scaled_jump(a.scaled_jump_global, lambda v: self._K_global_diag * v)(lam)
 
-    def M_D(self, a: _ActiveSet, lam: np.ndarray) -> np.ndarray:
+    def M_D(self, a: ActiveSet, lam: np.ndarray) -> np.ndarray:
         """M_D^{-1} lam = Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z lam, shape (n_act,) -> (n_act,).
 
         B_{Gamma_OL,D}: body-level scaled jump, the entry of copy a multiplied
         by the weight of b's body and vice versa (``gi.weight``).
         """
-        n = self.gl.n
-        v = np.bincount(a.da, weights=a.wb * lam, minlength=n) - np.bincount(a.db, weights=a.wa * lam, minlength=n)
-        s = self.S_ol(v)
-        return a.wb * s[a.da] - a.wa * s[a.db]
+        return scaled_jump(a.scaled_jump_global, self.S_ol)(lam)
 
     # ---------------------------------------------------------------- solve
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000,
@@ -501,47 +494,42 @@ class HybridSolver:
             raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
         t0 = time.perf_counter()
         a = self.active_set(active)
-        n_act = a.ia.size
-        n_g = self.gam.n
+        n_act = a.n_active
+        n_g = self.gamma_space.n
         nf = self.floating.size
 
         # lambda_0 with G^T lambda_0 = e = R_c^T g^_c
-        if nf:
-            on = self._rc_col >= 0
-            e = np.bincount(self._rc_col[on], weights=self.g_hat[on], minlength=nf)
-            lam0 = a.G @ self._GtG_solve(a, e)
-        else:
-            lam0 = np.zeros(n_act)
+        lam0 = a.projection.particular(self.kernel_load()) if nf else np.zeros(n_act)
 
-        q = self._weighted(a, projection)                   # None: P^k of Section 4.2
+        proj = self.projection(a, projection)               # P^k of Section 4.2, or Q-weighted
 
         def A_op(x: np.ndarray) -> np.ndarray:                  # (4.13), P^k -> P, P^T
             u, mu = x[:n_g], x[n_g:]
-            return np.concatenate([self.S_hat(u) + self._BT(a, self._Pq(a, q, mu)),
-                                   self._PqT(a, q, self._B(a, u))])
+            return np.concatenate([self.S_hat(u) + a.jump.rmatvec(proj.apply(mu)),
+                                   proj.apply_transpose(a.jump.matvec(u))])
 
         def M_op(r: np.ndarray) -> np.ndarray:                  # (4.11), P^k M_D^{-1} P^k -> P M_D^{-1} P^T
             ru, rl = r[:n_g], r[n_g:]
             zu = self.P_R(self.M_bddc(self.P_R(ru)))
-            zl = self._Pq(a, q, self.M_D(a, self._PqT(a, q, rl)))
+            zl = proj.apply(self.M_D(a, proj.apply_transpose(rl)))
             return np.concatenate([zu, zl])
 
-        b = np.concatenate([self.g_hat - self._BT(a, lam0), np.zeros(n_act)])
-        xs = self._initial_guess(a, x0, lam0, q)
+        b = np.concatenate([self.g_hat - a.jump.rmatvec(lam0), np.zeros(n_act)])
+        xs = self._initial_guess(a, x0, lam0, proj)
         n = n_g + n_act
         setup = time.perf_counter() - t0
         kr = self._pcr(linear_operator(n, A_op), b, xs, linear_operator(n, M_op), rtol, maxiter, restart,
                        norm=norm)
         u_g = kr.x[:n_g]
         mu = kr.x[n_g:]
-        lam = lam0 + self._Pq(a, q, mu)
+        lam = lam0 + proj.apply(mu)
         # u_Gamma - R_c (G^T G)^{-1} G^T Z B^ u_Gamma (after (4.5))
         if nf:
-            beta = self._GtG_solve(a, a.G.T @ self._B(a, u_g))
-            u_g = u_g - np.where(self._rc_col >= 0, beta[np.maximum(self._rc_col, 0)], 0.0)
-        u_W = self.schur.interior_solution(self.sub.f_W, self.gam.scatter(u_g))
+            beta = a.projection.coefficients(a.jump.matvec(u_g))
+            u_g = u_g - np.where(self.kernel_column >= 0, beta[np.maximum(self.kernel_column, 0)], 0.0)
+        u_W = self.schur.interior_solution(self.sub.f_W, self.gamma_space.scatter(u_g))
         u = self.sub.average(u_W)
-        jump = float(np.abs(self._B(a, u_g)).max()) if n_act else 0.0
+        jump = float(np.abs(a.jump.matvec(u_g)).max()) if n_act else 0.0
         lam_full = np.zeros(self.gi.n_gl)
         lam_full[a.active] = lam
         new_fact = 0 if self._reported else self.n_factorizations
@@ -612,15 +600,16 @@ class HybridSolver:
             matvecs=sum(c.matvecs for c in cycles), seconds=sum(c.seconds for c in cycles),
             true_residual=last.true_residual)
 
-    def _initial_guess(self, a: _ActiveSet, x0: Any, lam0: np.ndarray,
-                       q: tuple[np.ndarray, Any] | None = None) -> np.ndarray | None:
+    def _initial_guess(self, a: ActiveSet, x0: Any, lam0: np.ndarray,
+                       proj: Projection | None = None) -> np.ndarray | None:
         """Map a warm start to range(P_R) x V^k: u0 = P_R u_Gamma, mu0 = P (lambda - lambda_0).
 
-        P is P^k, or the Q-weighted projection ``q`` (see :meth:`_weighted`).
+        P is ``proj`` (P^k, or a Q-weighted projection, see :meth:`projection`); None: P^k.
         """
         if x0 is None:
             return None
-        n_g = self.gam.n
+        proj = a.projection if proj is None else proj
+        n_g = self.gamma_space.n
         if isinstance(x0, dict):
             u0 = np.asarray(x0["u_gamma"], dtype=float)
             lam_full = np.asarray(x0["lambda"], dtype=float)
@@ -634,9 +623,9 @@ class HybridSolver:
                 raise ValueError("warm start lambda has the wrong shape")
         else:
             x = np.asarray(x0, dtype=float)
-            if x.shape != (n_g + a.ia.size,):
-                raise ValueError(f"x0 must have shape ({n_g + a.ia.size},), got {x.shape}")
+            if x.shape != (n_g + a.n_active,):
+                raise ValueError(f"x0 must have shape ({n_g + a.n_active},), got {x.shape}")
             u0, lam = x[:n_g], x[n_g:] + lam0
         if u0.shape != (n_g,):
             raise ValueError(f"warm start u_gamma must have shape ({n_g},), got {u0.shape}")
-        return np.concatenate([self.P_R(u0), self._Pq(a, q, lam - lam0)])
+        return np.concatenate([self.P_R(u0), proj.apply(lam - lam0)])

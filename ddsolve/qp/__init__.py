@@ -4,7 +4,8 @@
 * :func:`smalbe` -- SMALBE for ``min 1/2 x^T A x - b^T x  s.t.  x >= lb, BE x = c`` (Figure 6.7).
 * :class:`QPResult` -- their common result.
 """
-from .mprgp import estimate_norm, mprgp
+from .mprgp import mprgp
+from .norm import estimate_norm
 from .result import QPResult
 from .smalbe import smalbe
 

@@ -50,6 +50,7 @@ import numpy as np
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
 from ..errors import InputError
+from .norm import estimate_norm
 from .result import QPResult
 
 log = logging.getLogger(__name__)
@@ -142,53 +143,6 @@ def check_count(name: str, value: Any, minimum: int = 0) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise InputError(name, f"must be an integer >= {minimum}, got {value!r}")
     return int(value)
-
-
-def estimate_norm(A: Any, *, maxiter: int = 50, rtol: float = 1e-3, seed: int = 0) -> tuple[float, int]:
-    """Estimate ``||A||_2`` of a symmetric positive semidefinite operator by power iteration.
-
-    The estimate ``||A v_k||`` (``||v_k|| = 1``) is a lower bound of ``||A||`` that
-    increases monotonically; the iteration stops when it changes by less than ``rtol``
-    (relative) or after ``maxiter`` multiplications. With the defaults the estimate is
-    typically within 1-3 % of ``||A||`` even for spectra without a gap, so the default
-    steplength ``1.9 / estimate`` stays in ``(0, 2/||A||]``; pass ``norm_A`` explicitly when
-    a guaranteed bound is needed.
-
-    Parameters
-    ----------
-    A : ndarray, sparse matrix or LinearOperator, shape (n, n)
-        Symmetric positive semidefinite operator.
-    maxiter : int
-        Maximum number of multiplications by ``A``.
-    rtol : float
-        Relative change of the estimate at which to stop.
-    seed : int
-        Seed of the random start vector (the result is deterministic).
-
-    Returns
-    -------
-    norm : float
-        Estimate of ``||A||_2`` (0.0 for the zero operator).
-    matvecs : int
-        Number of multiplications by ``A`` performed.
-    """
-    op = aslinearoperator(A)
-    n = op.shape[1]
-    v = np.random.default_rng(seed).standard_normal(n)
-    v /= np.linalg.norm(v)
-    est = 0.0
-    k = 0
-    for k in range(1, maxiter + 1):
-        w = np.asarray(op.matvec(v), dtype=np.float64).ravel()
-        new = float(np.linalg.norm(w))
-        if new == 0.0:
-            return est, k
-        v = w / new
-        if abs(new - est) <= rtol * new:
-            est = new
-            break
-        est = new
-    return est, k
 
 
 # --------------------------------------------------------------------------- core
@@ -355,7 +309,7 @@ def mprgp(A: Any, b: Any, lb: Any, x0: Any = None, *, Gamma: float = 1.0, alpha:
         Fixed expansion steplength in ``(0, 2/||A||]`` (Figure 6.6). Default
         ``1.9 / ||A||`` (Section 6.4 does not state a value).
     norm_A : float, optional
-        ``||A||_2``; estimated by a seeded power iteration (:func:`estimate_norm`, whose
+        ``||A||_2``; estimated by seeded Lanczos (:func:`~ddsolve.qp.norm.estimate_norm`, whose
         multiplications are counted in ``n_hessian``) when not given.
     rtol, atol : float
         Stopping rule ``||g^P(x)|| <= max(rtol * ||b||, atol)``: the relative rule

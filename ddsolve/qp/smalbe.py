@@ -46,7 +46,8 @@ from scipy.sparse.linalg import LinearOperator
 
 from ..errors import InputError
 from .mprgp import (ALPHA_FACTOR, _mprgp_core, _start_vector, as_operator, as_vector,
-                    check_count, check_positive, estimate_norm)
+                    check_count, check_positive)
+from .norm import estimate_norm
 from .result import QPResult
 
 log = logging.getLogger(__name__)
@@ -102,7 +103,8 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
     max_outer : int
         Maximum number of outer iterations.
     norm_A, norm_BE : float, optional
-        ``||A||_2`` and ``||BE||_2``, estimated by seeded power iterations when not given.
+        ``||A||_2`` and ``||BE||_2``, estimated by seeded Lanczos
+        (:func:`~ddsolve.qp.norm.estimate_norm`) when not given.
         The MPRGP steplength for penalty ``rho`` is ``1.9 / (||A|| + rho ||BE||^2)``, an
         admissible value since ``||A + rho BE^T BE|| <= ||A|| + rho ||BE||^2``.
     mu0 : array_like, shape (m,), optional
