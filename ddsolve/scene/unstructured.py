@@ -442,7 +442,8 @@ def load_netgen_mesh(path: str | os.PathLike) -> Any:
             head = fh.read(4096)
     except OSError as exc:
         raise InputError("mesh", f"cannot read {path}: {exc}") from None
-    words = head.decode("latin-1").split()
+    lines = [ln.strip() for ln in head.decode("latin-1").splitlines()]
+    words = [ln for ln in lines if ln and not ln.startswith("#")]
     if not words or words[0] not in ("mesh3d", "mesh2d"):
         raise InputError("mesh", f"{path} is not a netgen mesh (a .vol file starts with 'mesh3d')")
     ngmesh = NGMesh(dim=2)
