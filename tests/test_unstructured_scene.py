@@ -253,3 +253,42 @@ def test_scene_from_mesh_rejects_non_conforming_contact(tmp_path):
     joined.Save(str(path))
     with pytest.raises(InputError, match=r"contact: .*not a conforming interface .*near \(1, "):
         scene_from_mesh(path, bodies=["left", "right"], contact="gap", parts=1)
+
+
+@pytest.mark.parametrize("nb", [2, 3])                 # nb = 3: the centre body floats
+def test_hybrid_matches_direct_on_unstructured_multibody(nb):
+    from ddsolve.multibody import GlobalInterface
+    from ddsolve.multibody.direct import solve_constrained_direct
+    from ddsolve.multibody.hybrid import HybridSolver
+
+    sc = unstructured_scene("multibody", bodies=nb, maxh=0.1, parts=3, f=lambda x, y: 1 + x * y)
+    sub = Substructures(assemble(sc))
+    gi = GlobalInterface(sub)
+    hs = HybridSolver(sub, gi)
+    assert hs.floating.size == (1 if nb == 3 else 0)
+    A = sub.global_matrix()
+    for case in ("full", "middle"):
+        active = gi.contact_mask(case)
+        res = hs.solve(active, rtol=1e-10)
+        ref = solve_constrained_direct(sub, gi, active).u
+        assert res.krylov.converged
+        e = res.u - ref
+        assert np.sqrt(e @ A @ e / (ref @ A @ ref)) < 1e-8
+
+
+def test_contact_active_set_matches_direct_on_unstructured_membranes():
+    from ddsolve.contact.active_set import solve_contact_active_set
+    from ddsolve.contact.direct import solve_contact_direct
+    from ddsolve.contact.problem import ContactProblem
+
+    sc = unstructured_scene("contact", maxh=0.1, parts=4)
+    problem = ContactProblem(Substructures(assemble(sc)))
+    assert problem.n_contact == len(sc.contact_pairs)
+    ref = solve_contact_direct(problem)
+    assert ref.converged, ref.reason
+    assert problem.kkt(ref.u, ref.lam).max < 1e-8
+    sol = solve_contact_active_set(problem, rtol=1e-10, pcg_rtol=1e-10)
+    assert sol.converged, sol.reason
+    np.testing.assert_array_equal(sol.active, ref.active)
+    assert problem.kkt(sol.u, sol.lam).max < 1e-7
+    assert np.abs(sol.u - ref.u).max() < 1e-7 * np.abs(ref.u).max()
