@@ -234,13 +234,18 @@ def split_bodies(data: NetgenData, body_of_material: np.ndarray, *, dirichlet: s
     els = data.elements
     el_body = np.asarray(body_of_material, dtype=np.int64)[data.material]
     width = els.shape[1]
-    copy_key = sorted_unique(np.repeat(el_body, width) * n + els.ravel())
+    slot_key = np.repeat(el_body, width) * n + els.ravel()
+    srt = np.argsort(slot_key)
+    sorted_key = slot_key[srt]
+    first = np.r_[True, sorted_key[1:] != sorted_key[:-1]]
+    copy_key = sorted_key[first]
     copy_body, copy_node = np.divmod(copy_key, n)
+    new_els = np.empty(slot_key.size, dtype=np.int64)
+    new_els[srt] = np.cumsum(first) - 1
+    new_els = new_els.reshape(els.shape)
 
     def copy_of(body: np.ndarray, node: np.ndarray) -> np.ndarray:
         return np.searchsorted(copy_key, body * n + node)
-
-    new_els = copy_of(np.repeat(el_body, width), els.ravel()).reshape(els.shape)
 
     key, lo, hi = _edge_keys(els, n)
     ebody = np.repeat(el_body, width)
