@@ -47,7 +47,7 @@ def element_graph(elements: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n = np.int64(els.max() + 1) if els.size else np.int64(1)
     key = np.minimum(a, b) * n + np.maximum(a, b)
     owner = np.repeat(np.arange(n_el, dtype=np.int64), width)
-    srt = np.argsort(key, kind="stable")
+    srt = np.argsort(key)
     key, owner = key[srt], owner[srt]
     same = np.flatnonzero(key[1:] == key[:-1])
     first, second = owner[same], owner[same + 1]
@@ -55,8 +55,11 @@ def element_graph(elements: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _adjacency(n: int, first: np.ndarray, second: np.ndarray) -> sp.csr_matrix:
+    """Symmetric adjacency matrix in canonical CSR form (sorted column indices: a reproducible METIS input)."""
     data = np.ones(2 * first.size, dtype=np.int8)
-    return sp.csr_matrix((data, (np.r_[first, second], np.r_[second, first])), shape=(n, n))
+    graph = sp.csr_matrix((data, (np.r_[first, second], np.r_[second, first])), shape=(n, n))
+    graph.sort_indices()
+    return graph
 
 
 def partition_elements(elements: np.ndarray, parts: int, *, seed: int = METIS_SEED,

@@ -249,7 +249,7 @@ def split_bodies(data: NetgenData, body_of_material: np.ndarray, *, dirichlet: s
 
     key, lo, hi = _edge_keys(els, n)
     ebody = np.repeat(el_body, width)
-    srt = np.argsort(key, kind="stable")
+    srt = np.argsort(key)
     skey = key[srt]
     dup = np.flatnonzero(skey[1:] == skey[:-1])
     shared_a, shared_b = srt[dup], srt[dup + 1]          # element-edge slots sharing an edge
