@@ -111,6 +111,12 @@ def test_partition_bad_parts():
         unstructured_scene("poisson", geometry="circle")
     with pytest.raises(InputError, match="maxh"):
         unstructured_scene("poisson", maxh=-1)
+    with pytest.raises(InputError, match="rho"):
+        unstructured_scene("poisson", maxh=0.5, parts=2, rho=[1.0, 2.0, 3.0])
+    with pytest.raises(InputError, match="bodies"):
+        unstructured_scene("poisson", bodies=2)
+    with pytest.raises(InputError, match="negative integral"):
+        unstructured_scene("contact", maxh=0.5, parts=1, f=1.0)
 
 
 def test_boundary_nodes_vectorised_matches_per_body_definition():

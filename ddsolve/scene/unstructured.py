@@ -328,7 +328,10 @@ def _assemble_scene(data: NetgenData, body_of_material: np.ndarray, *, parts: in
     t2 = time.perf_counter()
     LAST_TIMINGS.update(split=t1 - t0, partition=t2 - t1)
     n_sub = n_bodies * int(parts)
-    rho_arr = np.broadcast_to(np.asarray(rho, dtype=float), (n_sub,)).copy() if np.ndim(rho) <= 1 else None
+    try:
+        rho_arr = np.broadcast_to(np.asarray(rho, dtype=float), (n_sub,)).copy()
+    except (TypeError, ValueError):
+        rho_arr = None
     if rho_arr is None or np.any(~np.isfinite(rho_arr)) or np.any(rho_arr <= 0):
         raise InputError("rho", f"must be positive: a number or one value per subdomain ({n_sub})")
     if isinstance(f, np.ndarray) and f.shape != (elements.shape[0],):
