@@ -54,7 +54,7 @@ class GlobalInterface:
         _, loc = np.unique(key, axis=0, return_inverse=True)
         loc = loc.ravel()
         node_body = np.full(scene.n_nodes, -1)
-        node_body[scene.elements.ravel()] = np.repeat(scene.subdomain_body[scene.element_subdomain], 4)
+        node_body[scene.elements.ravel()] = np.repeat(scene.subdomain_body[scene.element_subdomain], scene.elements.shape[1])
         # locations held by more than one body (Dirichlet nodes included: they fix the face geometry)
         nodes = np.flatnonzero(node_body >= 0)
         n_at = np.bincount(loc[nodes], minlength=loc.max() + 1)

@@ -13,6 +13,13 @@ relative to their lower-left corner, same element connectivity) form one
 K_t the unit-coefficient matrix of the template: the stiffness is assembled once
 per template, on one representative subdomain, and factorizations are later
 shared in the same way (:mod:`ddsolve.dd.local`).
+
+P1 triangles (netgen meshes, :mod:`ddsolve.scene.unstructured`): METIS
+subdomains are not translates of each other, so no template detection is
+attempted (``template = arange(n_sub)``, ``n_templates == n_subdomains``). The
+broken mesh is built with two bulk calls (``AddPoints``, one ``AddElements``
+for all triangles), assembled once on all subdomains, and the block diagonal is
+cut into the per-subdomain matrices.
 """
 from __future__ import annotations
 
@@ -40,7 +47,7 @@ class LocalProblems:
     template : ndarray of int, shape (n_subdomains,)
         Template id of each subdomain.
     stiffness : list of scipy.sparse.csr_matrix
-        ``stiffness[t]``: unit-coefficient Q1 stiffness matrix of template t,
+        ``stiffness[t]``: unit-coefficient Q1 or P1 stiffness matrix of template t,
         shape (n_t, n_t), all local nodes (Dirichlet nodes included).
     loads : list of ndarray
         ``loads[s]``: local load vector f^(s) = int_{Omega_s} f phi_k, shape (n_s,).
@@ -112,6 +119,8 @@ def assemble(scene: Scene) -> LocalProblems:
     import ngsolve as ngs
     from netgen.meshing import Mesh as NGMesh
 
+    if scene.element_type == "P1":
+        return _assemble_p1(scene)
     nodes = scene.subdomain_nodes()
     template = detect_templates(scene, nodes)
     n_sub = scene.n_subdomains
@@ -147,7 +156,20 @@ def assemble(scene: Scene) -> LocalProblems:
         block.eliminate_zeros()
         stiffness.append(block)
 
-    # Loads on every subdomain: sum_k int_{Omega_s} f phi_k.
+    loads = _loads(scene, mesh, fes, order, offsets)
+    log.info("assembled %d subdomains with %d templates (%d broken dofs)", n_sub, len(reps), fes.ndof)
+    return LocalProblems(scene=scene, nodes=nodes, template=template, stiffness=stiffness, loads=loads)
+
+
+def _loads(scene: Scene, mesh: Any, fes: Any, order: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:
+    """Local loads f^(s)_k = int_{Omega_s} f phi_k of every subdomain on the broken mesh.
+
+    ``order[k]`` is the scene element of broken-mesh element k.
+    """
+    import ngsolve as ngs
+
+    n_sub = scene.n_subdomains
+    v = fes.TestFunction()
     if isinstance(scene.f, np.ndarray):
         l2 = ngs.L2(mesh, order=0)
         gf = ngs.GridFunction(l2)
@@ -160,6 +182,56 @@ def assemble(scene: Scene) -> LocalProblems:
     lf += fcf * v * ngs.dx
     lf.Assemble()
     fvec = np.array(lf.vec.FV().NumPy(), copy=True)
-    loads = [fvec[offsets[s]:offsets[s + 1]] for s in range(n_sub)]
-    log.info("assembled %d subdomains with %d templates (%d broken dofs)", n_sub, len(reps), fes.ndof)
-    return LocalProblems(scene=scene, nodes=nodes, template=template, stiffness=stiffness, loads=loads)
+    return [fvec[offsets[s]:offsets[s + 1]] for s in range(n_sub)]
+
+
+def _assemble_p1(scene: Scene) -> LocalProblems:
+    """P1 assembly: one broken NGSolve mesh, one assembly, blocks cut per subdomain.
+
+    Every subdomain is its own template (``stiffness[s]`` is the
+    unit-coefficient matrix of subdomain s). Two bulk netgen calls build the
+    mesh; there is no Python loop over elements.
+    """
+    import ngsolve as ngs
+    from netgen.meshing import Mesh as NGMesh
+
+    nodes = scene.subdomain_nodes()
+    n_sub = scene.n_subdomains
+    sizes = np.array([len(nd) for nd in nodes], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    node_all = np.concatenate(nodes)
+    sub_all = np.repeat(np.arange(n_sub, dtype=np.int64), sizes)
+    # broken id of (subdomain, node): sort the (subdomain, node) keys once
+    key = sub_all * scene.n_nodes + node_all
+    srt = np.argsort(key)
+    order = np.argsort(scene.element_subdomain, kind="stable")
+    els = np.asarray(scene.elements, dtype=np.int64)[order]
+    el_key = np.asarray(scene.element_subdomain, dtype=np.int64)[order][:, None] * scene.n_nodes + els
+    broken = srt[np.searchsorted(key[srt], el_key)]
+
+    ngmesh = NGMesh(dim=2)
+    ngmesh.AddPoints(np.ascontiguousarray(np.column_stack([scene.coords[node_all], np.zeros(len(node_all))])))
+    region = ngmesh.AddRegion("omega", 2)
+    ngmesh.AddElements(dim=2, index=region, data=np.ascontiguousarray(broken, dtype=np.int32), base=0)
+    mesh = ngs.Mesh(ngmesh)
+    fes = ngs.H1(mesh, order=1)
+    u, v = fes.TnT()
+    a = ngs.BilinearForm(fes)
+    a += ngs.grad(u) * ngs.grad(v) * ngs.dx
+    a.Assemble()
+    rows, cols, vals = a.mat.COO()
+    A = sp.csr_matrix((np.asarray(vals), (np.asarray(rows), np.asarray(cols))), shape=(fes.ndof, fes.ndof))
+    A.sum_duplicates()
+    stiffness = [_diagonal_block(A, offsets[s], offsets[s + 1]) for s in range(n_sub)]
+    loads = _loads(scene, mesh, fes, order, offsets)
+    log.info("assembled %d P1 subdomains (%d broken dofs)", n_sub, fes.ndof)
+    return LocalProblems(scene=scene, nodes=nodes, template=np.arange(n_sub), stiffness=stiffness, loads=loads)
+
+
+def _diagonal_block(A: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
+    """Rows and columns lo:hi of a block-diagonal CSR matrix (its rows have no entries outside)."""
+    start, stop = A.indptr[lo], A.indptr[hi]
+    block = sp.csr_matrix((A.data[start:stop], A.indices[start:stop] - lo, A.indptr[lo:hi + 1] - start),
+                          shape=(hi - lo, hi - lo))
+    block.eliminate_zeros()
+    return block

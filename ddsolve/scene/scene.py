@@ -1,7 +1,8 @@
-"""General scene representation: nodes, Q1 elements, subdomains and bodies.
+"""General scene representation: nodes, Q1 or P1 elements, subdomains and bodies.
 
 A :class:`Scene` is the complete, method-independent description of one
-problem: geometry (node coordinates and quadrilateral elements), the
+problem: geometry (node coordinates and elements: Q1 quadrilaterals from the
+structured generators, P1 triangles from netgen meshes), the
 decomposition into bodies and subdomains (one subdomain label per element), the
 coefficient rho per subdomain (constant on each subdomain, Section 2.2.1), the
 Dirichlet nodes and the right-hand side. Nothing in it depends on the
@@ -19,6 +20,24 @@ from typing import Callable
 
 import numpy as np
 
+def sorted_unique(values: np.ndarray, return_counts: bool = False):
+    """Sorted distinct values of a 1-D integer array (and their counts).
+
+    Sort-based; numpy's ``np.unique`` without counts takes a hash path that is
+    an order of magnitude slower on millions of int64 keys.
+    """
+    srt = np.sort(values)
+    first = np.r_[True, srt[1:] != srt[:-1]] if srt.size else np.zeros(0, dtype=bool)
+    uniq = srt[first]
+    if not return_counts:
+        return uniq
+    starts = np.flatnonzero(first)
+    return uniq, np.diff(np.r_[starts, srt.size])
+
+
+#: Element types: number of nodes per element -> name.
+ELEMENT_TYPES = {4: "Q1", 3: "P1"}
+
 #: A right-hand side: ``f(x, y) -> values`` evaluated on arrays, or a number.
 RightHandSide = Callable[[np.ndarray, np.ndarray], np.ndarray] | float
 
@@ -31,8 +50,8 @@ class Scene:
     ----------
     coords : ndarray, shape (n_nodes, 2)
         Node coordinates.
-    elements : ndarray of int, shape (n_elements, 4)
-        Q1 quadrilaterals, counter-clockwise node ids.
+    elements : ndarray of int, shape (n_elements, 4) or (n_elements, 3)
+        Q1 quadrilaterals (counter-clockwise node ids) or P1 triangles.
     element_subdomain : ndarray of int, shape (n_elements,)
         Subdomain label of each element, 0..n_subdomains-1.
     subdomain_body : ndarray of int, shape (n_subdomains,)
@@ -48,6 +67,9 @@ class Scene:
         (used for checkerboard patterns and reporting only).
     contact_pairs : ndarray of int, shape (n_pairs, 2)
         Matching node pairs (a, b) on inter-body interfaces (empty for one body).
+    element_type : {"Q1", "P1"}
+        Derived from the width of ``elements`` when left empty; a given value
+        must agree with it.
     """
 
     coords: np.ndarray
@@ -59,6 +81,17 @@ class Scene:
     f: RightHandSide = 1.0
     subdomain_grid: np.ndarray | None = None
     contact_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
+    element_type: str = ""
+    _boundary_cache: tuple | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        width = int(np.shape(self.elements)[1]) if np.ndim(self.elements) == 2 else -1
+        if width not in ELEMENT_TYPES:
+            raise ValueError(f"elements must have 4 (Q1) or 3 (P1) nodes per row, got shape {np.shape(self.elements)}")
+        derived = ELEMENT_TYPES[width]
+        if self.element_type and self.element_type != derived:
+            raise ValueError(f"element_type {self.element_type!r} does not match elements of width {width}")
+        self.element_type = derived
 
     @property
     def n_nodes(self) -> int:
@@ -76,37 +109,79 @@ class Scene:
         """Node ids of each subdomain in its canonical local order.
 
         The local order sorts nodes by coordinates relative to the subdomain's
-        lower-left corner (row by row), so that geometrically identical
-        subdomains list corresponding nodes in the same order; this is what lets
-        them share one assembled matrix and one factorization.
+        lower-left corner (row by row, ties by node id), so that geometrically
+        identical subdomains list corresponding nodes in the same order; this is
+        what lets them share one assembled matrix and one factorization.
+        One vectorised pass over all subdomains (O(n log n)).
 
         Returns
         -------
         list of ndarray of int
             ``nodes[s]`` has shape (n_s,).
         """
-        order = np.argsort(self.element_subdomain, kind="stable")
-        bounds = np.searchsorted(self.element_subdomain[order], np.arange(self.n_subdomains + 1))
-        out = []
-        for s in range(self.n_subdomains):
-            nodes = np.unique(self.elements[order[bounds[s]:bounds[s + 1]]])
-            xy = self.coords[nodes] - self.coords[nodes].min(axis=0)
-            scale = max(float(np.ptp(self.coords[nodes], axis=0).max()), 1e-300)
-            key = np.round(xy / scale, 10)
-            out.append(nodes[np.lexsort((key[:, 0], key[:, 1]))])
-        return out
+        n_sub, width = self.n_subdomains, self.elements.shape[1]
+        key = (np.repeat(np.asarray(self.element_subdomain, dtype=np.int64), width) * self.n_nodes
+               + np.asarray(self.elements, dtype=np.int64).ravel())
+        key = sorted_unique(key)
+        sub, nodes = np.divmod(key, self.n_nodes)
+        bounds = np.searchsorted(sub, np.arange(n_sub + 1))
+        xy = self.coords[nodes]
+        if np.any(bounds[1:] == bounds[:-1]):
+            empty = np.flatnonzero(bounds[1:] == bounds[:-1])
+            raise ValueError(f"subdomains without elements: {empty[:10].tolist()}")
+        lo = np.minimum.reduceat(xy, bounds[:-1], axis=0)
+        hi = np.maximum.reduceat(xy, bounds[:-1], axis=0)
+        scale = np.maximum((hi - lo).max(axis=1), 1e-300)
+        rel = np.round((xy - lo[sub]) / scale[sub, None], 10)
+        order = np.lexsort((nodes, rel[:, 0], rel[:, 1], sub))
+        return np.split(nodes[order], bounds[1:-1])
+
+    def _boundary_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """(body, node) pairs on body boundaries, sorted by body, and the per-body bounds (cached)."""
+        ident = (id(self.elements), id(self.element_subdomain), id(self.subdomain_body), self.n_nodes)
+        if self._boundary_cache is not None and self._boundary_cache[0] == ident:
+            return self._boundary_cache[1]
+        els = np.asarray(self.elements, dtype=np.int64)
+        width, n = els.shape[1], np.int64(self.n_nodes)
+        body = np.asarray(self.subdomain_body, dtype=np.int64)[self.element_subdomain]
+        a = els.ravel()
+        b = np.roll(els, -1, axis=1).ravel()
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        key = (np.repeat(body, width) * n + lo) * n + hi
+        uniq, counts = sorted_unique(key, return_counts=True)
+        once = uniq[counts == 1]
+        pair_body, rest = np.divmod(once, n * n)
+        lo_b, hi_b = np.divmod(rest, n)
+        pair_key = sorted_unique(np.concatenate([pair_body * n + lo_b, pair_body * n + hi_b]))
+        pair_body, pair_node = np.divmod(pair_key, n)
+        bounds = np.searchsorted(pair_body, np.arange(self.n_bodies + 1))
+        result = (pair_node, bounds)
+        self._boundary_cache = (ident, result)
+        return result
 
     def boundary_nodes(self, body: int) -> np.ndarray:
-        """Nodes on the boundary of one body (edges used by exactly one element).
+        """Nodes on the boundary of one body (edges used by exactly one of its elements).
+
+        All bodies are handled in one vectorised pass on the first call
+        (O(n log n) with n the number of element edges) and cached.
 
         Returns
         -------
         ndarray of bool, shape (n_nodes,)
         """
-        els = self.elements[self.subdomain_body[self.element_subdomain] == body]
-        edges = np.concatenate([els[:, [k, (k + 1) % 4]] for k in range(4)])
-        edges = np.sort(edges, axis=1)
-        uniq, counts = np.unique(edges, axis=0, return_counts=True)
+        pair_node, bounds = self._boundary_pairs()
         mask = np.zeros(self.n_nodes, dtype=bool)
-        mask[uniq[counts == 1].ravel()] = True
+        mask[pair_node[bounds[body]:bounds[body + 1]]] = True
+        return mask
+
+    def boundary_node_mask(self) -> np.ndarray:
+        """Nodes on the boundary of their body, all bodies at once.
+
+        Returns
+        -------
+        ndarray of bool, shape (n_nodes,)
+        """
+        pair_node, _ = self._boundary_pairs()
+        mask = np.zeros(self.n_nodes, dtype=bool)
+        mask[pair_node] = True
         return mask

@@ -1,0 +1,530 @@
+"""Unstructured scenes: netgen meshes of P1 triangles split into METIS subdomains.
+
+Every problem is meshed as ONE netgen (OCC) geometry whose bodies are its
+materials, so interfaces between bodies are conforming: the meshes of two
+bodies have the same nodes on their common edge. The mesh is then split apart,
+each body getting its own copy of the interface nodes (as in the structured
+scenes of :mod:`ddsolve.scene.structured`), and every body is partitioned into
+``parts`` connected subdomains by METIS (:mod:`ddsolve.scene.partition`).
+
+Geometries
+----------
+poisson
+    ``square`` (unit square, default), ``lshape`` ((0,1)^2 without
+    [1/2,1]x[1/2,1]), ``hole`` ((0,1)^2 without the disc of radius 1/4 about
+    (1/2,1/2)); u = 0 on the whole boundary.
+multibody
+    Problem (4.32): the unit square split into ``bodies`` x ``bodies`` square
+    bodies (body b = by * bodies + bx as in :func:`structured_square`), tied on
+    the inter-body interfaces; u = 0 on the outer boundary.
+contact
+    The two membranes of (3.1): Omega^1 = (0,1)^2 clamped on x = 0 and
+    Omega^2 = (1,2)x(0,1) floating; the contact line x = 1 gives node-to-node
+    pairs. The load-patch edges y = 3/4 (Omega^1) and y = 1/4 (Omega^2) are
+    mesh lines, so the default Dostal loads are integrated exactly.
+
+A user's mesh is read by :func:`scene_from_mesh` (materials are bodies, named
+boundaries carry Dirichlet conditions and the contact interface).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from .contact import DOSTAL_LOADS, NET_LOAD_FLOOR, dostal_loads
+from .partition import partition_elements
+from .scene import RightHandSide, Scene, sorted_unique
+
+log = logging.getLogger(__name__)
+
+#: Geometries of each problem (the first is the default).
+GEOMETRIES = {"poisson": ("square", "lshape", "hole"), "multibody": ("square",), "contact": ("membranes",)}
+
+#: Timings (seconds) of the last :func:`unstructured_scene` / :func:`scene_from_mesh` call:
+#: ``"mesh"`` (netgen meshing and refinement), ``"split"`` and ``"partition"``.
+LAST_TIMINGS: dict[str, float] = {}
+
+
+@dataclass
+class NetgenData:
+    """Arrays of a 2-D netgen mesh (0-based ids).
+
+    Attributes
+    ----------
+    coords : ndarray, shape (n_nodes, 2)
+    elements : ndarray of int, shape (n_elements, 3)
+    material : ndarray of int, shape (n_elements,)
+        0-based material index of each element; names in ``material_names``.
+    segments : ndarray of int, shape (n_segments, 2)
+        Boundary and interface segments.
+    segment_bc : ndarray of int, shape (n_segments,)
+        0-based boundary-condition index; names in ``bc_names``.
+    """
+
+    coords: np.ndarray
+    elements: np.ndarray
+    material: np.ndarray
+    segments: np.ndarray
+    segment_bc: np.ndarray
+    material_names: list[str] = field(default_factory=list)
+    bc_names: list[str] = field(default_factory=list)
+
+
+def netgen_arrays(ngmesh: Any) -> NetgenData:
+    """Read coordinates, triangles and segments of a netgen mesh with bulk numpy calls.
+
+    Raises
+    ------
+    InputError
+        ``mesh``: not a 2-D mesh, no elements, or elements other than triangles.
+    """
+    if ngmesh.dim != 2:
+        raise InputError("mesh", f"need a 2-D netgen mesh, got dimension {ngmesh.dim}")
+    coords = np.asarray(ngmesh.Coordinates(), dtype=float)[:, :2]
+    el = ngmesh.Elements2D().NumPy()
+    if el.shape[0] == 0:
+        raise InputError("mesh", "the mesh has no 2-D elements")
+    nodes = np.asarray(el["nodes"], dtype=np.int64)
+    if nodes.shape[1] > 3 and np.any(nodes[:, 3:] > 0):
+        raise InputError("mesh", "only triangular (P1) meshes are supported; the mesh has quadrilaterals "
+                                 "or curved elements")
+    seg = ngmesh.Elements1D().NumPy()
+    segments = np.asarray(seg["nodes"], dtype=np.int64)[:, :2] - 1 if seg.shape[0] else np.zeros((0, 2), np.int64)
+    segment_bc = np.asarray(seg["index"], dtype=np.int64) - 1 if seg.shape[0] else np.zeros(0, np.int64)
+    material = np.asarray(el["index"], dtype=np.int64) - 1
+    n_mat = int(material.max()) + 1
+    n_bc = int(segment_bc.max()) + 1 if segment_bc.size else 0
+    return NetgenData(coords=coords, elements=nodes[:, :3] - 1, material=material, segments=segments,
+                      segment_bc=segment_bc, material_names=[ngmesh.GetMaterial(i + 1) for i in range(n_mat)],
+                      bc_names=[ngmesh.GetBCName(i) for i in range(n_bc)])
+
+
+# --------------------------------------------------------------------------- geometries
+def _geometry(problem: str, geometry: str, bodies: int) -> Any:
+    """OCC geometry of a problem: faces named ``body<k>``, edges ``clamp`` and ``contact`` (contact only)."""
+    from netgen.occ import Circle, Glue, MoveTo, OCCGeometry
+
+    if problem == "poisson":
+        face = MoveTo(0, 0).Rectangle(1, 1).Face()
+        if geometry == "lshape":
+            face = face - MoveTo(0.5, 0.5).Rectangle(0.5, 0.5).Face()
+        elif geometry == "hole":
+            face = face - Circle((0.5, 0.5), 0.25).Face()
+        face.faces.name = "body0"
+        return OCCGeometry(face, dim=2)
+    if problem == "multibody":
+        side = 1.0 / bodies
+        faces = []
+        for by in range(bodies):
+            for bx in range(bodies):
+                f = MoveTo(bx * side, by * side).Rectangle(side, side).Face()
+                f.faces.name = f"body{by * bodies + bx}"
+                faces.append(f)
+        return OCCGeometry(Glue(faces), dim=2)
+    # contact: the two membranes of (3.1), load-patch edges as mesh lines
+    low1 = MoveTo(0, 0).Rectangle(1, 0.75).Face()
+    top1 = MoveTo(0, 0.75).Rectangle(1, 0.25).Face()
+    low2 = MoveTo(1, 0).Rectangle(1, 0.25).Face()
+    top2 = MoveTo(1, 0.25).Rectangle(1, 0.75).Face()
+    for f in (low1, top1):
+        f.faces.name = "body0"
+    for f in (low2, top2):
+        f.faces.name = "body1"
+    shape = Glue([low1, top1, low2, top2])
+    for edge in shape.edges:           # name edges after gluing (the glue splits and renames them)
+        x = edge.center.x
+        if abs(x) < 1e-9:
+            edge.name = "clamp"
+        elif abs(x - 1.0) < 1e-9:
+            edge.name = "contact"
+    return OCCGeometry(shape, dim=2)
+
+
+def _check_positive(name: str, value: Any, integer: bool = False, allow_zero: bool = False) -> None:
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool) \
+        and np.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+    if ok and integer:
+        ok = int(value) == value
+    if not ok:
+        kind = "non-negative integer" if allow_zero else ("positive integer" if integer else "positive number")
+        raise InputError(name, f"must be a {kind}, got {value!r}")
+
+
+def mesh_geometry(problem: str = "poisson", *, geometry: str | None = None, maxh: float = 0.1,
+                  refine: int = 0, bodies: int = 1) -> Any:
+    """Mesh a built-in geometry with netgen and refine it uniformly.
+
+    Parameters
+    ----------
+    problem : {"poisson", "multibody", "contact"}
+    geometry : str, optional
+        One of :data:`GEOMETRIES` ``[problem]`` (default: the first).
+    maxh : float
+        Largest element size handed to netgen.
+    refine : int
+        Uniform refinements after meshing (each quarters every triangle).
+    bodies : int
+        Bodies per side (multibody only; 1 otherwise).
+
+    Returns
+    -------
+    netgen.meshing.Mesh
+    """
+    if problem not in GEOMETRIES:
+        raise InputError("problem", f"unknown problem {problem!r}; choose one of {sorted(GEOMETRIES)}")
+    geometry = GEOMETRIES[problem][0] if geometry is None else geometry
+    if geometry not in GEOMETRIES[problem]:
+        raise InputError("geometry", f"unknown geometry {geometry!r} for problem {problem!r}; "
+                                     f"choose one of {list(GEOMETRIES[problem])}")
+    _check_positive("maxh", maxh)
+    _check_positive("refine", refine, integer=True, allow_zero=True)
+    _check_positive("bodies", bodies, integer=True)
+    if problem != "multibody" and bodies != 1:
+        raise InputError("bodies", f"problem {problem!r} has fixed bodies; 'bodies' applies to multibody only")
+    ngmesh = _geometry(problem, geometry, int(bodies)).GenerateMesh(maxh=float(maxh))
+    for _ in range(int(refine)):
+        ngmesh.Refine()
+    return ngmesh
+
+
+# --------------------------------------------------------------------------- splitting
+def _edge_keys(elements: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edge keys lo * n + hi of all element edges, with their endpoints (lo, hi)."""
+    a, b = elements.ravel(), np.roll(elements, -1, axis=1).ravel()
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    return lo * n + hi, lo, hi
+
+
+def split_bodies(data: NetgenData, body_of_material: np.ndarray, *, dirichlet: str | Sequence[str] = "boundary",
+                 contact: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Give every body its own copy of its nodes and find the inter-body node pairs.
+
+    Parameters
+    ----------
+    data : NetgenData
+    body_of_material : ndarray of int, shape (n_materials,)
+        Body of each material.
+    dirichlet : "boundary" or sequence of str
+        ``"boundary"``: u = 0 on every edge of exactly one element (the outer
+        boundary of the union of the bodies); else the names of the netgen
+        boundaries on which u = 0.
+    contact : str, optional
+        Name of the contact boundary: its segments must be conforming
+        interface edges between two bodies and they alone give the pairs;
+        None: every interface edge gives pairs.
+
+    Returns
+    -------
+    coords : ndarray, shape (n_copies, 2)
+    elements : ndarray of int, shape (n_elements, 3)
+        In copy ids (element order unchanged).
+    element_body : ndarray of int, shape (n_elements,)
+    dirichlet_mask : ndarray of bool, shape (n_copies,)
+    pairs : ndarray of int, shape (n_pairs, 2)
+        Copies (a, b) of one mesh node, body(a) < body(b), sorted by
+        (body(a), body(b), y, x).
+    """
+    n = np.int64(data.coords.shape[0])
+    els = data.elements
+    el_body = np.asarray(body_of_material, dtype=np.int64)[data.material]
+    width = els.shape[1]
+    slot_key = np.repeat(el_body, width) * n + els.ravel()
+    srt = np.argsort(slot_key)
+    sorted_key = slot_key[srt]
+    first = np.r_[True, sorted_key[1:] != sorted_key[:-1]]
+    copy_key = sorted_key[first]
+    copy_body, copy_node = np.divmod(copy_key, n)
+    new_els = np.empty(slot_key.size, dtype=np.int64)
+    new_els[srt] = np.cumsum(first) - 1
+    new_els = new_els.reshape(els.shape)
+
+    def copy_of(body: np.ndarray, node: np.ndarray) -> np.ndarray:
+        return np.searchsorted(copy_key, body * n + node)
+
+    key, lo, hi = _edge_keys(els, n)
+    ebody = np.repeat(el_body, width)
+    srt = np.argsort(key)
+    skey = key[srt]
+    dup = np.flatnonzero(skey[1:] == skey[:-1])
+    shared_a, shared_b = srt[dup], srt[dup + 1]          # element-edge slots sharing an edge
+    inter = ebody[shared_a] != ebody[shared_b]
+    ia, ib = shared_a[inter], shared_b[inter]
+
+    # Dirichlet edges
+    if isinstance(dirichlet, str) and dirichlet == "boundary":
+        single = np.ones(key.size, dtype=bool)
+        single[shared_a] = False
+        single[shared_b] = False
+        dir_slot = np.flatnonzero(single)
+    else:
+        names = [dirichlet] if isinstance(dirichlet, str) else list(dirichlet)
+        ids = [i for name in names for i in _bc_index(data, name, "dirichlet")]
+        seg = data.segments[np.isin(data.segment_bc, ids)]
+        seg_key = np.minimum(seg[:, 0], seg[:, 1]) * n + np.maximum(seg[:, 0], seg[:, 1])
+        dir_slot = np.flatnonzero(np.isin(key, seg_key))
+    dirichlet_mask = np.zeros(copy_key.size, dtype=bool)
+    dirichlet_mask[copy_of(ebody[dir_slot], lo[dir_slot])] = True
+    dirichlet_mask[copy_of(ebody[dir_slot], hi[dir_slot])] = True
+
+    if contact is not None:
+        cid = _bc_index(data, contact, "contact")
+        seg = data.segments[np.isin(data.segment_bc, cid)]
+        seg_key = sorted_unique(np.minimum(seg[:, 0], seg[:, 1]) * n + np.maximum(seg[:, 0], seg[:, 1]))
+        found = np.isin(seg_key, key[ia])
+        if not found.all():
+            k = seg_key[np.flatnonzero(~found)[0]]
+            p, q = np.divmod(k, n)
+            mid = 0.5 * (data.coords[p] + data.coords[q])
+            raise InputError("contact", f"boundary {contact!r} is not a conforming interface between two bodies "
+                                        f"near ({mid[0]:.6g}, {mid[1]:.6g}): {int((~found).sum())} of "
+                                        f"{seg_key.size} segments belong to one body only (mesh the bodies as "
+                                        f"one geometry so that their nodes match on the contact line)")
+        on = np.isin(key[ia], seg_key)
+        ia, ib = ia[on], ib[on]
+    ba, bb = ebody[ia], ebody[ib]
+    b1, b2 = np.minimum(ba, bb), np.maximum(ba, bb)
+    nodes = np.r_[lo[ia], hi[ia]]
+    b1, b2 = np.r_[b1, b1], np.r_[b2, b2]
+    pair_key = sorted_unique((b1 * n + b2) * n + nodes) if nodes.size else np.zeros(0, np.int64)
+    rest, node = np.divmod(pair_key, n)
+    p1, p2 = np.divmod(rest, n)
+    pairs = np.stack([copy_of(p1, node), copy_of(p2, node)], axis=1) if node.size else np.zeros((0, 2), np.int64)
+    if pairs.size:
+        xy = data.coords[node]
+        pairs = pairs[np.lexsort((xy[:, 0], xy[:, 1], p2, p1))]
+    return data.coords[copy_node], new_els, el_body, dirichlet_mask, pairs
+
+
+def _bc_index(data: NetgenData, name: str, field_name: str) -> list[int]:
+    """All boundary indices named ``name`` (netgen may give one name several indices)."""
+    if name not in data.bc_names:
+        raise InputError(field_name, f"the mesh has no boundary named {name!r}; it has {sorted(set(data.bc_names))}")
+    return [i for i, bc in enumerate(data.bc_names) if bc == name]
+
+
+# --------------------------------------------------------------------------- scenes
+def _assemble_scene(data: NetgenData, body_of_material: np.ndarray, *, parts: int, dirichlet: Any,
+                    contact: str | None, rho: float | np.ndarray, f: RightHandSide | np.ndarray,
+                    seed: int) -> Scene:
+    t0 = time.perf_counter()
+    coords, elements, el_body, dir_mask, pairs = split_bodies(data, body_of_material, dirichlet=dirichlet,
+                                                              contact=contact)
+    t1 = time.perf_counter()
+    n_bodies = int(el_body.max()) + 1
+    if np.any(np.bincount(el_body, minlength=n_bodies) == 0):
+        raise InputError("bodies", "every body needs at least one element")
+    element_subdomain = np.empty(elements.shape[0], dtype=np.int64)
+    order = np.argsort(el_body, kind="stable")
+    bounds = np.searchsorted(el_body[order], np.arange(n_bodies + 1))
+    for b in range(n_bodies):                      # a loop over bodies, each touching its own elements
+        members = order[bounds[b]:bounds[b + 1]]
+        element_subdomain[members] = partition_elements(elements[members], parts, seed=seed) + b * int(parts)
+    t2 = time.perf_counter()
+    LAST_TIMINGS.update(split=t1 - t0, partition=t2 - t1)
+    n_sub = n_bodies * int(parts)
+    try:
+        rho_arr = np.broadcast_to(np.asarray(rho, dtype=float), (n_sub,)).copy()
+    except (TypeError, ValueError):
+        rho_arr = None
+    if rho_arr is None or np.any(~np.isfinite(rho_arr)) or np.any(rho_arr <= 0):
+        raise InputError("rho", f"must be positive: a number or one value per subdomain ({n_sub})")
+    if isinstance(f, np.ndarray) and f.shape != (elements.shape[0],):
+        raise InputError("f", f"an array load needs one value per element ({elements.shape[0]}), got {f.shape}")
+    log.info("unstructured scene: %d nodes, %d triangles, %d bodies x %d parts, %d pairs",
+             coords.shape[0], elements.shape[0], n_bodies, parts, pairs.shape[0])
+    return Scene(coords=coords, elements=elements.astype(np.int64), element_subdomain=element_subdomain,
+                 subdomain_body=np.repeat(np.arange(n_bodies), int(parts)), rho=rho_arr, dirichlet=dir_mask,
+                 f=f, contact_pairs=pairs)
+
+
+def _element_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    p0, p1, p2 = (coords[elements[:, k]] for k in range(3))
+    return 0.5 * np.abs((p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0]))
+
+
+def unstructured_scene(problem: str = "poisson", *, geometry: str | None = None, maxh: float = 0.1,
+                       refine: int = 0, parts: int = 4, bodies: int = 1, rho: float | np.ndarray = 1.0,
+                       f: RightHandSide | np.ndarray | None = None,
+                       patches: tuple[float, float] = DOSTAL_LOADS, seed: int = 0) -> Scene:
+    """P1 scene of a built-in netgen geometry, each body split into ``parts`` METIS subdomains.
+
+    Parameters
+    ----------
+    problem : {"poisson", "multibody", "contact"}
+    geometry : str, optional
+        poisson: ``"square"`` (default), ``"lshape"``, ``"hole"``;
+        multibody: ``"square"``; contact: ``"membranes"``.
+    maxh : float
+        netgen's largest element size (h before refinement).
+    refine : int
+        Uniform refinements after meshing (h / 2^refine, 4^refine times the triangles).
+    parts : int
+        METIS subdomains per body (1 <= parts <= elements of a body).
+    bodies : int
+        multibody: bodies per side N_b of problem (4.32) (N_b^2 bodies).
+    rho : float or ndarray, shape (n_bodies * parts,)
+        Coefficient per subdomain (subdomain = body * parts + part).
+    f : float, callable or ndarray of shape (n_elements,), optional
+        Right-hand side (default 1; contact: the Dostal patch loads ``patches``).
+    patches : (float, float)
+        Contact loads on (0,1)x[3/4,1) and (1,2)x(0,1/4) when ``f`` is None.
+    seed : int
+        METIS seed.
+
+    Returns
+    -------
+    Scene
+        P1 triangles; ``element_type == "P1"``; no ``subdomain_grid``;
+        ``contact_pairs`` lists the node copies on inter-body interfaces
+        (contact: ordered by y, a on Omega^1).
+
+    Raises
+    ------
+    InputError
+        Bad problem, geometry, maxh, refine, parts, bodies, rho or f; a contact
+        load that does not press Omega^2 onto Omega^1.
+    """
+    t0 = time.perf_counter()
+    ngmesh = mesh_geometry(problem, geometry=geometry, maxh=maxh, refine=refine, bodies=bodies)
+    t1 = time.perf_counter()
+    data = netgen_arrays(ngmesh)
+    names = data.material_names
+    body_of_material = np.array([int(name[4:]) for name in names], dtype=np.int64)
+    if problem == "contact":
+        scene = _assemble_scene(data, body_of_material, parts=parts, dirichlet=["clamp"], contact="contact",
+                                rho=rho, f=1.0 if f is None else f, seed=seed)
+        centroids = scene.coords[scene.elements].mean(axis=1)
+        loads = dostal_loads(centroids, *patches) if f is None else f
+        if not isinstance(loads, np.ndarray) and not callable(loads):
+            loads = np.full(scene.elements.shape[0], float(loads))
+        if isinstance(loads, np.ndarray):
+            _check_contact_load(scene, loads)
+        scene.f = loads
+    else:
+        scene = _assemble_scene(data, body_of_material, parts=parts, dirichlet="boundary", contact=None,
+                                rho=rho, f=1.0 if f is None else f, seed=seed)
+    LAST_TIMINGS["mesh"] = t1 - t0
+    log.info("unstructured %s/%s: mesh %.3fs split %.3fs partition %.3fs", problem, geometry, t1 - t0,
+             LAST_TIMINGS["split"], LAST_TIMINGS["partition"])
+    return scene
+
+
+def _check_contact_load(scene: Scene, loads: np.ndarray) -> None:
+    """The floating membrane must be pressed onto Omega^1 (see :func:`ddsolve.scene.contact.two_membranes`)."""
+    if not np.all(np.isfinite(loads)):
+        raise InputError("f", "must be finite on every element")
+    on2 = scene.subdomain_body[scene.element_subdomain] == 1
+    area = _element_areas(scene.coords, scene.elements)[on2]
+    integral = float(np.sum(loads[on2] * area))
+    magnitude = float(np.sum(np.abs(loads[on2]) * area))
+    if not integral < -NET_LOAD_FLOOR * magnitude:
+        raise InputError("f", f"the floating membrane Omega^2 needs a load with negative integral "
+                              f"(got {integral:.6g}); otherwise it is not pressed onto Omega^1 and (3.1) "
+                              f"has no unique solution")
+
+
+def load_netgen_mesh(path: str | os.PathLike) -> Any:
+    """Load a netgen ``.vol`` (or ``.vol.gz``) file, checking that it is one.
+
+    Raises
+    ------
+    InputError
+        ``mesh``: missing file or a file that is not a netgen mesh.
+    """
+    import gzip
+
+    from netgen.meshing import Mesh as NGMesh
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError("mesh", f"no such file: {path}")
+    opener = gzip.open if path.endswith(".gz") else open
+    try:
+        with opener(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError as exc:
+        raise InputError("mesh", f"cannot read {path}: {exc}") from None
+    lines = [ln.strip() for ln in head.decode("latin-1").splitlines()]
+    words = [ln for ln in lines if ln and not ln.startswith("#")]
+    if not words or words[0] not in ("mesh3d", "mesh2d"):
+        raise InputError("mesh", f"{path} is not a netgen mesh (a .vol file starts with 'mesh3d')")
+    ngmesh = NGMesh(dim=2)
+    try:
+        ngmesh.Load(path)
+    except Exception as exc:  # netgen raises its own NgException
+        raise InputError("mesh", f"netgen cannot read {path}: {exc}") from None
+    return ngmesh
+
+
+def scene_from_mesh(path_or_mesh: str | os.PathLike | Any, *, bodies: Sequence[str] | None = None,
+                    dirichlet: str | Sequence[str] = "boundary", contact: str | None = None, parts: int = 4,
+                    refine: int = 0, rho: float | np.ndarray = 1.0, f: RightHandSide | np.ndarray = 1.0,
+                    seed: int = 0) -> Scene:
+    """P1 scene of a user's netgen mesh: materials are bodies, named boundaries carry the conditions.
+
+    Parameters
+    ----------
+    path_or_mesh : path or netgen.meshing.Mesh
+        A 2-D netgen mesh file (``.vol``, ``.vol.gz``) or mesh.
+    bodies : sequence of str, optional
+        Material names in body order; several domains may share a material
+        name (one body). Default: every material, in order of first index.
+    dirichlet : "boundary" or str or sequence of str
+        ``"boundary"``: u = 0 on the whole outer boundary; else the names of
+        the boundaries where u = 0.
+    contact : str, optional
+        Name of the contact boundary between two bodies (must be conforming:
+        the bodies share their nodes there in the mesh file).
+    parts : int
+        METIS subdomains per body.
+    refine : int
+        Uniform refinements before splitting.
+    rho, f, seed
+        As in :func:`unstructured_scene`.
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, not a netgen mesh, an unknown material or
+        boundary name, a non-conforming contact interface (with its location).
+    """
+    t0 = time.perf_counter()
+    if isinstance(path_or_mesh, (str, os.PathLike)):
+        ngmesh = load_netgen_mesh(path_or_mesh)
+    else:
+        ngmesh = path_or_mesh
+    _check_positive("refine", refine, integer=True, allow_zero=True)
+    for _ in range(int(refine)):
+        ngmesh.Refine()
+    data = netgen_arrays(ngmesh)
+    names = data.material_names
+    if bodies is None:
+        order: list[str] = []
+        for name in names:
+            if name not in order:
+                order.append(name)
+        bodies = order
+    bodies = list(bodies)
+    missing = [b for b in bodies if b not in names]
+    if missing:
+        raise InputError("bodies", f"the mesh has no material named {missing[0]!r}; it has {sorted(set(names))}")
+    used = set(np.unique(data.material).tolist())
+    unassigned = sorted({names[i] for i in used} - set(bodies))
+    if unassigned:
+        raise InputError("bodies", f"materials {unassigned} are in the mesh but not listed as bodies")
+    body_of_material = np.array([bodies.index(name) if name in bodies else -1 for name in names], dtype=np.int64)
+    t1 = time.perf_counter()
+    scene = _assemble_scene(data, body_of_material, parts=parts, dirichlet=dirichlet, contact=contact,
+                            rho=rho, f=f, seed=seed)
+    LAST_TIMINGS["mesh"] = t1 - t0
+    return scene
