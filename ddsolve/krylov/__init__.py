@@ -18,5 +18,16 @@ from .pcg import PCG, pcg
 from .pcr import PCR, pcr
 from .result import KrylovResult
 
-__all__ = ["pcg", "pcr", "PCG", "PCR", "KrylovSolver", "lanczos_extreme_eigenvalues", "KrylovResult",
-           "TRUE_RESIDUAL_FACTOR", "RESTART_FACTOR", "attained", "norm2"]
+__all__ = [
+           "PCG",
+           "PCR",
+           "RESTART_FACTOR",
+           "TRUE_RESIDUAL_FACTOR",
+           "KrylovResult",
+           "KrylovSolver",
+           "attained",
+           "lanczos_extreme_eigenvalues",
+           "norm2",
+           "pcg",
+           "pcr",
+]

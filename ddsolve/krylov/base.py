@@ -28,11 +28,16 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import aslinearoperator
 
 from ..errors import InputError
-from .convergence import (RESTART_FACTOR, TRUE_RESIDUAL_FACTOR, attained_residual, norm2,
-                          not_attained_reason)
+from .convergence import (
+    RESTART_FACTOR,
+    TRUE_RESIDUAL_FACTOR,
+    attained_residual,
+    norm2,
+    not_attained_reason,
+)
 from .result import KrylovResult
 
-__all__ = ["KrylovSolver", "CONVERGED", "MAXITER", "BREAKDOWN"]
+__all__ = ["BREAKDOWN", "CONVERGED", "MAXITER", "KrylovSolver"]
 
 logger = logging.getLogger(__name__)
 

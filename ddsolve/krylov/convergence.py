@@ -18,8 +18,14 @@ from scipy.linalg.blas import dnrm2
 
 from .result import KrylovResult
 
-__all__ = ["TRUE_RESIDUAL_FACTOR", "RESTART_FACTOR", "attained", "attained_residual",
-           "not_attained_reason", "norm2"]
+__all__ = [
+    "RESTART_FACTOR",
+    "TRUE_RESIDUAL_FACTOR",
+    "attained",
+    "attained_residual",
+    "norm2",
+    "not_attained_reason",
+]
 
 #: A Krylov solve counts as converged only if the residual recomputed from its
 #: final iterate is within this factor of the tolerance rtol ||r_0||.

@@ -18,7 +18,7 @@ from .convergence import norm2
 from .lanczos import lanczos_extreme_eigenvalues
 from .result import KrylovResult
 
-__all__ = ["pcg", "PCG"]
+__all__ = ["PCG", "pcg"]
 
 
 class PCG(KrylovSolver):

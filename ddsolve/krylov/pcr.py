@@ -41,7 +41,7 @@ from .base import BREAKDOWN, KrylovSolver, apply, as_matvec
 from .convergence import norm2
 from .result import KrylovResult
 
-__all__ = ["pcr", "PCR", "NORMS"]
+__all__ = ["NORMS", "PCR", "pcr"]
 
 logger = logging.getLogger(__name__)
 
