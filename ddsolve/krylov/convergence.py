@@ -51,7 +51,7 @@ def norm2(v: np.ndarray) -> float:
     """
     if v.size == 0:
         return 0.0
-    d = float(np.dot(v, v))
+    d = float(np.vdot(v, v))       # the BLAS dot of np.dot, without numpy's overflow warning
     if _DOT_MIN <= d < math.inf:
         return math.sqrt(d)
     return float(dnrm2(np.ascontiguousarray(v, dtype=np.float64)))
