@@ -81,7 +81,7 @@ def _solve(problem: str, method: str, s: float, t: float, norm: str = "M"):
     return out.u, None, (kr.iterations,), kr.converged, kr.reason
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _reference(problem: str, method: str, norm: str = "M"):
     return _solve(problem, method, 1.0, 1.0, norm)
 

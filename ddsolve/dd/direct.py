@@ -29,7 +29,11 @@ def solve_direct(sub: Substructures) -> MethodOutput:
         a zero-iteration result with ``converged=False`` and the reason
         (nothing is raised).
     """
-    from ..multibody.direct import SingularMatrixError, factorize_spd, failed_direct_solve
+    from ..multibody.direct import (
+        SingularMatrixError,
+        factorize_spd,
+        failed_direct_solve,
+    )
 
     t0 = time.perf_counter()
     A = sub.global_matrix()

@@ -19,8 +19,8 @@ from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
+from scipy.sparse import csgraph
 
 from ..dd.common import MethodOutput
 from ..dd.substructure import Substructures
