@@ -41,14 +41,15 @@ class PCG(KrylovSolver):
         """
         x, r, tmp = self.x, self.r, self.tmp
         alphas, betas = self.alphas, self.betas
-        z = self.precondition(r)
+        op, precondition, advance = self.op, self.precondition, self.advance
+        z = precondition(r)
         rho = float(np.dot(r, z))
         if not (rho > 0.0 and math.isfinite(rho)):
             return self.breakdown(f"breakdown: <r, M r> = {rho:.3e} at iteration 0 "
                                   "(preconditioner not positive definite or NaN/inf)")
         p = z
         for k in range(1, self.maxiter + 1):
-            q = self.op(p)
+            q = op(p)
             pq = float(np.dot(p, q))
             if not (pq > 0.0 and math.isfinite(pq)):
                 return self.breakdown(f"breakdown: <p, A p> = {pq:.3e} <= 0 at iteration {k} "
@@ -62,10 +63,10 @@ class PCG(KrylovSolver):
             r -= tmp
             if alphas is not None:
                 alphas.append(alpha)
-            outcome = self.advance(norm2(r))
+            outcome = advance(norm2(r))
             if outcome is not None:
                 return outcome
-            z = self.precondition(r)
+            z = precondition(r)
             rho_new = float(np.dot(r, z))
             if not (rho_new > 0.0 and math.isfinite(rho_new)):
                 return self.breakdown(f"breakdown: <r, M r> = {rho_new:.3e} at iteration {k} "
