@@ -7,7 +7,8 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
 
-from ddsolve.krylov import KrylovResult, lanczos_extreme_eigenvalues, pcg, pcr
+from ddsolve.krylov import (PCR, RESTART_FACTOR, TRUE_RESIDUAL_FACTOR, KrylovResult, KrylovSolver, attained,
+                            lanczos_extreme_eigenvalues, norm2, pcg, pcr)
 
 
 # --------------------------------------------------------------------------- #
@@ -424,10 +425,6 @@ def test_pcr_three_term_recurrence_figure_1_3(monkeypatch, caplog, pivot_tol, pr
 # --------------------------------------------------------------------------- #
 # base class, convergence policy, scale safety
 # --------------------------------------------------------------------------- #
-from ddsolve.krylov import (PCR, RESTART_FACTOR, TRUE_RESIDUAL_FACTOR, KrylovSolver,  # noqa: E402
-                            attained, norm2)
-
-
 class _Richardson(KrylovSolver):
     """x += omega r: the smallest recurrence, to show what the base class does."""
 
