@@ -7,7 +7,8 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
 
-from ddsolve.krylov import KrylovResult, lanczos_extreme_eigenvalues, pcg, pcr
+from ddsolve.krylov import (PCR, RESTART_FACTOR, TRUE_RESIDUAL_FACTOR, KrylovResult, KrylovSolver, attained,
+                            lanczos_extreme_eigenvalues, norm2, pcg, pcr)
 
 
 # --------------------------------------------------------------------------- #
@@ -419,3 +420,166 @@ def test_pcr_three_term_recurrence_figure_1_3(monkeypatch, caplog, pivot_tol, pr
     assert res.converged, res.reason
     assert _rel(res.x, sla.solve(a, f)) < 1e-8
     assert res.true_residual <= 100 * res.residuals[-1]
+
+
+# --------------------------------------------------------------------------- #
+# base class, convergence policy, scale safety
+# --------------------------------------------------------------------------- #
+class _Richardson(KrylovSolver):
+    """x += omega r: the smallest recurrence, to show what the base class does."""
+
+    name = "richardson"
+
+    def __init__(self, *args, omega: float = 1.0, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.omega = omega
+
+    def iterate(self) -> str:
+        while True:
+            self.x += self.omega * self.r
+            self.r = self.b - self.op(self.x)
+            outcome = self.advance(norm2(self.r))
+            if outcome is not None:
+                return outcome
+
+
+def test_base_class_does_the_bookkeeping():
+    a = np.diag(np.linspace(0.5, 1.5, 12))
+    b = np.random.default_rng(20).standard_normal(12)
+    seen = []
+    res = _Richardson(a, b, rtol=1e-8, callback=lambda xk: seen.append(xk.copy())).solve()
+    assert res.converged and res.attained and res.restarts == 0
+    assert res.iterations == len(seen) == len(res.residuals) - 1
+    assert res.matvecs == res.iterations + 1                      # + the recomputed residual
+    assert res.true_residual == pytest.approx(np.linalg.norm(b - a @ res.x), rel=1e-12)
+    assert res.residuals[-1] <= 1e-8 * res.residuals[0] < res.residuals[-2]
+    np.testing.assert_allclose(res.x, b / np.diag(a), rtol=1e-7)
+    slow = _Richardson(a, b, rtol=1e-8, maxiter=3).solve()
+    assert not slow.converged and slow.reason.startswith("maxiter 3 reached") and slow.iterations == 3
+
+
+@pytest.mark.parametrize("solver", [pcg, pcr])
+def test_zero_rhs_gives_zero_solution(solver):
+    rng = np.random.default_rng(21)
+    a = random_spd(rng, 15)
+    res = solver(a, np.zeros(15), x0=rng.standard_normal(15))
+    assert res.converged and res.iterations == 0 and res.attained
+    np.testing.assert_array_equal(res.x, np.zeros(15))
+    assert "zero right-hand side" in res.reason
+    assert res.true_residual == 0.0
+
+
+@pytest.mark.parametrize("solver", [pcg, pcr])
+def test_non_finite_true_residual_is_not_converged(solver):
+    """The recursion converges but the operator returns NaN for the recomputed residual."""
+    rng = np.random.default_rng(22)
+    a = random_spd(rng, 10)
+    n_iter = solver(a, np.ones(10), rtol=1e-8).iterations
+    calls = []
+
+    def matvec(v):
+        calls.append(1)
+        return a @ v if len(calls) <= n_iter else np.full(10, np.nan)
+
+    res = solver(LinearOperator(a.shape, matvec=matvec, dtype=float), np.ones(10), rtol=1e-8)
+    assert res.iterations == n_iter and not res.converged
+    assert res.reason.startswith("non-finite"), res.reason
+    assert res.attained is False
+
+
+@pytest.mark.parametrize("solver", [pcg, pcr])
+def test_non_finite_data_reported(solver):
+    a = random_spd(np.random.default_rng(23), 10)
+    b = np.ones(10)
+    b[2] = np.inf
+    res = solver(a, b)
+    assert not res.converged and "non-finite" in res.reason
+
+
+def test_tolerance_below_attainable_accuracy_is_not_converged():
+    rng = np.random.default_rng(24)
+    a = spd_with_spectrum(rng, np.logspace(0, 8, 60))
+    res = pcg(a, rng.standard_normal(60), rtol=1e-20, maxiter=2000)
+    assert not res.converged and res.attained is False
+    assert res.reason.startswith("tolerance not attained") or res.reason.startswith("maxiter")
+    assert attained(res, 1e-20)[0] is False
+
+
+def test_attained_matches_the_api_rule():
+    rng = np.random.default_rng(25)
+    a = random_spd(rng, 20)
+    res = pcg(a, rng.standard_normal(20), rtol=1e-8)
+    assert attained(res, 1e-8) == (True, res.reason)
+    # a converged result whose recomputed residual misses rtol by more than the factor
+    bad = KrylovResult(x=res.x, converged=True, reason="converged", iterations=3,
+                       residuals=np.array([1.0, 1e-9]), true_residual=2 * TRUE_RESIDUAL_FACTOR * 1e-8)
+    ok, why = attained(bad, 1e-8)
+    assert not ok and why.startswith("tolerance not attained")
+    assert RESTART_FACTOR < TRUE_RESIDUAL_FACTOR
+
+
+# powers of two near 1e170, 1e-170, 1e300, 1e-300: the scaled systems are exact, so the
+# iterates must be the same numbers (the solvers rescale by powers of two internally)
+POW2 = [2.0 ** 565, 2.0 ** -565, 2.0 ** 996, 2.0 ** -996]
+
+
+@pytest.mark.parametrize("scale", POW2)
+@pytest.mark.parametrize("solver", ["pcg", "pcr-l2", "pcr-M"])
+def test_scaled_systems_same_iterations(solver, scale):
+    """b -> scale b: ||b||^2 under/overflows at these scales; same iterations, x -> scale x."""
+    rng = np.random.default_rng(26)
+    a = laplacian_2d(8, rng)
+    m = sp.diags(1.0 / a.diagonal())
+    b = rng.standard_normal(a.shape[0])
+    run = {"pcg": lambda bb, **k: pcg(a, bb, M=m, rtol=1e-10, **k),
+           "pcr-l2": lambda bb, **k: pcr(a, bb, M=m, rtol=1e-10, **k),
+           "pcr-M": lambda bb, **k: pcr(a, bb, M=m, rtol=1e-10, norm="M", **k)}[solver]
+    ref = run(b)
+    seen = []
+    res = run(scale * b, callback=lambda xk: seen.append(float(np.abs(xk).max())))
+    assert ref.converged and res.converged, res.reason
+    assert res.iterations == ref.iterations > 5
+    np.testing.assert_array_equal(res.x, scale * ref.x)
+    np.testing.assert_array_equal(res.residuals, scale * ref.residuals)
+    assert res.true_residual == scale * ref.true_residual
+    # the callback sees the unscaled iterate
+    assert seen[-1] == scale * float(np.abs(ref.x).max())
+
+
+@pytest.mark.parametrize("scale", [2.0 ** 565, 2.0 ** -565])
+def test_scaled_operator_same_iterations(scale):
+    """A -> A / scale, b -> b / scale (rho ~ 1e-170 / 1e170 with x ~ 1): ||r0||^2 under/overflows;
+    the same iterates (was 'converged: ||r0|| = 0' after 0 iterations, or a breakdown)."""
+    rng = np.random.default_rng(27)
+    a = laplacian_2d(8, rng)
+    m = sp.diags(1.0 / a.diagonal())
+    b = rng.standard_normal(a.shape[0])
+    ref = pcg(a, b, M=m, rtol=1e-9)
+    res = pcg(a / scale, b / scale, M=m * scale, rtol=1e-9)
+    assert res.converged and res.iterations == ref.iterations > 5
+    np.testing.assert_array_equal(res.x, ref.x)
+
+
+def test_norm2_safe_and_fast_path_exact():
+    v = np.random.default_rng(28).standard_normal(1000)
+    assert norm2(v) == np.sqrt(np.dot(v, v))              # fast path: the same number as before
+    assert norm2(1e-170 * v) == pytest.approx(1e-170 * norm2(v), rel=1e-14)
+    assert norm2(1e170 * v) == pytest.approx(1e170 * norm2(v), rel=1e-14)
+    assert norm2(np.zeros(3)) == 0.0 and norm2(np.zeros(0)) == 0.0
+    assert np.isnan(norm2(np.array([1.0, np.nan]))) and norm2(np.array([1.0, np.inf])) == np.inf
+
+
+def test_restarted_counts_restarts_and_matches_one_cycle():
+    rng = np.random.default_rng(29)
+    a, _ = saddle_point(rng, nk=60, m=15)
+    f = rng.standard_normal(a.shape[0])
+    one = pcr(a, f, rtol=1e-10, maxiter=2000)
+    res = PCR.restarted(a, f, rtol=1e-10, maxiter=2000, restart=10)
+    assert one.converged and res.converged and res.attained
+    assert res.restarts >= 1 and res.iterations > 10 * res.restarts
+    assert len(res.residuals) == res.iterations + 1
+    assert "restart" in res.reason
+    np.testing.assert_allclose(res.x, np.linalg.solve(a, f), rtol=1e-7, atol=1e-9)
+    single = PCR.restarted(a, f, rtol=1e-10, maxiter=2000, restart=2000)
+    assert single.restarts == 0 and single.iterations == one.iterations
+    np.testing.assert_array_equal(single.x, one.x)

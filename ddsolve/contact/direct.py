@@ -25,12 +25,15 @@ from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from ..multibody.direct import merge_matrix
+from ..multibody.direct import SingularMatrixError, factorize_spd, merge_matrix
 from .problem import ContactProblem
 
 log = logging.getLogger(__name__)
+
+#: The primal-dual active set solution is accepted only if every relative KKT
+#: residual (5.5) (:meth:`ContactProblem.kkt`) is at most this.
+KKT_TOL = 1e-8
 
 #: A solve function of a factored matrix: b (n,) -> x (n,).
 FaceSolve = Callable[[np.ndarray], np.ndarray]
@@ -96,14 +99,11 @@ def superlu_factorize(A: sp.spmatrix) -> FaceSolve:
     Raises
     ------
     ValueError
-        If a pivot is below 1e-12 max |diag A| (the floating membrane is not
-        tied to the clamped one).
+        If a pivot is below 1e-12 times the diagonal entries of its own row and
+        column (scale-invariant, :func:`ddsolve.multibody.direct.factorize_spd`):
+        the floating membrane is not tied to the clamped one.
     """
-    A = sp.csc_matrix(A)
-    lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
-    if np.any(np.abs(lu.U.diagonal()) < 1e-12 * abs(A.diagonal()).max()):
-        raise ValueError("the floating membrane is not tied to the clamped one: empty active set")
-    return lu.solve
+    return factorize_spd(A, "the floating membrane is not tied to the clamped one: empty active set")
 
 
 def solve_face_direct(problem: ContactProblem, active: np.ndarray,
@@ -162,15 +162,27 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
     -------
     ContactSolution
         ``outer_iterations``: number of face solves; ``converged=False`` with a
-        reason if the active set still changes after ``maxiter`` updates.
+        reason if the active set still changes after ``maxiter`` updates or
+        cycles, if a face solve fails (singular face matrix, by a
+        scale-invariant pivot test; nothing is raised), or if the repeated
+        active set's ``u``, ``lambda`` are not finite or violate the KKT
+        conditions (5.5) (:meth:`ContactProblem.kkt`) by more than
+        :data:`KKT_TOL`.
     """
     t0 = time.perf_counter()
     c = float(problem.K.diagonal().mean())
     active = np.ones(problem.n_contact, dtype=bool)
     seen: set[bytes] = set()
     converged, reason = False, f"active set still changing after {maxiter} updates"
+    u = np.full(problem.K.shape[0], np.nan)
+    lam = np.full(problem.n_contact, np.nan)
+    it = 0
     for it in range(1, maxiter + 1):
-        u = solve_face_direct(problem, active, factorize)
+        try:
+            u = solve_face_direct(problem, active, factorize)
+        except (SingularMatrixError, ValueError) as exc:
+            reason = f"face solve {it} failed: {exc}"
+            break
         lam = problem.multipliers_from_residual(u, active)
         score = lam + c * problem.gap(u)
         scale = max(float(np.abs(lam).max()), c * float(np.abs(u).max()), 1e-300)
@@ -186,6 +198,20 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
             break
         seen.add(key)
         active = new
+    if converged:
+        converged, reason = _kkt_check(problem, u, lam, reason)
     log.info("contact direct (PDAS): %s", reason)
     return ContactSolution(u=u, lam=lam, active=active.copy(), converged=converged, reason=reason,
                            outer_iterations=it, seconds=time.perf_counter() - t0, n_factorizations=it)
+
+
+def _kkt_check(problem: ContactProblem, u: np.ndarray, lam: np.ndarray, reason: str) -> tuple[bool, str]:
+    """Accept a repeated active set only if u, lambda are finite and satisfy (5.5) to :data:`KKT_TOL`."""
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(lam))):
+        return False, f"non-finite u or lambda although the {reason.replace('active set ', 'active set was ')}"
+    kkt = problem.kkt(u, lam)
+    if kkt.max <= KKT_TOL:
+        return True, reason
+    parts = ", ".join(f"{k[4:]} {v:.1e}" for k, v in kkt.as_dict().items() if k != "kkt_residual")
+    return False, (f"KKT conditions (5.5) not met although the {reason.replace('active set ', 'active set was ')}: "
+                   f"relative residuals {parts} (> {KKT_TOL:.0e})")

@@ -133,7 +133,7 @@ class ContactProblem:
         l_one = float(np.abs(lam).sum())
         feas = max(float(g.max(initial=0.0)), 0.0) / u_inf + 0.0
         dual = max(float((-lam).max(initial=0.0)), 0.0) / l_inf + 0.0 if l_inf > 0 else 0.0
-        comp = abs(float(lam @ g)) / (l_one * u_inf) if l_one > 0 else 0.0
+        comp = abs(float((lam / l_one) @ (g / u_inf))) if l_one > 0 else 0.0   # no under/overflow of l_one u_inf
         contact = self.B.T @ lam
         scale = max(float(np.linalg.norm(self.f) + np.linalg.norm(contact)), 1e-300)
         stat = float(np.linalg.norm(self.K @ u - self.f + contact) / scale)

@@ -30,30 +30,18 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
 
-from .pcg import (
-    _apply,
-    _converged_reason,
-    _initial_checks,
-    _initial_residual,
-    _maxiter_reason,
-    _norm,
-    _readonly_view,
-    _setup,
-    _Setup,
-    _true_residual,
-)
 from ..errors import InputError
+from ..options import NORMS  # Euclidean, or <r, M r>^{1/2} with M the preconditioner
+from .base import BREAKDOWN, KrylovSolver, apply, as_matvec
+from .convergence import norm2
 from .result import KrylovResult
 
-__all__ = ["pcr", "NORMS"]
-
-from ..options import NORMS  # noqa: E402  (Euclidean, or <r, M r>^{1/2} with M the preconditioner)
+__all__ = ["NORMS", "PCR", "pcr"]
 
 logger = logging.getLogger(__name__)
 
@@ -64,98 +52,8 @@ _CR_PIVOT_TOL = 1e-8
 #: indefinite ``M``: its square root is taken of the absolute value.
 _ROUNDING = 64 * float(np.finfo(float).eps)
 
-# outcomes of one recurrence
-_CONVERGED, _MAXITER, _BREAKDOWN, _SWITCH = "converged", "maxiter", "breakdown", "switch"
-
-
-class _PCRState:
-    """Iterate, residual and bookkeeping shared by the two recurrences."""
-
-    def __init__(self, s: _Setup, r: np.ndarray, rnorm0: float, threshold: float,
-                 matvecs: int, callback: Callable[[np.ndarray], Any] | None,
-                 norm: str = "l2", z: np.ndarray | None = None) -> None:
-        self.s = s
-        self.x = s.x
-        self.r = r
-        #: stopping norm, "l2" or "M"
-        self.norm = norm
-        #: z = P M r, updated with r (always by the two-term recurrence, by the
-        #: three-term one only for norm="M"); None when not carried
-        self.z = z
-        self.rnorm0 = rnorm0
-        self.threshold = threshold
-        self.matvecs = matvecs
-        self.iterations = 0
-        self.residuals = [rnorm0]
-        self.reason = ""
-        self.tmp = np.empty_like(s.x)
-        self.callback = callback
-        self.x_view = _readonly_view(self.x) if callback is not None else None
-        self.debug = logger.isEnabledFor(logging.DEBUG)
-
-    def op(self, v: np.ndarray) -> np.ndarray:
-        """``P A v`` (counts one operator application)."""
-        self.matvecs += 1
-        w = _apply(self.s.A, v)
-        return w if self.s.P is None else _apply(self.s.P, w)
-
-    def precondition(self, v: np.ndarray) -> np.ndarray:
-        """``P M v`` (a fresh array)."""
-        return _precondition(self.s, v)
-
-    def step(self, step: float, p: np.ndarray, ap: np.ndarray,
-             map_: np.ndarray | None = None) -> str | None:
-        """``x += step p``, ``r -= step A p``, ``z -= step M A p``; record, call back, test.
-
-        ``map_`` (``P M A p``) is required while ``self.z`` is carried. The
-        residual is measured in ``self.norm``. Returns None to continue, or
-        ``_CONVERGED`` / ``_MAXITER`` / ``_BREAKDOWN`` (with ``self.reason`` set).
-        """
-        tmp = self.tmp
-        np.multiply(p, step, out=tmp)
-        self.x += tmp
-        np.multiply(ap, step, out=tmp)
-        self.r -= tmp
-        if self.z is not None:
-            if map_ is None:  # pragma: no cover - internal invariant
-                raise RuntimeError("pcr: M A p is needed to update z = M r")
-            np.multiply(map_, step, out=tmp)
-            self.z -= tmp
-        self.iterations += 1
-        k = self.iterations
-        if self.norm == "M":
-            rz = float(np.dot(self.r, self.z))
-            rnorm = _m_norm(self.r, self.z, rz)
-            if math.isnan(rnorm) and math.isfinite(rz):
-                # clearly negative <r, M r>: recorded by its modulus (a non-finite one is caught below)
-                self.residuals.append(math.sqrt(-rz))
-                self.reason = (f"breakdown: <r, M r> = {rz:.3e} < 0 at iteration {k} "
-                               "(M not positive definite)")
-                return _BREAKDOWN
-        else:
-            rnorm = _norm(self.r)
-        self.residuals.append(rnorm)
-        if self.debug:
-            logger.debug("pcr it %d: ||r||/||r0|| = %.3e (%s)", k, rnorm / self.rnorm0, self.norm)
-        if self.callback is not None:
-            self.callback(self.x_view)
-        if not math.isfinite(rnorm):
-            self.reason = f"breakdown: non-finite residual at iteration {k}"
-            return _BREAKDOWN
-        if rnorm <= self.threshold:
-            self.reason = _label(_converged_reason(rnorm, self.rnorm0, self.threshold), self.norm)
-            return _CONVERGED
-        if k >= self.s.maxiter:
-            self.reason = _label(_maxiter_reason(self.s.maxiter, rnorm, self.rnorm0, self.threshold),
-                                 self.norm)
-            return _MAXITER
-        return None
-
-    def breakdown_denominator(self, value: float) -> str:
-        self.reason = (f"breakdown: <A p, M A p> = {value:.3e} at iteration "
-                       f"{self.iterations + 1} (A singular, M not positive definite, "
-                       "or NaN/inf)")
-        return _BREAKDOWN
+#: outcome of the two-term recurrence when its pivot <z, A z> vanishes
+_SWITCH = "switch"
 
 
 def _m_norm(r: np.ndarray, z: np.ndarray, rz: float | None = None) -> float:
@@ -169,19 +67,132 @@ def _m_norm(r: np.ndarray, z: np.ndarray, rz: float | None = None) -> float:
         rz = float(np.dot(r, z))
     if rz >= 0.0:
         return math.sqrt(rz)
-    if -rz <= _ROUNDING * _norm(r) * _norm(z):
+    if -rz <= _ROUNDING * norm2(r) * norm2(z):
         return math.sqrt(-rz)
     return math.nan
 
 
-def _label(reason: str, norm: str) -> str:
-    """Name the ``M``-norm in a stopping reason (``||r||`` -> ``||r||_M``)."""
-    if norm != "M":
-        return reason
-    return reason.replace("||r||/||r0||", "||r||_M/||r0||_M")
+class PCR(KrylovSolver):
+    """Projected preconditioned conjugate residuals, the recurrences of :func:`pcr`.
+
+    Parameters are those of :class:`~ddsolve.krylov.base.KrylovSolver` and
+    ``norm`` (``"l2"`` or ``"M"``, the stopping norm).
+    """
+
+    name = "pcr"
+
+    def __init__(self, A: Any, b: Any, x0: Any = None, *, norm: Literal["l2", "M"] = "l2",
+                 **kwargs: Any) -> None:
+        if not isinstance(norm, str) or norm not in NORMS:
+            raise InputError("norm", f"must be one of {', '.join(map(repr, NORMS))}, got {norm!r}")
+        super().__init__(A, b, x0, **kwargs)
+        #: stopping norm, "l2" or "M"
+        self.norm = norm
+        #: z = P M r, updated with r (always by the two-term recurrence, by the
+        #: three-term one only for norm="M"); None when not carried
+        self.z: np.ndarray | None = None
+
+    @staticmethod
+    def rhs_norm(b: np.ndarray, M: Any = None, norm: str = "l2") -> float:
+        """``||b||_2``, or for ``norm="M"`` ``|<b, M b>|^{1/2}``, safe against under/overflow.
+
+        The ``M``-norm is computed on ``2^k b`` with ``max |2^k b|`` of order
+        one when ``b`` is far from that scale (exact; the result is divided by
+        ``2^k``).
+        """
+        b = np.asarray(b, dtype=np.float64)
+        if norm != "M":
+            return norm2(b)
+        if M is None:
+            return norm2(b)
+        matvec = as_matvec(M, b.size, "M")[0]
+        amax = float(np.max(np.abs(b))) if b.size else 0.0
+        scale = 1.0
+        if 0.0 < amax < math.inf and not -64 <= math.frexp(amax)[1] <= 64:
+            scale = math.ldexp(1.0, max(-1000, min(1000, -math.frexp(amax)[1])))
+        bs = b * scale if scale != 1.0 else b
+        bb = float(np.dot(bs, apply(matvec, bs)))
+        return float(np.sqrt(abs(bb))) / scale   # a negative <F, B^{-1} F> breaks down in pcr
+
+    # ------------------------------------------------------------ hooks
+    def initial_norm(self, r: np.ndarray) -> float:
+        if self.norm != "M":
+            return norm2(r)
+        self.z = self.precondition(r)
+        return _m_norm(r, self.z)
+
+    def initial_failure(self, rnorm0: float) -> tuple[str, float]:
+        if self.norm != "M":
+            return super().initial_failure(rnorm0)
+        rz = float(np.dot(self.r, self.z))
+        what = (f"<r0, M r0> = {rz:.3e} < 0 (M not positive definite)" if math.isfinite(rz)
+                else "non-finite <r0, M r0> (NaN/inf in A, b, x0, M or P)")
+        return f"breakdown: {what}", (math.sqrt(-rz) if math.isfinite(rz) else rnorm0)
+
+    def true_residual(self, x: np.ndarray) -> float:
+        """``||P (b - A x)||`` in the stopping norm; for ``"M"`` ``<r, P M r>^{1/2}``
+        (one more preconditioner application; NaN if ``<r, M r>`` is clearly negative).
+        """
+        if self.norm != "M":
+            return super().true_residual(x)
+        r = self.b - apply(self.A, x)
+        if self.P is not None:
+            r = apply(self.P, r)
+        return _m_norm(r, self.precondition(r))
+
+    def label(self, reason: str) -> str:
+        """Name the ``M``-norm in a stopping reason (``||r||`` -> ``||r||_M``)."""
+        if self.norm != "M":
+            return reason
+        return reason.replace("||r||/||r0||", "||r||_M/||r0||_M")
+
+    # ------------------------------------------------------------ recurrence
+    def iterate(self) -> str:
+        outcome = _two_term(self)
+        if outcome == _SWITCH:
+            logger.debug("pcr: <z, A z> ~ 0 at iteration %d, switching to the three-term "
+                         "recurrence (Figure 1.3)", self.iterations + 1)
+            outcome = _three_term(self)
+        return outcome
+
+    def step(self, step: float, p: np.ndarray, ap: np.ndarray,
+             map_: np.ndarray | None = None) -> str | None:
+        """``x += step p``, ``r -= step A p``, ``z -= step M A p``; record, call back, test.
+
+        ``map_`` (``P M A p``) is required while ``self.z`` is carried. The
+        residual is measured in ``self.norm``. Returns None to continue, or
+        CONVERGED / MAXITER / BREAKDOWN (with ``self.reason`` set).
+        """
+        tmp = self.tmp
+        np.multiply(p, step, out=tmp)
+        self.x += tmp
+        np.multiply(ap, step, out=tmp)
+        self.r -= tmp
+        if self.z is not None:
+            if map_ is None:  # pragma: no cover - internal invariant
+                raise RuntimeError("pcr: M A p is needed to update z = M r")
+            np.multiply(map_, step, out=tmp)
+            self.z -= tmp
+        if self.norm == "M":
+            rz = float(np.dot(self.r, self.z))
+            rnorm = _m_norm(self.r, self.z, rz)
+            if math.isnan(rnorm) and math.isfinite(rz):
+                # clearly negative <r, M r>: recorded by its modulus (a non-finite one is caught below)
+                self.iterations += 1
+                self.residuals.append(math.sqrt(-rz))
+                return self.breakdown(f"breakdown: <r, M r> = {rz:.3e} < 0 at iteration "
+                                      f"{self.iterations} (M not positive definite)")
+        else:
+            rnorm = norm2(self.r)
+        return self.advance(rnorm)
+
+    def breakdown_denominator(self, value: float) -> str:
+        return self.breakdown(f"breakdown: <A p, M A p> = {value:.3e} at iteration "
+                              f"{self.iterations + 1} (A singular, M not positive definite, "
+                              "or NaN/inf)")
 
 
-def _two_term(st: _PCRState) -> str:
+def _two_term(st: PCR) -> str:
     """Conjugate residual recurrences for ``M A`` in the ``M^{-1}`` inner product::
 
         z_0 = M r_0,  p_0 = z_0,  A p_0 = A z_0,  rho_0 = <z_0, A z_0>
@@ -194,7 +205,7 @@ def _two_term(st: _PCRState) -> str:
         A p_{k+1} = A z_{k+1} + beta_k A p_k,   M A p_{k+1} = M (A p_{k+1})
 
     One operator (``A z``) and one preconditioner (``M A p``) application per
-    iteration. ``z`` is ``st.z``, updated in place by :meth:`_PCRState.step`.
+    iteration. ``z`` is ``st.z``, updated in place by :meth:`PCR.step`.
     Returns ``_SWITCH`` when ``rho`` is numerically zero.
     """
     if st.z is None:
@@ -204,8 +215,8 @@ def _two_term(st: _PCRState) -> str:
     rho = float(np.dot(z, az))
     if not math.isfinite(rho):
         st.reason = f"breakdown: non-finite <z, A z> at iteration {st.iterations + 1}"
-        return _BREAKDOWN
-    if abs(rho) <= _CR_PIVOT_TOL * _norm(z) * _norm(az):
+        return BREAKDOWN
+    if abs(rho) <= _CR_PIVOT_TOL * norm2(z) * norm2(az):
         return _SWITCH
     p = z.copy()
     ap = az
@@ -217,7 +228,7 @@ def _two_term(st: _PCRState) -> str:
         alpha = rho / den
         if not math.isfinite(alpha):
             st.reason = f"breakdown: non-finite step length at iteration {st.iterations + 1}"
-            return _BREAKDOWN
+            return BREAKDOWN
         outcome = st.step(alpha, p, ap, map_)     # also z -= alpha M A p
         if outcome is not None:
             return outcome
@@ -225,8 +236,8 @@ def _two_term(st: _PCRState) -> str:
         rho_new = float(np.dot(z, az))
         if not math.isfinite(rho_new):
             st.reason = f"breakdown: non-finite <z, A z> at iteration {st.iterations + 1}"
-            return _BREAKDOWN
-        if abs(rho_new) <= _CR_PIVOT_TOL * _norm(z) * _norm(az):
+            return BREAKDOWN
+        if abs(rho_new) <= _CR_PIVOT_TOL * norm2(z) * norm2(az):
             return _SWITCH
         beta = rho_new / rho
         rho = rho_new
@@ -237,7 +248,7 @@ def _two_term(st: _PCRState) -> str:
         map_ = st.precondition(ap)
 
 
-def _three_term(st: _PCRState) -> str:
+def _three_term(st: PCR) -> str:
     """Figure 1.3 of the thesis (Klawonn-Widlund PCR), restarted at the current ``x``::
 
         p_0 = M r,  w_0 = A p_0,  v_0 = M w_0          (w_k = A p_k, v_k = M A p_k)
@@ -273,7 +284,7 @@ def _three_term(st: _PCRState) -> str:
         lam = float(np.dot(st.r, v))  # <w, v> = 1 after normalisation
         if not math.isfinite(lam):
             st.reason = f"breakdown: non-finite step length at iteration {st.iterations + 1}"
-            return _BREAKDOWN
+            return BREAKDOWN
         outcome = st.step(lam, p, w, v)           # also z -= lambda M A p (norm="M")
         if outcome is not None:
             return outcome
@@ -283,7 +294,7 @@ def _three_term(st: _PCRState) -> str:
         if not (math.isfinite(a0) and math.isfinite(a1)):
             st.reason = ("breakdown: non-finite orthogonalisation coefficient at "
                          f"iteration {st.iterations + 1}")
-            return _BREAKDOWN
+            return BREAKDOWN
         p_prev *= -a1  # p_prev <- v - a0 p - a1 p_prev, in place
         np.multiply(p, a0, out=tmp)
         p_prev -= tmp
@@ -304,24 +315,6 @@ def _three_term(st: _PCRState) -> str:
         p, p_prev = p_prev, p
         w_prev, w = w, t
         v_prev, v = v, v_new
-
-
-def _precondition(s: _Setup, v: np.ndarray) -> np.ndarray:
-    """``P M v`` (a fresh array; ``P v`` without ``M``)."""
-    z = v.copy() if s.M is None else _apply(s.M, v)
-    return z if s.P is None else _apply(s.P, z)
-
-
-def _true_m_residual(s: _Setup, x: np.ndarray) -> float:
-    """``||r||_M = <r, P M r>^{1/2}``, ``r = P (b - A x)`` recomputed from ``x``.
-
-    One operator and one preconditioner application; NaN if ``<r, M r>`` is
-    clearly negative.
-    """
-    r = s.b - _apply(s.A, x)
-    if s.P is not None:
-        r = _apply(s.P, r)
-    return _m_norm(r, _precondition(s, r))
 
 
 def pcr(
@@ -409,42 +402,5 @@ def pcr(
         ``rtol`` and ``atol`` <= 0, ``maxiter < 1``, an unusable operator, a
         ``norm`` other than ``"l2"`` and ``"M"``.
     """
-    if not isinstance(norm, str) or norm not in NORMS:
-        raise InputError("norm", f"must be one of {', '.join(map(repr, NORMS))}, got {norm!r}")
-    s = _setup(A, b, x0, rtol, atol, maxiter, M, P)
-    t0 = time.perf_counter()
-    r, matvecs = _initial_residual(s)
-    z0 = None
-    if norm == "M":
-        z0 = _precondition(s, r)
-        rnorm0 = _m_norm(r, z0)
-        if math.isnan(rnorm0):
-            rz = float(np.dot(r, z0))
-            what = (f"<r0, M r0> = {rz:.3e} < 0 (M not positive definite)" if math.isfinite(rz)
-                    else "non-finite <r0, M r0> (NaN/inf in A, b, x0, M or P)")
-            return KrylovResult(
-                x=s.x, converged=False, reason=f"breakdown: {what}", iterations=0,
-                residuals=np.array([math.sqrt(-rz) if math.isfinite(rz) else rnorm0]), matvecs=matvecs,
-                seconds=time.perf_counter() - t0, true_residual=None)
-        early, rnorm0, threshold = _initial_checks(s, r, matvecs, t0, rnorm0=rnorm0)
-    else:
-        early, rnorm0, threshold = _initial_checks(s, r, matvecs, t0)
-    if early is not None:
-        return early
-
-    st = _PCRState(s, r, rnorm0, threshold, matvecs, callback, norm=norm, z=z0)
-    outcome = _two_term(st)
-    if outcome == _SWITCH:
-        logger.debug("pcr: <z, A z> ~ 0 at iteration %d, switching to the three-term "
-                     "recurrence (Figure 1.3)", st.iterations + 1)
-        outcome = _three_term(st)
-
-    true_res = _true_residual(s, st.x) if norm == "l2" else _true_m_residual(s, st.x)
-    st.matvecs += 1
-    seconds = time.perf_counter() - t0
-    logger.debug("pcr: %s (%d iterations, %.3g s)", st.reason, st.iterations, seconds)
-    return KrylovResult(
-        x=st.x, converged=outcome == _CONVERGED, reason=st.reason,
-        iterations=st.iterations, residuals=np.asarray(st.residuals),
-        matvecs=st.matvecs, seconds=seconds, true_residual=true_res,
-    )
+    return PCR(A, b, x0, rtol=rtol, atol=atol, maxiter=maxiter, M=M, P=P, callback=callback,
+               norm=norm).solve()

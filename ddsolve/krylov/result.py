@@ -15,7 +15,9 @@ class KrylovResult:
     x : ndarray, shape (n,)
         Final iterate.
     converged : bool
-        True when ||r_k||_2 <= rtol * ||r_0||_2 (or ||r_k||_2 <= atol).
+        True when ||r_k|| <= max(rtol * ||r_0||, atol) for the recursive
+        residual, the recomputed residual ``true_residual`` meets it too (within
+        the policy factor, see ``attained``) and all values are finite.
     reason : str
         One-line reason for stopping, e.g. ``"converged: ||r||/||r0|| = 3.1e-07 < 1e-06"``,
         ``"maxiter 200 reached"`` or ``"breakdown: <p, A p> <= 0"``.
@@ -36,6 +38,14 @@ class KrylovResult:
         ``residuals``) recomputed
         from the returned ``x`` with one extra operator application, to compare
         with the recursively updated ``residuals[-1]``.
+    attained : bool or None
+        Whether ``true_residual`` is finite and within
+        :data:`~ddsolve.krylov.convergence.TRUE_RESIDUAL_FACTOR` of the
+        threshold ``max(rtol ||r_0||, atol)`` (None where not computed). A
+        result is ``converged`` only if this holds.
+    restarts : int
+        Number of restarts (0 for a single cycle; see
+        :meth:`~ddsolve.krylov.base.KrylovSolver.restarted`).
     """
 
     x: np.ndarray
@@ -49,3 +59,5 @@ class KrylovResult:
     matvecs: int = 0
     seconds: float = 0.0
     true_residual: float | None = None
+    attained: bool | None = None
+    restarts: int = 0

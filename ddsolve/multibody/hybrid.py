@@ -49,7 +49,7 @@ from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, PairJump, PrimalConstrainedSolver, linear_operator, scaled_jump
 from ..dd.projection import Projection
 from ..dd.substructure import Substructures
-from ..krylov import pcr
+from ..krylov import PCR
 from ..krylov.pcr import NORMS
 from ..krylov.result import KrylovResult
 from .interface import GlobalInterface
@@ -557,48 +557,20 @@ class HybridSolver:
         residual is tiny; the recursive residual then stagnates far from the
         true one. Each cycle is therefore limited to ``restart`` iterations and
         restarted from its iterate, with the true residual, when it did not
-        reach the threshold (by the recomputed residual).
+        reach the threshold (by the recomputed residual): the restart policy of
+        :meth:`ddsolve.krylov.KrylovSolver.restarted` with ``atol = rtol ||F_k||``
+        (a cycle is accepted within
+        :data:`~ddsolve.krylov.convergence.RESTART_FACTOR` of the threshold).
 
         Returns
         -------
         KrylovResult
-            Iterations, matvecs, seconds and residual histories of all cycles.
+            Iterations, matvecs, seconds and residual histories of all cycles;
+            ``restarts`` the number of restarts.
         """
-        if norm == "M":
-            bb = float(np.dot(b, M.matvec(b)))
-            bnorm = float(np.sqrt(abs(bb)))      # a negative <F, B^{-1} F> breaks down in pcr
-        else:
-            bnorm = float(np.linalg.norm(b))
-        cycles: list[KrylovResult] = []
-        x = x0
-        threshold = None
-        while True:
-            used = sum(c.iterations for c in cycles)
-            budget = min(max(int(restart), 1), maxiter - used)
-            if threshold is None:
-                kr = pcr(A, b, x, rtol=rtol, atol=rtol * bnorm, maxiter=max(budget, 1), M=M, norm=norm)
-                threshold = rtol * max(float(kr.residuals[0]), bnorm)
-            else:
-                kr = pcr(A, b, x, rtol=0.0, atol=threshold, maxiter=budget, M=M, norm=norm)
-            cycles.append(kr)
-            true_ok = kr.true_residual is not None and kr.true_residual <= 2.0 * threshold
-            if (kr.converged and true_ok) or kr.reason.startswith("breakdown"):
-                break
-            if kr.iterations == 0 or maxiter - used - kr.iterations <= 0:
-                break
-            log.debug("hybrid: restarting PCR after %d iterations (%s, true residual %.2e, target %.2e)",
-                      kr.iterations, kr.reason, kr.true_residual, threshold)
-            x = kr.x
-        if len(cycles) == 1:
-            return cycles[0]
-        last = cycles[-1]
-        return KrylovResult(
-            x=last.x, converged=last.converged and last.true_residual <= 2.0 * threshold,
-            reason=f"{last.reason} after {len(cycles) - 1} restart(s)",
-            iterations=sum(c.iterations for c in cycles),
-            residuals=np.concatenate([cycles[0].residuals] + [c.residuals[1:] for c in cycles[1:]]),
-            matvecs=sum(c.matvecs for c in cycles), seconds=sum(c.seconds for c in cycles),
-            true_residual=last.true_residual)
+        bnorm = PCR.rhs_norm(b, M, norm)
+        return PCR.restarted(A, b, x0, rtol=rtol, atol=rtol * bnorm, maxiter=maxiter, restart=restart,
+                             M=M, norm=norm)
 
     def _initial_guess(self, a: ActiveSet, x0: Any, lam0: np.ndarray,
                        proj: Projection | None = None) -> np.ndarray | None:
