@@ -29,12 +29,12 @@ def copy_workflow(dest: Path) -> Path:
 
 
 def run_snakemake(wd: Path, *args: str, check: bool = True, timeout: float = 300) -> subprocess.CompletedProcess:
-    """``python -m snakemake ARGS`` in `wd`, with this checkout's ddsolve first on the path.
+    """``python -m snakemake ARGS`` in `wd`, with this checkout's ddsolve and ddstudies first on the path.
 
     With `check`, a non-zero exit fails the test with Snakemake's output.
     """
     env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), str(ROOT / "studies"), env.get("PYTHONPATH")]))
     proc = subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=wd, env=env,
                           capture_output=True, text=True, timeout=timeout)
     if check and proc.returncode != 0:

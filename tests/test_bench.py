@@ -1,4 +1,4 @@
-"""The work-precision harness (ddsolve.bench): peers, references, one case. No timings are checked."""
+"""The work-precision harness (ddstudies.bench): peers, references, one case. No timings are checked."""
 from __future__ import annotations
 
 import math
@@ -9,13 +9,13 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ddsolve.api import energy_error
-from ddsolve.bench import (BackendUnavailable, RunOptions, build_problem, compute_reference, direct_solver,
+from ddstudies.bench import (BackendUnavailable, RunOptions, build_problem, compute_reference, direct_solver,
                            pyamg_cg, run_case)
-from ddsolve.bench.methods import METHODS, get_method, register_method
-from ddsolve.bench.peers import DIRECT_SOLVERS, available_direct_solvers
-from ddsolve.bench.refine import prolongation, refined_spec
-from ddsolve.bench.report import plot_work_precision, summary_table
-from ddsolve.bench.store import read_reference, write_case, write_reference
+from ddstudies.bench.methods import METHODS, get_method, register_method
+from ddstudies.bench.peers import DIRECT_SOLVERS, available_direct_solvers
+from ddstudies.bench.refine import prolongation, refined_spec
+from ddstudies.bench.report import plot_work_precision, summary_table
+from ddstudies.bench.store import read_reference, write_case, write_reference
 from ddsolve.io.hdf5 import read_result
 
 POISSON = {"problem": "poisson", "subdomains": 3, "elements": 4, "f": "random:3", "rho": "checkerboard:10"}
@@ -130,7 +130,7 @@ def test_method_registry_checks_problem_and_accepts_new_methods(poisson, monkeyp
     with pytest.raises(KeyError, match="unknown benchmark method"):
         get_method("nope", "poisson")
     monkeypatch.setitem(METHODS, "zero", METHODS["direct"])            # restored after the test
-    from ddsolve.bench.methods import MethodRun
+    from ddstudies.bench.methods import MethodRun
     register_method("zero", lambda p, rtol, opt: MethodRun(u=np.zeros(p.ndof), converged=True, iterations=0),
                     problems=("poisson",), iterative=False)
     problem, ref = poisson
@@ -151,7 +151,7 @@ def test_files_summary_and_plot(poisson, tmp_path):
         paths.append(write_case(tmp_path / f"{method}_{rtol}.h5", problem.spec.to_dict(), method, rtol, rec, 1))
     row = read_result(paths[-1])
     assert row["method"] == "direct" and math.isnan(row["rtol"]) and row["repeats"] == 1
-    from ddsolve.io.aggregate import collect
+    from ddstudies.aggregate import collect
 
     table = summary_table(collect(paths))
     assert list(table["method"]) == ["bddc", "bddc", "direct"]

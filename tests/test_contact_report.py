@@ -9,12 +9,12 @@ import pytest
 import yaml
 
 from ddsolve.api import solve
-from ddsolve.io.aggregate import collect, parse_list, write_table
+from ddstudies.aggregate import collect, parse_list, write_table
 from ddsolve.io.hdf5 import read_result, write_result
-from ddsolve.report.contact_tables import (TABLE_5_1_COLUMNS, TABLE_6_1_COLUMNS, comparison_caption,
+from ddstudies.report.contact_tables import (TABLE_5_1_COLUMNS, TABLE_6_1_COLUMNS, comparison_caption,
                                            contact_table, method_comparison, render_comparison,
                                            render_contact_table)
-from ddsolve.report.tables import to_markdown
+from ddstudies.report.tables import to_markdown
 from ddsolve.spec import ProblemSpec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,9 +45,9 @@ def merged_config(name: str) -> dict:
 
 
 def test_config_validates_and_rejects_poisson_methods():
-    from snakemake.utils import validate
+    from ddstudies.workflow import validate  # the schema with ddsolve.options injected, as the workflow loads it
 
-    schema = str(ROOT / "workflows" / "schemas" / "config.schema.yaml")
+    schema = ROOT / "workflows" / "schemas" / "config.schema.yaml"
     config = merged_config("table_5_6")
     validate(config, schema)
     assert config["problem"] == "contact" and config["f"] == "dostal" and config["rtol"] == 1e-5
@@ -121,7 +121,7 @@ def test_comparison_caption_is_computed():
 
 
 def test_plots_write_files(tmp_path):
-    from ddsolve.report.contact_plots import (contact_line, membrane_surfaces, plot_contact_line,
+    from ddstudies.report.contact_plots import (contact_line, membrane_surfaces, plot_contact_line,
                                               plot_membranes, plot_method_comparison, solve_contact_case)
 
     problem, solution = solve_contact_case({"problem": "contact", "method": "active-set", "subdomains": 2,

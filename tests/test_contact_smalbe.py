@@ -237,8 +237,8 @@ def test_polish_on_the_active_set_reaches_the_active_set_accuracy(N, m):
 
 # ------------------------------------------------------------------ contact extremes (stress study)
 def extreme(load: str, N: int, m: int):
-    """(problem, direct reference) for a named load of :func:`ddsolve.report.stress.contact_load`."""
-    from ddsolve.report.stress import contact_load
+    """(problem, direct reference) for a named load of :func:`ddstudies.stress.contact_load`."""
+    from ddstudies.stress import contact_load
 
     key = (N, m, load)
     if key not in _CACHE:

@@ -8,7 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ddsolve.io import aggregate, hdf5
+from ddsolve.io import hdf5
+from ddstudies import aggregate
 from ddsolve.result import SCALAR_KEYS, SolveResult
 from ddsolve.spec import ProblemSpec
 

@@ -56,7 +56,7 @@ def test_dry_run_poisson_study(workdir):
 
 
 def test_bad_config_is_rejected(workdir):
-    (workdir / "bad.yaml").write_text("study: bad\nmethods: [feti, newton]\nsubdomains: [2]\nelements: [2]\n")
+    (workdir / "bad.yaml").write_text("kind: grid\nstudy: bad\nmethods: [feti, newton]\nsubdomains: [2]\nelements: [2]\n")
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "bad.yaml", check=False)
     assert proc.returncode != 0
     assert "invalid config (config.schema.yaml): methods/1: 'newton' is not one of" in proc.stdout + proc.stderr

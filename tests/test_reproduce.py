@@ -32,30 +32,28 @@ def load(name: str) -> dict:
 
 
 def study_schema(entry: dict) -> tuple[dict, str]:
-    """The merged config of a `studies` entry and the schema that validates it (with its key)."""
+    """The merged config of a `studies` entry and its kind."""
     from snakemake.utils import update_config
 
     config = load(entry["configfile"].removeprefix("config/"))
     update_config(config, entry.get("set") or {})
-    return config, next((key for key in ("bench", "contact_scaling") if key in config), "study")
+    return config, config["kind"]
 
 
 @pytest.mark.parametrize("name", ["default.yaml", "quick.yaml"])
 def test_study_lists_validate(name):
-    from snakemake.utils import validate
+    from ddstudies.workflow import SCHEMAS, validate
 
     schemas = ROOT / "workflows" / "schemas"
     studies = load(name)
-    validate(studies, str(schemas / "studies.schema.yaml"))
+    validate(studies, schemas / "studies.schema.yaml")
     names = [entry["name"] for entry in studies["studies"]]
     assert names == ["poisson", "table_4", "table_5_6", "bench", "scaling", "stress"]
     for entry in studies["studies"]:
-        config, key = study_schema(entry)
-        schema = {"study": "config", "bench": "bench", "contact_scaling": "scaling"}[key]
-        validate(config if key == "study" else config[key], str(schemas / f"{schema}.schema.yaml"))
+        config, kind = study_schema(entry)
+        validate(config, schemas / f"{SCHEMAS[kind]}.schema.yaml")
         if name == "quick.yaml":  # the smoke test writes elsewhere than the full run
-            study = config[key] if key == "study" else config[key]["study"]
-            assert "quick" in study
+            assert "quick" in config["study"]
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +93,7 @@ def test_bad_study_lists_are_rejected(workdir, studies, message):
 
 @pytest.mark.skipif(not has_api(), reason="ddsolve.api (the solvers) not available yet")
 def test_study_finished_alone_is_not_rerun_by_the_reproduction(workdir):
-    (workdir / "tiny.yaml").write_text("study: tiny\nsubdomains: [2]\nelements: [2]\nmethods: [bddc]\n"
+    (workdir / "tiny.yaml").write_text("kind: grid\nstudy: tiny\nsubdomains: [2]\nelements: [2]\nmethods: [bddc]\n"
                                        "cond: false\n")
     (workdir / "repro.yaml").write_text("studies: [{name: tiny, configfile: tiny.yaml, set: {}}]\n")
     snakemake(workdir, "--cores", "1", "--configfile", "tiny.yaml")

@@ -1,4 +1,4 @@
-"""The contact scaling study (ddsolve.bench.scaling) and the pluggable PDAS factorization. No timings are checked."""
+"""The contact scaling study (ddstudies.bench.scaling) and the pluggable PDAS factorization. No timings are checked."""
 from __future__ import annotations
 
 import math
@@ -7,12 +7,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ddsolve.bench.contact import backend_factorize
-from ddsolve.bench.peers import available_direct_solvers
-from ddsolve.bench.scaling import (build_contact, case_params, contact_spec, fit_exponent, plot_scaling,
+from ddstudies.bench.contact import backend_factorize
+from ddstudies.bench.peers import available_direct_solvers
+from ddstudies.bench.scaling import (build_contact, case_params, contact_spec, fit_exponent, plot_scaling,
                                    profile_case, run_scaling_case, scaling_summary, summary_markdown)
 from ddsolve.contact import solve_contact_direct
-from ddsolve.io.aggregate import collect
+from ddstudies.aggregate import collect
 from ddsolve.io.hdf5 import write_result
 
 
@@ -115,13 +115,12 @@ def test_scaling_workflow_dry_run(tmp_path):
 
     pytest.importorskip("snakemake")
     root = Path(__file__).resolve().parents[1]
-    proc = run_snakemake(copy_workflow(tmp_path), "-n", "--cores", "2", "--configfile", "config/scaling.yaml",
-                         "--config", "scaling=multiplicity")
+    proc = run_snakemake(copy_workflow(tmp_path), "-n", "--cores", "2", "--configfile", "config/scaling.yaml")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     text = proc.stdout + proc.stderr
     import yaml
 
-    cfg = yaml.safe_load((root / "config" / "scaling.yaml").read_text())["contact_scaling"]
+    cfg = yaml.safe_load((root / "config" / "scaling.yaml").read_text())
     expected = len(cfg["methods"]) * len(cfg["elements"])
     assert int(re.search(r"^scaling_case\s+(\d+)\s*$", text, re.MULTILINE).group(1)) == expected
     for rule in ("scaling_summary", "scaling_plot", "scaling_profile", "all"):

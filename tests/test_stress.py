@@ -1,4 +1,4 @@
-"""Numerical stability stress tests (ddsolve.report.stress), the smaller "quick" tier.
+"""Numerical stability stress tests (ddstudies.stress), the smaller "quick" tier.
 
 Every case of ``catalog("quick")`` runs once (about 10 s) and must PASS its stated
 criterion; the few cases that document known weaknesses (reported in
@@ -22,8 +22,8 @@ from ddsolve import ProblemSpec, solve
 from ddsolve.api import build_scene
 from ddsolve.cli import main
 from ddsolve.errors import InputError
-from ddsolve.report import stress
-from ddsolve.report.stress import StressCase, catalog, contact_load, evaluate, render_markdown, run_case
+from ddstudies import stress
+from ddstudies.stress import StressCase, catalog, contact_load, evaluate, render_markdown, run_case
 
 ROOT = Path(__file__).resolve().parents[1]
 QUICK = catalog("quick")
@@ -233,7 +233,7 @@ def test_stress_study_dry_run(tmp_path):
     pytest.importorskip("snakemake")
     copy_workflow(tmp_path)
     out = _snakemake(tmp_path, "-n", "--cores", "1", "--configfile", "config/stress.yaml",
-                     "--config", "study=stress_quick")
+                     "--config", "study=stress_quick", "tier=quick")
     n_jobs = len({case.group for case in QUICK})  # the quick tier runs one job per group
     assert re.search(rf"^stress_series\s+{n_jobs}\s*$", out, flags=re.MULTILINE), out
     assert re.search(r"^stress_report\s+1\s*$", out, flags=re.MULTILINE), out

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from ddsolve.report import plots, tables
+from ddstudies.report import plots, tables
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = ROOT / "workflows" / "schemas" / "config.schema.yaml"
@@ -24,10 +24,10 @@ def load_config(*names: str) -> dict:
 
 
 def validate(config: dict) -> dict:
-    from snakemake.utils import validate as snakemake_validate
+    """The workflow's validation: the schema with the option lists of ddsolve.options injected."""
+    from ddstudies.workflow import validate as workflow_validate
 
-    snakemake_validate(config, str(SCHEMA))
-    return config
+    return workflow_validate(config, SCHEMA)
 
 
 def thesis_dir() -> Path:
@@ -48,8 +48,10 @@ def test_table_4_config_validates():
     assert sweeps[3]["elements"] == [4, 8, 16, 32, 64, 128]
 
 
-MULTIBODY = {"study": "m", "problem": "multibody", "methods": ["feti-feti"], "contacts": ["full"],
-             "sweeps": [{"bodies": 2, "subdomains": [2, 4], "elements": 2}], "thesis_tables": "t"}
+MULTIBODY = {"kind": "table_4", "study": "m", "problem": "multibody", "methods": ["feti-feti"], "contacts": ["full"],
+             "sweeps": [{"bodies": 2, "subdomains": [2, 4], "elements": 2}], "thesis_tables": "t",
+             "tables": {"table_4_1": {"method": "feti-feti", "quantities": ["cond"], "title": "T"}},
+             "figures": {"figure_4_2": {"method": "feti-feti", "x": "subdomains", "y": "cond", "title": "F"}}}
 
 
 @pytest.mark.parametrize("change", [
@@ -66,7 +68,7 @@ MULTIBODY = {"study": "m", "problem": "multibody", "methods": ["feti-feti"], "co
     {"sweeps": None},                                              # no cases at all
 ])
 def test_schema_rejects_bad_multibody_config(change):
-    from snakemake.exceptions import WorkflowError
+    from ddstudies.workflow import ConfigError as WorkflowError
 
     config = {**MULTIBODY, **change}
     config = {k: v for k, v in config.items() if v is not None}
@@ -75,16 +77,16 @@ def test_schema_rejects_bad_multibody_config(change):
 
 
 def test_schema_accepts_minimal_multibody_and_rejects_contacts_for_poisson():
-    from snakemake.exceptions import WorkflowError
+    from ddstudies.workflow import ConfigError as WorkflowError
 
     validate(dict(MULTIBODY))
     grid = {k: v for k, v in MULTIBODY.items() if k != "sweeps"}
     validate({**grid, "bodies": [2, 3], "subdomains": [2], "elements": [2]})  # a grid, no sweeps
     with pytest.raises(WorkflowError):
-        validate({"study": "p", "methods": ["feti"], "subdomains": [2], "elements": [4],
+        validate({"kind": "grid", "study": "p", "methods": ["feti"], "subdomains": [2], "elements": [4],
                   "contacts": ["full"]})
     with pytest.raises(WorkflowError):
-        validate({"study": "p", "methods": ["feti-feti"], "subdomains": [2], "elements": [4]})
+        validate({"kind": "grid", "study": "p", "methods": ["feti-feti"], "subdomains": [2], "elements": [4]})
 
 
 # --- report tables and figures on synthetic runs --------------------------------------------
@@ -316,7 +318,7 @@ def test_tiny_multibody_study_end_to_end(workdir):
     from test_pipeline import planned, snakemake
 
     (workdir / "tiny.yaml").write_text(TINY.replace("THESIS", str(thesis_dir())))
-    snakemake(workdir, "--cores", "2", "--configfile", "tiny.yaml")
+    snakemake(workdir, "--cores", "2", "--configfile", "config/table_4.yaml", "tiny.yaml")
     for contact in ("full", "middle"):
         assert (workdir / "results" / "tiny4" / "feti-feti" / contact / "Nb2_Ns2_m2.h5").is_file()
     df = pd.read_csv(workdir / "results" / "tiny4" / "summary.csv")
@@ -329,13 +331,13 @@ def test_tiny_multibody_study_end_to_end(workdir):
     for figure in ("figure_4_2", "figure_4_3"):
         assert (reports / f"{figure}.png").read_bytes()[:4] == b"\x89PNG"
 
-    again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "tiny.yaml")
+    again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "tiny.yaml")
     assert "Nothing to be done" in again.stdout + again.stderr
     (workdir / "more.yaml").write_text("sweeps: [{bodies: 2, subdomains: 2, elements: [2, 4]}]\n")
-    more = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "tiny.yaml", "more.yaml"))
+    more = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "tiny.yaml", "more.yaml"))
     assert more["solve_case"] == 2  # only the new case, both contacts
     (workdir / "rtol.yaml").write_text("rtol: 1.0e-8\n")
-    rerun = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "tiny.yaml", "rtol.yaml"))
+    rerun = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "tiny.yaml", "rtol.yaml"))
     assert rerun["solve_case"] == 2
 
 
@@ -390,7 +392,7 @@ def test_scripts_render_reports_beyond_the_thesis(tmp_path):
 def test_poisson_study_with_several_bodies_is_rejected(workdir):
     from test_pipeline import snakemake
 
-    (workdir / "bodies.yaml").write_text("study: b\nmethods: [bddc]\n"
+    (workdir / "bodies.yaml").write_text("kind: grid\nstudy: b\nmethods: [bddc]\n"
                                          "sweeps: [{bodies: [1, 2], subdomains: 2, elements: 4}]\n")
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "bodies.yaml", check=False)
     assert proc.returncode != 0 and "exactly one body" in proc.stdout + proc.stderr

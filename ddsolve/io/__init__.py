@@ -1,11 +1,11 @@
-"""Result files and tables.
+"""Result files.
 
 - :mod:`ddsolve.io.hdf5`: one run per HDF5 file (:func:`write_result`,
   :func:`read_result`, :func:`read_residuals`); layout in README.md, "HDF5 layout".
-- :mod:`ddsolve.io.aggregate`: many runs into one DataFrame / CSV
-  (:func:`collect`, :func:`write_table`).
+- :mod:`ddsolve.io.joblog`: a Snakemake job's output into its log file.
 
-Names are imported lazily so that ``import ddsolve.io.hdf5`` does not load pandas.
+Many runs into one DataFrame / CSV is :mod:`ddstudies.aggregate` (the study
+package; it needs pandas). Names are imported lazily.
 """
 from __future__ import annotations
 
@@ -16,9 +16,6 @@ _EXPORTS = {
     "read_result": "hdf5",
     "read_residuals": "hdf5",
     "read_params": "hdf5",
-    "collect": "aggregate",
-    "write_table": "aggregate",
-    "read_table": "aggregate",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -8,5 +8,7 @@ rule aggregate:
         "results/{study}/summary.csv",
     log:
         "logs/{study}/aggregate.log",
+    conda:
+        "../envs/ddsolve.yaml"
     script:
         "../scripts/aggregate.py"

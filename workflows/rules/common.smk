@@ -1,24 +1,24 @@
-# Helpers shared by the rules: the case list and the parameters of one case.
-# Paths depend only on a case's keys (study, method, [contact, bodies,] subdomains,
-# elements); all other parameters travel in `params`, so Snakemake's params
-# rerun-trigger reruns exactly the cases whose parameters changed.
+# Helpers shared by the rules of one study (included by study.smk after validation):
+# the case list, the parameters of one case and the targets, per study kind. Every
+# setting comes from the validated config; rule files hold rules only.
+# Grid kinds: paths depend only on a case's keys (study, method, [contact, bodies,]
+# subdomains, elements); all other parameters travel in `params`, so Snakemake's
+# params rerun-trigger reruns exactly the cases whose parameters changed.
 import itertools
 import re
+from dataclasses import asdict
+
+#: Kinds whose cases are a grid solved by rule solve_case (solve.smk) and aggregated.
+GRID_KINDS = ("grid", "table_4", "contact")
 
 STUDY = config["study"]
-MULTIBODY = config.get("problem", "poisson") == "multibody"
-CONTACT = config.get("problem", "poisson") == "contact"
+MULTIBODY = KIND == "table_4"
+CONTACT = KIND == "contact"
 
 #: Config keys shared by every case, passed unchanged to ddsolve.spec.ProblemSpec
 #: (a multibody case overrides `bodies` with its own value and adds `contact`).
 SHARED_SPEC_KEYS = ("problem", "bodies", "rho", "f", "scaling", "gamma", "norm", "projection", "rtol", "maxiter",
                     "cond", "check")
-
-#: One case's path below results/ and logs/ (without the suffix).
-if MULTIBODY:
-    CASE = "{study}/{method}/{contact}/Nb{bodies}_Ns{subdomains}_m{elements}"
-else:
-    CASE = "{study}/{method}/Ns{subdomains}_m{elements}"
 
 
 def _as_list(value):
@@ -43,22 +43,9 @@ def study_cases():
     if CONTACT:  # two membranes, not a grid axis (the case paths have no bodies)
         cases = list(dict.fromkeys((1, s, m) for _, s, m in cases))
     elif not MULTIBODY and any(b != 1 for b, _, _ in cases):
-        raise ValueError("config: problem 'poisson' has exactly one body; set problem: multibody "
-                         "to sweep over bodies")
+        raise WorkflowError("config: problem 'poisson' has exactly one body; use kind table_4 (problem "
+                            "multibody) to sweep over bodies")
     return cases
-
-
-CASES = study_cases()
-CONTACTS = list(config.get("contacts", [])) if MULTIBODY else []
-
-
-wildcard_constraints:
-    study=re.escape(STUDY),
-    method="|".join(re.escape(m) for m in config["methods"]),
-    contact="|".join(re.escape(c) for c in CONTACTS) or "full",
-    bodies=r"[1-9]\d*",
-    subdomains=r"[1-9]\d*",
-    elements=r"[1-9]\d*",
 
 
 def case_spec(wildcards):
@@ -81,47 +68,167 @@ def case_files(wildcards=None):
             for method in config["methods"] for contact in contacts for b, s, m in CASES]
 
 
-# --- the multibody reports (thesis Section 4.4); rules in multibody.smk --------------
-
-#: Thesis tables: the method they show, our quantities, the transcription compared with.
-TABLES_4 = {
-    "table_4_1": {"method": "feti-feti", "quantities": ["cond", "iterations"],
-                  "title": "Table 4.1: FETI-FETI, condition number estimates and iterations"},
-    "table_4_2": {"method": "hybrid", "quantities": ["iterations"],
-                  "title": "Table 4.2: hybrid method, iterations"},
-}
-#: Figures: one parameter varied from the base case (the study's first case), cases I and
-#: II, our values and the thesis's with a least-squares fit of `model`
-#: (ddsolve.report.plots.FIT_MODELS).
-FIGURES_4 = {
-    "figure_4_2": {"method": "feti-feti", "x": "subdomains", "y": "cond", "model": "linear",
-                   "logx": False, "thesis": "table_4_1",
-                   "title": "FETI-FETI: condition number estimates against $H_b/H_s$"},
-    "figure_4_3": {"method": "feti-feti", "x": "elements", "y": "cond",
-                   "model": "log_squared_affine", "logx": True, "thesis": "table_4_1",
-                   "title": "FETI-FETI: condition number estimates against $H_s/h$"},
-    "figure_hybrid_iterations": {"method": "hybrid", "x": "elements", "y": "iterations",
-                                 "model": "log_linear", "logx": True, "thesis": "table_4_2",
-                                 "title": "Hybrid method: iterations against $H_s/h$"},
-}
-
-
 def thesis_table(name):
     """Path of a thesis transcription (config key thesis_tables)."""
     return f"{config['thesis_tables']}/{name}.csv"
 
 
-def report_files():
-    """The reports of the configured study (targets of rule all)."""
-    if CONTACT:
-        return contact_report_files()  # workflows/rules/contact.smk
-    if not MULTIBODY:
-        return [f"reports/{STUDY}/table.md", f"reports/{STUDY}/table.tex",
-                f"reports/{STUDY}/cond_vs_Hh.png"]
+def thesis_inputs(entry, default):
+    """The thesis transcriptions of a `tables` / `figures` entry ("thesis": a name or a list)."""
+    names = entry.get("thesis", default)
+    return [thesis_table(name) for name in ([names] if isinstance(names, str) else names)]
+
+
+def figure_5_2_spec():
+    """The ProblemSpec mapping of Figure 5.2: the study's shared keys, the case of `figure_5_2`."""
+    spec = {key: config[key] for key in SHARED_SPEC_KEYS if key in config}
+    spec.update(problem="contact", bodies=2, **config["figure_5_2"])
+    return spec
+
+
+def grid_report_files():
+    """The reports of a grid study (kind grid, table_4 or contact)."""
     methods = set(config["methods"])
+    if KIND == "grid":
+        return [f"reports/{STUDY}/table.md", f"reports/{STUDY}/table.tex", f"reports/{STUDY}/cond_vs_Hh.png"]
     files = []
-    for name, table in TABLES_4.items():
+    for name, table in config["tables"].items():
         if table["method"] in methods:
             files += [f"reports/{STUDY}/{name}.md", f"reports/{STUDY}/{name}.tex"]
-    files += [f"reports/{STUDY}/{name}.png" for name, fig in FIGURES_4.items() if fig["method"] in methods]
+    if MULTIBODY:
+        files += [f"reports/{STUDY}/{name}.png" for name, fig in config["figures"].items()
+                  if fig["method"] in methods]
+        return files
+    if {"active-set", "smalbe"} <= methods:
+        files += [f"reports/{STUDY}/comparison.{ext}" for ext in ("md", "tex", "png")]
+    files += [f"reports/{STUDY}/figure_5_2_{part}" for part in ("surface.png", "contact.png", "contact.csv")]
     return files
+
+
+if KIND in GRID_KINDS:
+    #: One case's path below results/ and logs/ (without the suffix).
+    if MULTIBODY:
+        CASE = "{study}/{method}/{contact}/Nb{bodies}_Ns{subdomains}_m{elements}"
+    else:
+        CASE = "{study}/{method}/Ns{subdomains}_m{elements}"
+    CASES = study_cases()
+    CONTACTS = list(config.get("contacts", [])) if MULTIBODY else []
+
+    wildcard_constraints:
+        study=re.escape(STUDY),
+        method="|".join(re.escape(m) for m in config["methods"]),
+        contact="|".join(re.escape(c) for c in CONTACTS) or "full",
+        bodies=r"[1-9]\d*",
+        subdomains=r"[1-9]\d*",
+        elements=r"[1-9]\d*",
+
+
+# --- kind bench (bench.smk) --------------------------------------------------------------
+# Jobs: per problem kind, one reference (direct solves of the problem and of its 2x
+# refinement), then one job per (method, rtol) and per peer (the direct peer once,
+# pyamg per rtol); then a summary CSV and the plot. Tolerance labels (rtol1e-06, ...)
+# name the job outputs: two rtols with the same label are refused.
+
+
+def _bench_cases():
+    """(problem, solver, tol label) of every case, in config order."""
+    from ddstudies.bench.methods import get_method
+
+    cases = []
+    for kind, prob in config["problems"].items():
+        for name in list(prob.get("methods", [])) + list(prob.get("peers", [])):
+            if get_method(name, kind).iterative:
+                cases += [(kind, name, tol) for tol in BENCH_RTOLS]
+            else:
+                cases.append((kind, name, "exact"))
+    return cases
+
+
+def bench_spec(wildcards):
+    """ProblemSpec mapping of a problem kind (plain dict: a params value)."""
+    prob = config["problems"][wildcards.kind]
+    return {**prob["spec"], "problem": wildcards.kind, "maxiter": config["maxiter"]}
+
+
+def bench_options(wildcards=None):
+    return {key: config[key] for key in ("maxiter", "threads", "direct", "repeats")}
+
+
+def bench_case_files(wildcards=None):
+    return [f"results/{STUDY}/{kind}/{solver}/{tol}.h5" for kind, solver, tol in BENCH_CASES]
+
+
+if KIND == "bench":
+    try:
+        BENCH_RTOLS = studies_workflow.bench_rtols(config["rtols"])
+    except studies_workflow.ConfigError as err:
+        raise WorkflowError(f"invalid config: {err}") from None
+    BENCH_CASES = _bench_cases()
+    BENCH_PROBLEMS = "|".join(re.escape(k) for k in config["problems"])
+
+
+# --- kind scaling (scaling.smk) -------------------------------------------------------------
+# One job per (method, H/h), each taking all the cores given to Snakemake so that cases
+# run one at a time; then the summary, the plot and a cProfile of one solve.
+
+
+def scaling_threads(wildcards):
+    """All the cores given to Snakemake, so that the timed cases run one at a time
+    (1 where no --cores is given, as for --report)."""
+    try:
+        return workflow.cores
+    except WorkflowError:
+        return 1
+
+
+def scaling_case_files(wildcards=None):
+    return [f"results/{STUDY}/{method}/N{config['subdomains']}_m{m}.h5"
+            for method in config["methods"] for m in config["elements"]]
+
+
+def scaling_options(wildcards=None):
+    return {key: config.get(key, default) for key, default in
+            (("rtol", 1e-5), ("maxiter", 1000), ("direct", "mkl-pardiso"), ("direct_threads", 1),
+             ("repeats", 1), ("repeat_budget", 30.0))}
+
+
+if KIND == "scaling":
+    SCALING_PROFILE = dict(config.get("profile") or {})
+    SCALING_PROFILE.setdefault("elements", max(config["elements"]))
+
+
+# --- kind stress (stress.smk) ---------------------------------------------------------------
+# The cases are the catalog of ddstudies.stress (tier `tier`); each series job gets its
+# cases in `params`, so a changed case reruns its series. Case names are unique.
+
+
+def _stress_job(case):
+    """The job of a case: its series; in the quick tier (a smoke test) its group, for fewer jobs."""
+    return case.group if config["tier"] == "quick" else case.series
+
+
+def stress_series_cases(wildcards):
+    """The cases of one job as plain dicts (a params value: a changed case reruns its job)."""
+    return [asdict(case) for case in STRESS_CASES if _stress_job(case) == wildcards.series]
+
+
+if KIND == "stress":
+    from ddstudies.stress.catalogue import catalog as stress_catalog
+
+    try:
+        STRESS_CASES = list(studies_workflow.unique_labels(
+            ((case.name, case) for case in stress_catalog(config["tier"])), "stress cases").values())
+    except studies_workflow.ConfigError as err:
+        raise WorkflowError(str(err)) from None
+    STRESS_SERIES = list(dict.fromkeys(_stress_job(case) for case in STRESS_CASES))
+
+
+def targets():
+    """The reports of the study (the input of rule all)."""
+    if KIND in GRID_KINDS:
+        return grid_report_files()
+    if KIND == "bench":
+        return [f"reports/{STUDY}/work_precision.png", f"reports/{STUDY}/work_precision.csv"]
+    if KIND == "scaling":
+        return [f"reports/{STUDY}/{name}" for name in ("scaling.png", "scaling.csv", "scaling.md", "profile.txt")]
+    return [f"reports/{STUDY}/stress.md", f"results/{STUDY}/stress.csv"]

@@ -1,33 +1,6 @@
-# Contact studies (problem (3.1), thesis Chapters 5 and 6): Tables 5.1 / 6.1 with our
-# numbers beside the printed ones, the comparison of both methods per grid, and
-# Figure 5.2. Rule all asks for these only when the config has problem: contact
-# (report_files in common.smk calls contact_report_files).
-
-#: Thesis tables shown when their method is in the config (ddsolve.report.contact_tables.CONTACT_TABLES).
-CONTACT_TABLE_METHODS = {"table_5_1": "active-set", "table_6_1": "smalbe"}
-#: Figure 5.2 of the thesis: the solution for N_sub = 16 (1/H = 4), H/h = 8, computed
-#: here with the active set method (its own small solve, independent of the sweep).
-FIGURE_5_2 = {"method": "active-set", "subdomains": 4, "elements": 8}
-
-
-def figure_5_2_spec():
-    """The ProblemSpec mapping of Figure 5.2: the study's shared keys, the case of FIGURE_5_2."""
-    spec = {key: config[key] for key in SHARED_SPEC_KEYS if key in config}
-    spec.update(problem="contact", bodies=2, **FIGURE_5_2)
-    return spec
-
-
-def contact_report_files():
-    """The reports of a contact study (targets of rule all)."""
-    methods = set(config["methods"])
-    files = []
-    for name, method in CONTACT_TABLE_METHODS.items():
-        if method in methods:
-            files += [f"reports/{STUDY}/{name}.md", f"reports/{STUDY}/{name}.tex"]
-    if {"active-set", "smalbe"} <= methods:
-        files += [f"reports/{STUDY}/comparison.{ext}" for ext in ("md", "tex", "png")]
-    files += [f"reports/{STUDY}/figure_5_2_{part}" for part in ("surface.png", "contact.png", "contact.csv")]
-    return files
+# Contact studies (kind contact, problem (3.1), thesis Chapters 5 and 6): Tables 5.1 / 6.1
+# with our numbers beside the printed ones (config `tables`), the comparison of both
+# methods per grid, and Figure 5.2 (config `figure_5_2`). Targets: common.smk.
 
 
 rule contact_table:
@@ -39,9 +12,11 @@ rule contact_table:
                   category="Chapters 5 and 6: contact"),
         tex="reports/{study}/{table}.tex",
     wildcard_constraints:
-        table="|".join(CONTACT_TABLE_METHODS),
+        table="|".join(config["tables"]),
     log:
         "logs/{study}/{table}.log",
+    conda:
+        "../envs/ddsolve.yaml"
     script:
         "../scripts/make_contact_table.py"
 
@@ -59,6 +34,8 @@ rule contact_comparison:
                    category="Chapters 5 and 6: contact"),
     log:
         "logs/{study}/comparison.log",
+    conda:
+        "../envs/ddsolve.yaml"
     script:
         "../scripts/make_contact_comparison.py"
 
@@ -75,5 +52,7 @@ rule figure_5_2:
     log:
         "logs/{study}/figure_5_2.log",
     threads: 1
+    conda:
+        "../envs/ddsolve.yaml"
     script:
         "../scripts/plot_figure_5_2.py"

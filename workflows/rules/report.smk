@@ -11,6 +11,8 @@ rule table:
         methods=config["methods"],
     log:
         "logs/{study}/table.log",
+    conda:
+        "../envs/ddsolve.yaml"
     script:
         "../scripts/make_table.py"
 
@@ -24,5 +26,7 @@ rule plot_cond:
         methods=config["methods"],
     log:
         "logs/{study}/plot_cond.log",
+    conda:
+        "../envs/ddsolve.yaml"
     script:
         "../scripts/plot_cond.py"

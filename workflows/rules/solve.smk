@@ -9,5 +9,7 @@ rule solve_case:
     log:
         f"logs/{CASE}.log",
     threads: 1
+    conda:
+        "../envs/ddsolve.yaml"
     script:
         "../scripts/solve_case.py"

@@ -1,32 +1,42 @@
-# One study: the rules of the study kinds present in the config. A config may hold
-# a `study` (problem poisson / multibody / contact, or a stress study), a `bench`
-# mapping and a `contact_scaling` mapping; `targets()` (rule all) asks for the
-# reports of each one present.
-include: "bench.smk"
-include: "scaling.smk"
+# One study: the rules of the config's `kind` (workflows/schemas/*.schema.yaml):
+#   grid     a grid of poisson cases (config/poisson.yaml)
+#   table_4  multibody cases, Tables 4.1/4.2 and the Section 4.4 figures (config/table_4.yaml)
+#   contact  contact cases, Tables 5.1/6.1, the comparison, Figure 5.2 (config/table_5_6.yaml)
+#   bench    the work-precision benchmark (config/bench.yaml)
+#   scaling  the scaling study of the contact solvers (config/scaling.yaml)
+#   stress   the numerical stability stress study (config/stress.yaml)
+# Its targets (rule all) are `targets()` of common.smk.
+KIND = validate_study(config)
 
-if "study" in config:
-    validate_config(config, "config")
 
-    if config["study"].startswith("stress"):  # a catalog of cases, not a grid
+include: "common.smk"
 
-        include: "stress.smk"
+
+if KIND in GRID_KINDS:
+
+    include: "solve.smk"
+    include: "aggregate.smk"
+
+    if KIND == "grid":
+
+        include: "report.smk"
+
+    elif KIND == "table_4":
+
+        include: "multibody.smk"
 
     else:
 
-        include: "common.smk"
-        include: "solve.smk"
-        include: "aggregate.smk"
-        include: "report.smk"
-        include: "multibody.smk"
         include: "contact.smk"
 
+elif KIND == "bench":
 
-def targets():
-    """The reports of every study kind in the config (the input of rule all)."""
-    files = report_files() if "study" in config else []
-    if BENCH is not None:
-        files += bench_targets()
-    if SCALING is not None:
-        files += scaling_targets()
-    return files
+    include: "bench.smk"
+
+elif KIND == "scaling":
+
+    include: "scaling.smk"
+
+else:
+
+    include: "stress.smk"

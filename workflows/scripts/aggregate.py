@@ -3,7 +3,7 @@
 from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
-    from ddsolve.io.aggregate import collect, write_table
+    from ddstudies.aggregate import collect, write_table
 
     df = collect(snakemake.input)  # noqa: F821
     write_table(df, snakemake.output[0])  # noqa: F821

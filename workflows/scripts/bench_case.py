@@ -15,10 +15,10 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     import logging
 
     logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    from ddsolve.bench.case import run_case
-    from ddsolve.bench.methods import RunOptions
-    from ddsolve.bench.problems import build_problem
-    from ddsolve.bench.store import read_reference, write_case
+    from ddstudies.bench.case import run_case
+    from ddstudies.bench.methods import RunOptions
+    from ddstudies.bench.problems import build_problem
+    from ddstudies.bench.store import read_reference, write_case
 
     sm = snakemake  # noqa: F821
     opts = dict(sm.params.options)

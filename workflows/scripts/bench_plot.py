@@ -5,7 +5,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
-    from ddsolve.bench.report import plot_work_precision
+    from ddstudies.bench.report import plot_work_precision
 
     sm = snakemake  # noqa: F821
     df = pd.read_csv(sm.input[0])

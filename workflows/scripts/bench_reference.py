@@ -15,9 +15,9 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     from threadpoolctl import threadpool_limits
 
-    from ddsolve.bench.case import compute_reference
-    from ddsolve.bench.problems import build_problem
-    from ddsolve.bench.store import write_reference
+    from ddstudies.bench.case import compute_reference
+    from ddstudies.bench.problems import build_problem
+    from ddstudies.bench.store import write_reference
 
     sm = snakemake  # noqa: F821
     with threadpool_limits(limits=sm.threads, user_api="blas"):

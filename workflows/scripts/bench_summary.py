@@ -3,8 +3,8 @@
 from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
-    from ddsolve.bench.report import summary_table
-    from ddsolve.io.aggregate import collect, write_table
+    from ddstudies.bench.report import summary_table
+    from ddstudies.aggregate import collect, write_table
 
     sm = snakemake  # noqa: F821
     df = collect(sm.input)

@@ -10,8 +10,8 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
-    from ddsolve.report.contact_plots import plot_method_comparison
-    from ddsolve.report.contact_tables import render_comparison
+    from ddstudies.report.contact_plots import plot_method_comparison
+    from ddstudies.report.contact_tables import render_comparison
 
     sm = snakemake  # noqa: F821
     theses = {"active-set": pd.read_csv(sm.input.table_5_1), "smalbe": pd.read_csv(sm.input.table_6_1)}

@@ -10,7 +10,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
-    from ddsolve.report.contact_tables import render_contact_table
+    from ddstudies.report.contact_tables import render_contact_table
 
     sm = snakemake  # noqa: F821
     md, tex = render_contact_table(pd.read_csv(sm.input.summary), pd.read_csv(sm.input.thesis),

@@ -6,7 +6,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
-    from ddsolve.report.tables import condition_table, describe_constants, to_latex, to_markdown
+    from ddstudies.report.tables import condition_table, describe_constants, to_latex, to_markdown
 
     df = pd.read_csv(snakemake.input[0])  # noqa: F821
     table = condition_table(df, methods=snakemake.params.methods)  # noqa: F821

@@ -12,8 +12,8 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
-    from ddsolve.report.plots import hbhs_growth
-    from ddsolve.report.tables import (describe_constants, growth_table,
+    from ddstudies.report.plots import hbhs_growth
+    from ddstudies.report.tables import (describe_constants, growth_table,
                                        hbhs_sweep_table, mark_beyond_thesis, multibody_table, to_latex,
                                        to_markdown)
 

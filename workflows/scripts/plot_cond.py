@@ -5,7 +5,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
-    from ddsolve.report.plots import plot_cond_vs_Hh
+    from ddstudies.report.plots import plot_cond_vs_Hh
 
     df = pd.read_csv(snakemake.input[0])  # noqa: F821
     fits = plot_cond_vs_Hh(df, snakemake.output[0], methods=snakemake.params.methods,  # noqa: F821

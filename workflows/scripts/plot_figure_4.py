@@ -11,7 +11,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
-    from ddsolve.report.plots import plot_iterations_vs_HbHs, plot_multibody_sweep
+    from ddstudies.report.plots import plot_iterations_vs_HbHs, plot_multibody_sweep
 
     sm = snakemake  # noqa: F821
     fig = sm.params.figure

@@ -11,7 +11,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
-    from ddsolve.report.contact_plots import (contact_line, membrane_surfaces, plot_contact_line,
+    from ddstudies.report.contact_plots import (contact_line, membrane_surfaces, plot_contact_line,
                                               plot_membranes, solve_contact_case)
 
     sm = snakemake  # noqa: F821

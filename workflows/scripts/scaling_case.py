@@ -16,7 +16,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     import logging
 
     logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    from ddsolve.bench.scaling import case_params, run_scaling_case
+    from ddstudies.bench.scaling import case_params, run_scaling_case
     from ddsolve.io.hdf5 import write_result
 
     sm = snakemake  # noqa: F821

@@ -5,7 +5,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
-    from ddsolve.bench.scaling import plot_scaling
+    from ddstudies.bench.scaling import plot_scaling
 
     sm = snakemake  # noqa: F821
     df = pd.read_csv(sm.input[0])

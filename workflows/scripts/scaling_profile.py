@@ -15,7 +15,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     from pathlib import Path
 
     logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    from ddsolve.bench.scaling import profile_case
+    from ddstudies.bench.scaling import profile_case
 
     sm = snakemake  # noqa: F821
     opts = dict(sm.params.options)

@@ -1,13 +1,13 @@
 """Snakemake script of rule scaling_summary: case files -> summary.csv, scaling.csv (table) and scaling.md
-(table, exponent fits, targets). params.targets: see ddsolve.bench.scaling.scaling_summary."""
+(table, exponent fits, targets). params.targets: see ddstudies.bench.scaling.scaling_summary."""
 
 from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     from pathlib import Path
 
-    from ddsolve.bench.scaling import scaling_summary, summary_markdown
-    from ddsolve.io.aggregate import collect, write_table
+    from ddstudies.bench.scaling import scaling_summary, summary_markdown
+    from ddstudies.aggregate import collect, write_table
 
     sm = snakemake  # noqa: F821
     df = collect(sm.input)

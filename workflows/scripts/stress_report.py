@@ -9,7 +9,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddsolve.io.hdf5 import atomic_target
-    from ddsolve.report.stress import evaluate, read_records, render_markdown
+    from ddstudies.stress import evaluate, read_records, render_markdown
     from pathlib import Path
 
     rows = evaluate(read_records(list(snakemake.input)))  # noqa: F821

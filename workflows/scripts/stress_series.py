@@ -16,7 +16,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     logging.basicConfig(stream=log, level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    from ddsolve.report.stress import StressCase, run_case, write_records
+    from ddstudies.stress import StressCase, run_case, write_records
 
     series = snakemake.wildcards.series  # noqa: F821
     cases = [StressCase(**fields) for fields in snakemake.params.cases]  # noqa: F821

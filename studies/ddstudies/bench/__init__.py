@@ -1,21 +1,21 @@
 """Work-precision benchmarks of the substructuring methods against peer solvers.
 
-- :mod:`~ddsolve.bench.peers`: direct factorizations (MKL PARDISO, NGSolve,
+- :mod:`~ddstudies.bench.peers`: direct factorizations (MKL PARDISO, NGSolve,
   CHOLMOD, SuperLU) behind :func:`direct_solver`, and pyamg + CG
   (:func:`pyamg_cg`);
-- :mod:`~ddsolve.bench.problems`: assembled benchmark problems
+- :mod:`~ddstudies.bench.problems`: assembled benchmark problems
   (:data:`PROBLEMS`, :func:`build_problem`) with refinement-consistent loads;
-- :mod:`~ddsolve.bench.refine`: the exact energy-norm total error against the
+- :mod:`~ddstudies.bench.refine`: the exact energy-norm total error against the
   2x refined solution;
-- :mod:`~ddsolve.bench.methods`: the registry of benchmarked methods
+- :mod:`~ddstudies.bench.methods`: the registry of benchmarked methods
   (:data:`METHODS`, :func:`register_method`);
-- :mod:`~ddsolve.bench.case`: one measured case (:func:`run_case`) and the
+- :mod:`~ddstudies.bench.case`: one measured case (:func:`run_case`) and the
   references (:func:`compute_reference`);
-- :mod:`~ddsolve.bench.store`, :mod:`~ddsolve.bench.report`: files, summary
+- :mod:`~ddstudies.bench.store`, :mod:`~ddstudies.bench.report`: files, summary
   table and the work-precision plot;
-- :mod:`~ddsolve.bench.contact`: the contact problem (3.1) and its methods
+- :mod:`~ddstudies.bench.contact`: the contact problem (3.1) and its methods
   (``active-set``, ``smalbe``, the ``pdas`` peer), registered on import;
-- :mod:`~ddsolve.bench.scaling`: the scaling study of the contact solvers
+- :mod:`~ddstudies.bench.scaling`: the scaling study of the contact solvers
   (time against dofs, exponent fits, profile).
 
 The Snakemake studies are ``workflows/rules/bench.smk`` with ``config/bench.yaml``

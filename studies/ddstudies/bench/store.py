@@ -4,9 +4,9 @@ Case files use the project's result layout (:func:`ddsolve.io.hdf5.write_result`
 README "HDF5 layout"): ``/params`` holds the problem spec with ``method`` the
 benchmarked method and ``rtol`` the case's tolerance (NaN for direct
 solvers), plus ``repeats``; ``/result`` holds the scalars of
-:class:`~ddsolve.bench.case.CaseRecord`. They are read back with
+:class:`~ddstudies.bench.case.CaseRecord`. They are read back with
 :func:`ddsolve.io.hdf5.read_result` and collected with
-:func:`ddsolve.io.aggregate.collect`.
+:func:`ddstudies.aggregate.collect`.
 
 Reference files (``format = "ddsolve-bench-reference"``, version 1) hold the
 spec as root attributes ``spec_<field>``, the scalars ``energy_fine``,
@@ -24,7 +24,8 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from ..io.hdf5 import _fsync, atomic_target, write_result
+from ddsolve.io.hdf5 import _fsync, atomic_target, write_result
+
 from .case import CaseRecord, Reference
 from .refine import FineReference
 

@@ -18,7 +18,7 @@ from typing import Any, Iterable
 import numpy as np
 import pandas as pd
 
-from .hdf5 import atomic_target, read_result
+from ddsolve.io.hdf5 import atomic_target, read_result
 
 
 def collect(paths: Iterable[str | os.PathLike]) -> pd.DataFrame:
@@ -37,8 +37,8 @@ def collect(paths: Iterable[str | os.PathLike]) -> pd.DataFrame:
 
 
 def _column_order(seen: list[str]) -> list[str]:
-    from ..result import SCALAR_KEYS
-    from ..spec import ProblemSpec
+    from ddsolve.result import SCALAR_KEYS
+    from ddsolve.spec import ProblemSpec
 
     columns: list[str] = []
     for key in ProblemSpec.fields():  # parameters, in spec order

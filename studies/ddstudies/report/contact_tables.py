@@ -12,7 +12,7 @@ of both methods (with the thesis's totals), and :func:`comparison_caption`
 states, computed from it, whether the active set method needs fewer total
 iterations than SMALBE on the larger grids.
 
-Render the tables with :func:`ddsolve.report.tables.to_markdown` or
+Render the tables with :func:`ddstudies.report.tables.to_markdown` or
 :func:`contact_latex` (booktabs, math-mode labels).
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from ..io.aggregate import parse_list
+from ..aggregate import parse_list
 from .tables import NOT_CONVERGED_MARK, NOT_CONVERGED_NOTE, describe_constants, to_latex, to_markdown
 
 #: Our key columns -> the key columns of the thesis transcriptions (table_5_1.csv, table_6_1.csv).
@@ -110,7 +110,7 @@ def contact_table(df: pd.DataFrame, thesis: pd.DataFrame | None = None, *,
     Parameters
     ----------
     df : DataFrame
-        Aggregated runs (summary CSV or :func:`ddsolve.io.aggregate.collect`), with
+        Aggregated runs (summary CSV or :func:`ddstudies.aggregate.collect`), with
         ``method``, ``subdomains``, ``elements``, the ``columns``' our names and
         optionally ``converged``. List cells may be lists or space-separated strings.
     thesis : DataFrame, optional
@@ -128,7 +128,7 @@ def contact_table(df: pd.DataFrame, thesis: pd.DataFrame | None = None, *,
         MultiIndex ``(label, "ours" | "thesis" | "dev")``; integer columns as
         Int64, deviations as floats, lists as space-separated strings. A run
         that did not converge has its total marked ``*`` (``attrs["marks"]``,
-        ``attrs["notes"]``, as in :func:`ddsolve.report.tables.condition_table`).
+        ``attrs["notes"]``, as in :func:`ddstudies.report.tables.condition_table`).
 
     Raises
     ------
@@ -287,7 +287,7 @@ def comparison_caption(comparison: pd.DataFrame, *, methods: Sequence[str] = ("a
 
 
 def contact_latex(table: pd.DataFrame, **kwargs: Any) -> str:
-    """:func:`ddsolve.report.tables.to_latex` with the thesis's labels in math mode."""
+    """:func:`ddstudies.report.tables.to_latex` with the thesis's labels in math mode."""
     text = to_latex(table, **kwargs)
     for plain, math_label in LATEX_REPLACEMENTS.items():
         text = text.replace(plain, math_label)

@@ -1,7 +1,7 @@
 """Work-precision summary table and plot.
 
 :func:`summary_table` reduces the collected case rows
-(:func:`ddsolve.io.aggregate.collect`) to one row per (problem, method,
+(:func:`ddstudies.aggregate.collect`) to one row per (problem, method,
 rtol) with the time, its ratio to the direct solve, both errors and memory.
 :func:`plot_work_precision` draws time / direct time (wall or CPU) against
 the error, one line per (problem, method) ordered by rtol, the peers dashed; the left panel

@@ -18,10 +18,10 @@ method at one rtol on the same problem and returns a :class:`CaseRecord`:
 * ``algebraic_error``: ||u - u_h||_A / ||u_h||_A with u_h the project's own
   direct solve (:func:`ddsolve.api.energy_error`);
 * ``total_error``: ||u_{h/2} - P u||_{A_{h/2}} / ||u_{h/2}||_{A_{h/2}}
-  against the 2x refined solution (:mod:`ddsolve.bench.refine`);
-* ``mem_mb`` / ``peak_rss_mb``: see :mod:`ddsolve.bench.memory`;
+  against the 2x refined solution (:mod:`ddstudies.bench.refine`);
+* ``mem_mb`` / ``peak_rss_mb``: see :mod:`ddstudies.bench.memory`;
 * problem-specific measures of :attr:`BenchProblem.case_errors` (contact:
-  ``l2_error``, ``lambda_error``, ``kkt_residual``; :mod:`ddsolve.bench.contact`).
+  ``l2_error``, ``lambda_error``, ``kkt_residual``; :mod:`ddstudies.bench.contact`).
 """
 from __future__ import annotations
 
@@ -34,8 +34,9 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ..api import energy_error
-from ..spec import ProblemSpec
+from ddsolve.api import energy_error
+from ddsolve.spec import ProblemSpec
+
 from .memory import current_rss_mb, peak_rss_mb
 from .methods import MethodRun, RunOptions, get_method, run_direct
 from .peers import direct_solver
@@ -152,7 +153,7 @@ def run_case(problem: BenchProblem, method: str, rtol: float | None, reference: 
     ----------
     problem : BenchProblem
     method : str
-        A registered method (:data:`ddsolve.bench.methods.METHODS`) that solves ``problem.kind``.
+        A registered method (:data:`ddstudies.bench.methods.METHODS`) that solves ``problem.kind``.
     rtol : float or None
         Tolerance; ignored for non-iterative methods.
     reference : Reference

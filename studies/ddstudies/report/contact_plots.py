@@ -10,7 +10,7 @@
   along Gamma_c = {1} x [0, 1] against y, with the contact zone (the active
   pairs, lambda > 0) shaded.
 - :func:`plot_method_comparison` draws the total iterations and wall times of
-  :func:`ddsolve.report.contact_tables.method_comparison` per grid.
+  :func:`ddstudies.report.contact_tables.method_comparison` per grid.
 
 Uses the non-interactive Agg backend.
 """
@@ -61,20 +61,16 @@ def solve_contact_case(spec: Any) -> tuple[Any, Any]:
     """
     from threadpoolctl import threadpool_limits
 
-    from ..api import build_scene
-    from ..contact import ContactProblem
-    from ..contact.run import run_contact_method
-    from ..dd import Substructures
-    from ..scene import assemble
-    from ..spec import ProblemSpec
+    from ddsolve.contact.run import run_contact_method
+    from ddsolve.prepared import prepare
+    from ddsolve.spec import ProblemSpec
 
     if not isinstance(spec, ProblemSpec):
         spec = ProblemSpec.from_mapping(dict(spec))
     if spec.problem != "contact":
         raise ValueError(f"solve_contact_case: problem must be 'contact', got {spec.problem!r}")
     with threadpool_limits(limits=1, user_api="blas"):
-        sub = Substructures(assemble(build_scene(spec)), scaling=spec.scaling, gamma=spec.gamma)
-        problem = ContactProblem(sub)
+        problem = prepare(spec).contact
         solution = run_contact_method(spec.method, problem, rtol=float(spec.rtol), maxiter=int(spec.maxiter))
     log.info("contact %s N=%d H/h=%d: %s", spec.method, spec.subdomains, spec.elements, solution.reason)
     return problem, solution
@@ -269,13 +265,13 @@ def plot_method_comparison(comparison: pd.DataFrame, path: str | os.PathLike, *,
     Parameters
     ----------
     comparison : DataFrame
-        From :func:`ddsolve.report.contact_tables.method_comparison` (index
+        From :func:`ddstudies.report.contact_tables.method_comparison` (index
         (N_sub(1/H), H/h); columns ``("total it.", label)``, ``("total it.",
         label + " thesis")``, ``("wall time [s]", label)``).
     path : path-like
         Output PNG.
     caption : str, optional
-        Text under the figure (e.g. :func:`~ddsolve.report.contact_tables.comparison_caption`).
+        Text under the figure (e.g. :func:`~ddstudies.report.contact_tables.comparison_caption`).
     methods : sequence of str
         Method labels (second level of the columns).
     colors : mapping, optional

@@ -1,6 +1,6 @@
 """The contact problem (3.1) in the benchmarks: problem kind ``contact`` and its methods.
 
-Registered here (imported by :mod:`ddsolve.bench`):
+Registered here (imported by :mod:`ddstudies.bench`):
 
 * problem ``contact``: :func:`~ddsolve.scene.contact.two_membranes` with the
   Dostal patch loads (``f: dostal``), the assembled :class:`~ddsolve.contact.ContactProblem`
@@ -30,7 +30,7 @@ membrane, so:
 * ``total_error`` = ||u_{h/2} - P u||_{K_{h/2}} / ||u_{h/2}||_{K_{h/2}} against
   the PDAS solution of the 2x refined problem. P^T K_{h/2} P = K_h holds body
   by body (nested Q1 spaces, the same Dostal load), so the formula of
-  :mod:`ddsolve.bench.refine` is exact. Contact is a variational inequality:
+  :mod:`ddstudies.bench.refine` is exact. Contact is a variational inequality:
   Galerkin orthogonality does not hold, so total^2 is only approximately
   discretization^2 + algebraic^2 (the total error still levels off at the
   discretization error of u_h).
@@ -47,13 +47,13 @@ from typing import Any
 
 import numpy as np
 
-from ..contact import ContactProblem, ContactSolution, solve_contact_active_set, solve_contact_direct
-from ..contact.direct import Factorize
-from ..contact.smalbe_dual import solve_contact_smalbe
-from ..dd import Substructures
-from ..multibody.direct import merge_matrix
-from ..scene import assemble
-from ..spec import ProblemSpec
+from ddsolve.contact import ContactProblem, ContactSolution, solve_contact_active_set, solve_contact_direct
+from ddsolve.contact.direct import Factorize
+from ddsolve.contact.smalbe_dual import solve_contact_smalbe
+from ddsolve.multibody.direct import merge_matrix
+from ddsolve.prepared import prepare
+from ddsolve.spec import ProblemSpec
+
 from .methods import MethodRun, RunOptions, register_method
 from .peers import DEFAULT_DIRECT, direct_solver
 from .problems import BenchProblem, bench_scene, register_problem
@@ -70,7 +70,7 @@ def backend_factorize(backend: str = DEFAULT_DIRECT, threads: int = 1) -> Factor
     Parameters
     ----------
     backend : str
-        A key of :data:`ddsolve.bench.peers.DIRECT_SOLVERS` (``"mkl-pardiso"``: MKL PARDISO).
+        A key of :data:`ddstudies.bench.peers.DIRECT_SOLVERS` (``"mkl-pardiso"``: MKL PARDISO).
     threads : int
         Threads of the factorization and solves.
 
@@ -131,8 +131,8 @@ def contact_problem(spec: ProblemSpec, load_cells: int | None = None) -> BenchPr
     keep the generic peers well defined. ``reference()`` is the PDAS solve
     with SuperLU; ``reference_vectors()`` then gives its multipliers.
     """
-    sub = Substructures(assemble(bench_scene(spec, load_cells)), scaling=spec.scaling, gamma=spec.gamma)
-    cp = ContactProblem(sub)
+    prepared = prepare(spec, scene=bench_scene(spec, load_cells))
+    sub, cp = prepared.sub, prepared.contact
     T = merge_matrix(sub, cp.gi, np.ones(cp.n_contact, dtype=bool))
     context: dict[str, Any] = {"contact": cp}
 

@@ -1,6 +1,6 @@
 """The benchmarked methods: a registry of name -> runner.
 
-A runner takes an assembled :class:`~ddsolve.bench.problems.BenchProblem`, a
+A runner takes an assembled :class:`~ddstudies.bench.problems.BenchProblem`, a
 relative tolerance (None for methods without one) and the
 :class:`RunOptions`, and returns a :class:`MethodRun`. Everything the runner
 does (operators, factorizations, iterations) counts as the method's time;
@@ -15,7 +15,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..dd import MethodOutput, solve_bddc, solve_feti, solve_fetidp
+from ddsolve.dd import MethodOutput, solve_bddc, solve_feti, solve_fetidp
+
 from .peers import DEFAULT_DIRECT, direct_solver, pyamg_cg
 from .problems import BenchProblem
 
@@ -32,7 +33,7 @@ class RunOptions:
         BLAS / solver threads.
     direct : str
         Backend of the ``direct`` peer and of the time baseline
-        (:data:`ddsolve.bench.peers.DIRECT_SOLVERS`).
+        (:data:`ddstudies.bench.peers.DIRECT_SOLVERS`).
     """
 
     maxiter: int = 1000
@@ -74,7 +75,7 @@ class Method:
     ----------
     run : Runner
     problems : tuple of str
-        Problem kinds it solves (keys of :data:`ddsolve.bench.problems.PROBLEMS`).
+        Problem kinds it solves (keys of :data:`ddstudies.bench.problems.PROBLEMS`).
     iterative : bool
         Takes a tolerance (run once per rtol of the study); otherwise run once.
     peer : bool
@@ -115,10 +116,10 @@ def _multibody(name: str) -> Runner:
     def run(problem: BenchProblem, rtol: float | None, options: RunOptions) -> MethodRun:
         gi, active = problem.context["gi"], problem.context["active"]
         if name == "feti-feti":
-            from ..multibody.fetifeti import FetiFetiSolver
+            from ddsolve.multibody.fetifeti import FetiFetiSolver
             solver = FetiFetiSolver(problem.sub, gi)
         else:
-            from ..multibody.hybrid import HybridSolver
+            from ddsolve.multibody.hybrid import HybridSolver
             solver = HybridSolver(problem.sub, gi)
         return _from_output(solver.solve(active, rtol=rtol, maxiter=options.maxiter))
     return run

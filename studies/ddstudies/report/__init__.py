@@ -1,8 +1,8 @@
 """Report rendering: thesis-style tables and plots from aggregated results.
 
-- :mod:`ddsolve.report.tables`: :func:`condition_table`, :func:`side_by_side`,
+- :mod:`ddstudies.report.tables`: :func:`condition_table`, :func:`side_by_side`,
   :func:`to_markdown`, :func:`to_latex`.
-- :mod:`ddsolve.report.plots`: :func:`fit_log_squared`, :func:`fit_linear`,
+- :mod:`ddstudies.report.plots`: :func:`fit_log_squared`, :func:`fit_linear`,
   :func:`plot_cond_vs_Hh` (matplotlib, Agg backend).
 
 Names are imported lazily so that importing the tables does not load matplotlib.

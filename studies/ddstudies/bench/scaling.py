@@ -31,12 +31,11 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
-from ..api import build_scene
-from ..contact import ContactProblem
-from ..dd import Substructures
+from ddsolve.contact import ContactProblem
+from ddsolve.prepared import prepare
+from ddsolve.spec import ProblemSpec
+
 from ..report.plots import _save
-from ..scene import assemble
-from ..spec import ProblemSpec
 from .case import CaseRecord
 from .contact import CONTACT_METHODS, solve_contact
 from .memory import peak_rss_mb
@@ -59,8 +58,7 @@ def contact_spec(subdomains: int, elements: int, *, f: str = "dostal", rtol: flo
 def build_contact(spec: ProblemSpec) -> tuple[ContactProblem, float]:
     """Assemble the contact problem of ``spec``; returns it and the wall time it took."""
     t0 = time.perf_counter()
-    sub = Substructures(assemble(build_scene(spec)), scaling=spec.scaling, gamma=spec.gamma)
-    problem = ContactProblem(sub)
+    problem = prepare(spec).contact
     return problem, time.perf_counter() - t0
 
 
@@ -74,7 +72,7 @@ def run_scaling_case(subdomains: int, elements: int, method: str, *, rtol: float
     subdomains, elements : int
         N = 1/H and m = H/h.
     method : {"active-set", "smalbe", "pdas"}
-        See :func:`ddsolve.bench.contact.solve_contact`.
+        See :func:`ddstudies.bench.contact.solve_contact`.
     rtol : float
         Tolerance of the iterative methods (1e-5 as in Chapters 5 and 6).
     maxiter : int
@@ -215,7 +213,7 @@ def scaling_table(df: pd.DataFrame, methods: Sequence[str] | None = None) -> pd.
     Parameters
     ----------
     df : DataFrame
-        Collected case files (:func:`ddsolve.io.aggregate.collect`).
+        Collected case files (:func:`ddstudies.aggregate.collect`).
     methods : sequence of str, optional
         Methods in column order (default: those in ``df``, in order of appearance).
     """

@@ -23,8 +23,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
-from ..scene import Scene
-from ..spec import ProblemSpec
+from ddsolve.scene import Scene
+from ddsolve.spec import ProblemSpec
 
 
 def refined_spec(spec: ProblemSpec, factor: int = 2) -> ProblemSpec:

@@ -6,7 +6,7 @@ A :class:`BenchProblem` bundles what every benchmarked method needs: the
 ``u = T x`` that the peer solvers factor, and problem-specific context. The
 builders in :data:`PROBLEMS` make one from a :class:`~ddsolve.spec.ProblemSpec`;
 a new problem kind is added with :func:`register_problem` (the contact
-problem (3.1) is registered by :mod:`ddsolve.bench.contact`).
+problem (3.1) is registered by :mod:`ddstudies.bench.contact`).
 
 Loads are refinement-consistent: ``f = "random:SEED"`` is a piecewise constant
 load, uniform in [-1, 1], on a grid of ``load_cells`` x ``load_cells`` cells of
@@ -22,12 +22,12 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse as sp
 
-from ..api import build_scene
-from ..dd import Substructures, solve_direct
-from ..multibody import GlobalInterface
-from ..multibody.direct import merge_matrix, solve_constrained_direct
-from ..scene import Scene, assemble
-from ..spec import ProblemSpec, parse_f
+from ddsolve.dd import Substructures, solve_direct
+from ddsolve.multibody import GlobalInterface
+from ddsolve.multibody.direct import merge_matrix, solve_constrained_direct
+from ddsolve.prepared import prepare, scene_from_spec
+from ddsolve.scene import Scene
+from ddsolve.spec import ProblemSpec, parse_f
 
 
 @dataclass
@@ -140,7 +140,7 @@ def bench_scene(spec: ProblemSpec, load_cells: int | None = None) -> Scene:
         Cells per side of the random load grid; default: the elements per
         side of this mesh, bodies * subdomains * elements.
     """
-    scene = build_scene(spec)
+    scene = scene_from_spec(spec)
     kind, value = parse_f(spec.f)
     if kind == "random":
         cells = load_cells or spec.bodies * spec.subdomains * spec.elements
@@ -149,7 +149,7 @@ def bench_scene(spec: ProblemSpec, load_cells: int | None = None) -> Scene:
 
 
 def _substructures(spec: ProblemSpec, load_cells: int | None) -> Substructures:
-    return Substructures(assemble(bench_scene(spec, load_cells)), scaling=spec.scaling, gamma=spec.gamma)
+    return prepare(spec, scene=bench_scene(spec, load_cells)).sub
 
 
 def poisson_problem(spec: ProblemSpec, load_cells: int | None = None) -> BenchProblem:

@@ -1,0 +1,91 @@
+"""The workflow's config: option lists injected from ddsolve.options, explicit kinds, unique job labels."""
+from __future__ import annotations
+
+import pytest
+import yaml
+from conftest import ROOT, copy_workflow
+from conftest import run_snakemake as snakemake
+
+from ddsolve import options
+from ddstudies.workflow import SCHEMAS, ConfigError, bench_rtols, load_schema, unique_labels, validate
+
+SCHEMA_DIR = ROOT / "workflows" / "schemas"
+
+
+def test_schema_option_lists_come_from_ddsolve_options():
+    schema = load_schema(SCHEMA_DIR / "config.schema.yaml")
+    props = schema["properties"]
+    assert props["methods"]["items"]["enum"] == list(options.ALL_METHODS)
+    assert props["contacts"]["items"]["enum"] == list(options.CONTACTS)
+    assert props["scaling"]["enum"] == list(options.SCALINGS)
+    assert props["norm"]["enum"] == list(options.NORMS)
+    assert props["projection"]["enum"] == list(options.PROJECTIONS)
+    assert props["problem"]["enum"] == list(options.METHODS)
+    assert "x-options:" not in yaml.safe_dump(schema)
+    # no copied list left in the schema file itself
+    text = (SCHEMA_DIR / "config.schema.yaml").read_text()
+    assert "enum: [feti" not in text and "enum: [full, middle]" not in text and "enum: [l2, M]" not in text
+
+
+def test_per_kind_methods():
+    base = {"kind": "table_4", "study": "s", "problem": "multibody", "contacts": ["full"], "subdomains": [2],
+            "elements": [2], "thesis_tables": "t", "tables": {"t": {"method": "hybrid", "title": "T"}},
+            "figures": {"f": {"method": "hybrid", "title": "F"}}}
+    validate({**base, "methods": ["hybrid"]}, SCHEMA_DIR / "config.schema.yaml")
+    with pytest.raises(ConfigError, match="methods/0"):
+        validate({**base, "methods": ["bddc"]}, SCHEMA_DIR / "config.schema.yaml")
+    with pytest.raises(ConfigError):  # a kind and its problem agree
+        validate({**base, "problem": "poisson", "methods": ["hybrid"]}, SCHEMA_DIR / "config.schema.yaml")
+
+
+@pytest.mark.parametrize("name", ["poisson", "table_4", "table_5_6", "bench", "scaling", "stress"])
+def test_every_config_names_its_kind(name):
+    config = yaml.safe_load((ROOT / "config" / f"{name}.yaml").read_text())
+    validate(config, SCHEMA_DIR / f"{SCHEMAS[config['kind']]}.schema.yaml")
+    assert config["study"] == name
+
+
+def test_stress_settings_in_config():
+    config = validate(yaml.safe_load((ROOT / "config" / "stress.yaml").read_text()),
+                      SCHEMA_DIR / "stress.schema.yaml")
+    assert config["tier"] == "study" and config["case_timeout"] == 240
+    with pytest.raises(ConfigError, match="tier"):
+        validate({**config, "tier": "huge"}, SCHEMA_DIR / "stress.schema.yaml")
+
+
+def test_bench_labels_unique_by_construction():
+    assert list(bench_rtols([1e-2, 1e-6])) == ["rtol1e-02", "rtol1e-06"]
+    with pytest.raises(ConfigError, match=r"1e-06 and 1.4e-06 both have the label 'rtol1e-06'"):
+        bench_rtols([1e-6, 1.4e-6])
+    with pytest.raises(ConfigError, match="'a'"):
+        unique_labels([("a", 1), ("a", 2)], "things")
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    return copy_workflow(tmp_path_factory.mktemp("workflow_config"))
+
+
+def test_workflow_refuses_colliding_bench_labels(workdir):
+    (workdir / "clash.yaml").write_text("rtols: [1.0e-6, 1.4e-6]\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/bench.yaml", "clash.yaml", check=False)
+    assert proc.returncode != 0
+    assert "rtols: 1e-06 and 1.4e-06 both have the label 'rtol1e-06'" in proc.stdout + proc.stderr
+
+
+def test_workflow_needs_an_explicit_kind(workdir):
+    # a study named stress* is not a stress study: only `kind` says what a study is
+    (workdir / "nokind.yaml").write_text("study: stress_like\nmethods: [bddc]\nsubdomains: [2]\nelements: [2]\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "nokind.yaml", check=False)
+    assert proc.returncode != 0 and "kind: None is not one of" in proc.stdout + proc.stderr
+    (workdir / "grid.yaml").write_text("kind: grid\nstudy: stress_like\nmethods: [bddc]\nsubdomains: [2]\n"
+                                       "elements: [2]\n")
+    out = snakemake(workdir, "-n", "--cores", "1", "--configfile", "grid.yaml")
+    text = out.stdout + out.stderr
+    assert "solve_case" in text and "stress_series" not in text
+
+
+def test_lint_is_clean(workdir):
+    for args in ((), ("--configfile", "config/quick.yaml")):
+        proc = snakemake(workdir, "--lint", *args, check=False)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
