@@ -18,7 +18,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
-from .krylov import KrylovResult
+from .krylov import TRUE_RESIDUAL_FACTOR, attained  # noqa: F401  (TRUE_RESIDUAL_FACTOR re-exported)
 from .options import METHODS
 from .prepared import Prepared, check_decomposition, prepare, scene_from_spec  # noqa: F401  (re-exported)
 from .result import SolveResult
@@ -30,46 +30,53 @@ log = logging.getLogger(__name__)
 build_scene = scene_from_spec
 
 
-#: A Krylov solve counts as converged only if the residual recomputed from its
-#: final iterate is within this factor of the tolerance rtol ||r_0||.
-TRUE_RESIDUAL_FACTOR = 10.0
+def energy_error(A, u: np.ndarray, u_ref: np.ndarray) -> float:
+    """Relative energy-norm error ||u - u_ref||_A / ||u_ref||_A (l2 if u_ref has zero energy).
+
+    Both vectors are scaled by the same power of two (max |u_ref|) and ``A`` by
+    the power of two nearest its largest entry, so the quadratic forms neither
+    underflow nor overflow for solutions or coefficients anywhere in the double
+    range (the ratio is unchanged, exactly).
+    """
+    u = np.asarray(u, dtype=float)
+    u_ref = np.asarray(u_ref, dtype=float)
+    scale_u = float(np.max(np.abs(u_ref))) if u_ref.size else 0.0
+    if scale_u == 0.0:
+        return 0.0 if not np.any(u) else math.inf
+    scale_u = math.ldexp(1.0, math.frexp(scale_u)[1])
+    data = getattr(A, "data", None)
+    scale_a = float(np.max(np.abs(data))) if data is not None and np.size(data) else 1.0
+    scale_a = math.ldexp(1.0, -math.frexp(scale_a)[1]) if scale_a > 0 else 1.0
+    e = (u - u_ref) / scale_u
+    ref_vec = u_ref / scale_u
+    ref = float(ref_vec @ (A @ ref_vec)) * scale_a
+    if ref <= 0:
+        return float(np.linalg.norm(e) / np.linalg.norm(ref_vec))
+    return float(np.sqrt(max(float(e @ (A @ e)) * scale_a, 0.0) / ref))
 
 
-def attained(kr: KrylovResult, rtol: float) -> tuple[bool, str]:
-    """Whether a converged Krylov solve also meets ``rtol`` by its recomputed residual.
-
-    At a tolerance below the attainable accuracy (round-off, e.g. ``rtol =
-    1e-20``) the recursively updated residual of PCG keeps decreasing while the
-    true residual ``||P (b - A x)||`` stagnates; the solve must then not report
-    convergence.
+def checked_error(A, u: np.ndarray, reference: MethodOutput) -> tuple[float | None, str]:
+    """The relative energy error of ``u`` against a direct reference, or None and why it is missing.
 
     Returns
     -------
-    ok : bool
-        False if ``kr.converged`` but ``kr.true_residual > TRUE_RESIDUAL_FACTOR
-        rtol ||r_0||``.
+    error : float or None
+        :func:`energy_error` when both solutions are finite and the reference solve succeeded.
     reason : str
-        ``kr.reason``, extended by why the solve was not accepted.
+        Empty when ``error`` is a number; otherwise why it could not be computed (the
+        ``check_reason`` of the result).
     """
-    if not kr.converged or kr.true_residual is None or kr.residuals.size == 0:
-        return kr.converged, kr.reason
-    r0 = float(kr.residuals[0])
-    if kr.true_residual <= TRUE_RESIDUAL_FACTOR * rtol * r0:
-        return True, kr.reason
-    rel = kr.true_residual / r0 if r0 > 0 else math.inf
-    rec = float(kr.residuals[-1]) / r0 if r0 > 0 else math.inf
-    return False, (f"tolerance not attained: recomputed ||r||/||r0|| = {rel:.1e} > "
-                   f"{TRUE_RESIDUAL_FACTOR:g} rtol = {TRUE_RESIDUAL_FACTOR * rtol:.1e} although the recursive "
-                   f"residual reached {rec:.1e} (rtol below the attainable accuracy)")
-
-
-def energy_error(A, u: np.ndarray, u_ref: np.ndarray) -> float:
-    """Relative energy-norm error ||u - u_ref||_A / ||u_ref||_A (l2 if u_ref has zero energy)."""
-    e = u - u_ref
-    ref = float(u_ref @ (A @ u_ref))
-    if ref <= 0:
-        return float(np.linalg.norm(e) / max(np.linalg.norm(u_ref), 1e-300))
-    return float(np.sqrt(max(float(e @ (A @ e)), 0.0) / ref))
+    kr = reference.krylov
+    if kr is not None and not kr.converged:
+        return None, f"direct reference failed: {kr.reason}"
+    if not np.all(np.isfinite(reference.u)):
+        return None, "direct reference is not finite"
+    if not np.all(np.isfinite(u)):
+        return None, "solution is not finite"
+    error = energy_error(A, u, reference.u)
+    if not math.isfinite(error):
+        return None, "energy norm of the error is not finite (over/underflow)"
+    return error, ""
 
 
 @dataclass(frozen=True)
@@ -200,6 +207,8 @@ def _solve(spec: ProblemSpec) -> SolveResult:
                                   solve_seconds=t_total - out.setup_seconds)
     if out.krylov is None:
         fields.update(converged=True, reason="direct solve", iterations=0)
+    elif out.krylov.iterations == 0 and spec.method == "direct":   # a direct solve that failed (reason given)
+        fields.update(converged=bool(out.krylov.converged), reason=out.krylov.reason, iterations=0)
     else:
         kr = out.krylov
         converged, reason = attained(kr, spec.rtol)
@@ -208,9 +217,14 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         extra["restarts"] = int(getattr(kr, "restarts", 0))
         if spec.cond and kr.cond is not None:
             fields.update(cond=kr.cond, lambda_min=kr.lambda_min, lambda_max=kr.lambda_max)
+    if fields["converged"] and not np.all(np.isfinite(out.u)):
+        fields.update(converged=False, reason=f"non-finite solution after {fields['reason']}")
     if spec.check:
         reference = out if spec.method == "direct" else run.reference()
-        fields["error_vs_direct"] = energy_error(prep.sub.global_matrix(), out.u, reference.u)
+        error, why = checked_error(prep.sub.global_matrix(), out.u, reference)
+        fields["error_vs_direct"] = error
+        if why:
+            extra["check_reason"] = why
     result = SolveResult(**identity, **fields, extra=extra)
     log.info("%s %s: %s", spec.problem, spec.method, result.reason)
     return result

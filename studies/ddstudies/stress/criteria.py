@@ -9,7 +9,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 # The one policy constant of the true residual (ddsolve.solve marks a solve whose
 # recomputed residual exceeds it as not converged).
-from ddsolve.api import TRUE_RESIDUAL_FACTOR
+from ddsolve.krylov import TRUE_RESIDUAL_FACTOR
 
 __all__ = ["CRITERIA", "Verdict", "evaluate"]
 
