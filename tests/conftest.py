@@ -1,7 +1,20 @@
-"""Shared fixtures and helpers for the ddsolve test suite."""
+"""Shared fixtures and helpers for the ddsolve test suite.
+
+Layout: ``tests/unit/<subpackage>/`` tests one layer of the library each,
+``tests/studies/`` the study code (package ``ddstudies``), ``tests/workflow/``
+the Snakemake workflow. Markers:
+
+* ``workflow``: the test runs Snakemake (every test under ``tests/workflow/`` and
+  every test that calls :func:`run_snakemake` or :func:`copy_workflow`, marked here
+  at collection). ``python -m pytest -m "not workflow"`` is the fast tier.
+* ``slow``: a test that takes more than a few seconds on the 2-core machine.
+* ``mpi``: the test launches ``mpiexec``.
+"""
 from __future__ import annotations
 
+import inspect
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -10,9 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ddsolve.api import build_scene
+from ddsolve import prepare
 from ddsolve.dd import Substructures
-from ddsolve.scene import assemble
 from ddsolve.spec import ProblemSpec
 
 
@@ -42,10 +54,39 @@ def run_snakemake(wd: Path, *args: str, check: bool = True, timeout: float = 300
     return proc
 
 
+def planned(proc: subprocess.CompletedProcess) -> dict[str, int]:
+    """Job counts from the 'Job stats' table of a Snakemake dry run."""
+    text = proc.stdout + proc.stderr
+    counts = {}
+    for rule in ("solve_case", "aggregate", "table", "plot_cond", "table_4", "figure_4", "all"):
+        match = re.search(rf"^{rule}\s+(\d+)\s*$", text, flags=re.MULTILINE)
+        counts[rule] = int(match.group(1)) if match else 0
+    return counts
+
+
+def _runs_snakemake(item: pytest.Item) -> bool:
+    func = getattr(item, "function", None)
+    if func is None:
+        return False
+    try:
+        source = inspect.getsource(func)
+    except (OSError, TypeError):
+        return False
+    return "run_snakemake" in source or "copy_workflow" in source or "snakemake(" in source
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark every test that runs Snakemake (or lives in tests/workflow/) with ``workflow``."""
+    workflow_dir = ROOT / "tests" / "workflow"
+    for item in items:
+        path = Path(str(item.path))
+        if workflow_dir in path.parents or _runs_snakemake(item):
+            item.add_marker(pytest.mark.workflow)
+
+
 def substructures(**fields) -> Substructures:
     """Assembled Substructures of a structured Poisson spec (fields of ProblemSpec)."""
-    spec = ProblemSpec.from_mapping(fields)
-    return Substructures(assemble(build_scene(spec)), scaling=spec.scaling, gamma=spec.gamma)
+    return prepare(ProblemSpec.from_mapping(fields)).sub
 
 
 def dense(op, n: int) -> np.ndarray:

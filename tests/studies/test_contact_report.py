@@ -17,7 +17,7 @@ from ddstudies.report.contact_tables import (TABLE_5_1_COLUMNS, TABLE_6_1_COLUMN
 from ddstudies.report.tables import to_markdown
 from ddsolve.spec import ProblemSpec
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import ROOT  # noqa: E402
 THESIS = ROOT / "config" / "thesis_tables"
 
 

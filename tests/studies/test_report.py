@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -11,7 +10,7 @@ import yaml
 
 from ddstudies.report import plots, tables
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import ROOT  # noqa: E402
 SCHEMA = ROOT / "workflows" / "schemas" / "config.schema.yaml"
 
 

@@ -25,7 +25,6 @@ from ddsolve.errors import InputError
 from ddstudies import stress
 from ddstudies.stress import StressCase, catalog, contact_load, evaluate, render_markdown, run_case
 
-ROOT = Path(__file__).resolve().parents[1]
 QUICK = catalog("quick")
 
 #: Known weaknesses (FAIL in the study report): case name pattern -> why.
@@ -45,6 +44,7 @@ def rows() -> dict[str, dict]:
     return {row["name"]: row for row in out}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", [case.name for case in QUICK])
 def test_stress_case(rows, name):
     row = rows[name]

@@ -109,12 +109,11 @@ def test_profile_lists_functions():
 def test_scaling_workflow_dry_run(tmp_path):
     """config/scaling.yaml plans one job per (method, H/h), the summary, plot and profile, and nothing else."""
     import re
-    from pathlib import Path
 
     from conftest import copy_workflow, run_snakemake
 
     pytest.importorskip("snakemake")
-    root = Path(__file__).resolve().parents[1]
+    from conftest import ROOT as root
     proc = run_snakemake(copy_workflow(tmp_path), "-n", "--cores", "2", "--configfile", "config/scaling.yaml")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     text = proc.stdout + proc.stderr

@@ -13,7 +13,6 @@ import pytest
 import yaml
 from conftest import ROOT, copy_workflow
 from conftest import run_snakemake as snakemake
-from test_pipeline import has_api
 
 pytest.importorskip("snakemake")
 
@@ -91,7 +90,7 @@ def test_bad_study_lists_are_rejected(workdir, studies, message):
     assert proc.returncode != 0 and message in proc.stdout + proc.stderr
 
 
-@pytest.mark.skipif(not has_api(), reason="ddsolve.api (the solvers) not available yet")
+@pytest.mark.slow
 def test_study_finished_alone_is_not_rerun_by_the_reproduction(workdir):
     (workdir / "tiny.yaml").write_text("kind: grid\nstudy: tiny\nsubdomains: [2]\nelements: [2]\nmethods: [bddc]\n"
                                        "cond: false\n")

@@ -5,23 +5,13 @@ The dry runs need only Snakemake; the real run of a tiny Poisson study
 """
 from __future__ import annotations
 
-import importlib.util
-import re
-import subprocess
 
 import pandas as pd
 import pytest
-from conftest import ROOT, copy_workflow
+from conftest import copy_workflow, planned
 from conftest import run_snakemake as snakemake
 
 pytest.importorskip("snakemake")
-
-
-def has_api() -> bool:
-    try:
-        return importlib.util.find_spec("ddsolve.api") is not None
-    except ImportError:
-        return False
 
 
 #: A tiny Poisson study: config/poisson.yaml with these keys replaced.
@@ -34,16 +24,6 @@ def workdir(tmp_path_factory):
     wd = copy_workflow(tmp_path_factory.mktemp("pipeline"))
     (wd / "tiny.yaml").write_text(TINY)
     return wd
-
-
-def planned(proc: subprocess.CompletedProcess) -> dict[str, int]:
-    """Job counts from the 'Job stats' table of a dry run."""
-    text = proc.stdout + proc.stderr
-    counts = {}
-    for rule in ("solve_case", "aggregate", "table", "plot_cond", "table_4", "figure_4", "all"):
-        match = re.search(rf"^{rule}\s+(\d+)\s*$", text, flags=re.MULTILINE)
-        counts[rule] = int(match.group(1)) if match else 0
-    return counts
 
 
 def test_dry_run_poisson_study(workdir):
@@ -62,7 +42,7 @@ def test_bad_config_is_rejected(workdir):
     assert "invalid config (config.schema.yaml): methods/1: 'newton' is not one of" in proc.stdout + proc.stderr
 
 
-@pytest.mark.skipif(not has_api(), reason="ddsolve.api (the solvers) not available yet")
+@pytest.mark.slow
 def test_quick_study_end_to_end(workdir):
     snakemake(workdir, "--cores", "2", "--configfile", "config/poisson.yaml", "tiny.yaml")
     results = workdir / "results" / "quick"

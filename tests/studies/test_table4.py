@@ -11,7 +11,7 @@ import yaml
 
 from ddstudies.report import plots, tables
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import ROOT  # noqa: E402
 SCHEMA = ROOT / "workflows" / "schemas" / "config.schema.yaml"
 
 
@@ -293,7 +293,7 @@ def workdir(tmp_path_factory):
 
 
 def test_dry_run_table_4(workdir):
-    from test_pipeline import planned, snakemake
+    from conftest import planned, run_snakemake as snakemake
 
     (workdir / "thesis.yaml").write_text(f"thesis_tables: {thesis_dir()}\n")
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "thesis.yaml")
@@ -313,9 +313,10 @@ def test_dry_run_table_4(workdir):
     assert "table_4_growth" not in text and "figure_iterations_vs_HbHs" not in text
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (thesis_dir() / "table_4_1.csv").is_file(), reason="thesis transcriptions not found")
 def test_tiny_multibody_study_end_to_end(workdir):
-    from test_pipeline import planned, snakemake
+    from conftest import planned, run_snakemake as snakemake
 
     (workdir / "tiny.yaml").write_text(TINY.replace("THESIS", str(thesis_dir())))
     snakemake(workdir, "--cores", "2", "--configfile", "config/table_4.yaml", "tiny.yaml")
