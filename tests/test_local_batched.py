@@ -72,7 +72,8 @@ def wedges(scene, n=7):
 
 # --------------------------------------------------------------------- template-free path
 @pytest.mark.parametrize("method", sorted(SOLVERS))
-@pytest.mark.parametrize("ns,m,rho", [(3, 4, "checkerboard:100"), (4, 5, 1.0), (5, 3, "checkerboard:0.01")])
+@pytest.mark.parametrize("ns,m,rho", [(3, 4, "checkerboard:100"), (4, 5, 1.0), (5, 3, "checkerboard:0.01"),
+                                      (6, 6, "checkerboard:100")])   # the last: sparse batched factors
 def test_template_free_equals_templates(method, ns, m, rho):
     local = assemble(_scene(ns, m, rho))
     a = SOLVERS[method](Substructures(local), rtol=1e-10)
@@ -95,14 +96,16 @@ def test_one_batched_factorization_per_kind(count_factorizations):
     assert len(made) == 2, made         # K^+ (one node fixed per floating subdomain) and A_II
 
 
-def test_block_solves_match_per_subdomain_factorization():
-    from ddsolve.dd.local import BatchedSolver, _BlockView
-    local = assemble(_scene(4, 6, "checkerboard:100"))
+@pytest.mark.parametrize("ns,m", [(4, 6), (5, 9)])      # dense (<= DENSE_LIMIT unknowns) and sparse factor
+def test_block_solves_match_per_subdomain_factorization(ns, m):
+    from ddsolve.dd.local import DENSE_LIMIT, BatchedSolver, _BlockView
+    local = assemble(_scene(ns, m, "checkerboard:100"))
     sub = Substructures(local, templates=False)
     solver = BatchedSolver(sub, ~sub.interface, {})
     rng = np.random.default_rng(3)
     b = rng.standard_normal((sub.n_W, 3))
     x = solver.solve(b)
+    assert (solver._batch[0].kind == "sparse") == (solver._batch[1].size > DENSE_LIMIT)
     for g in solver.groups:
         assert isinstance(g.factor, _BlockView)
         K = sub.stiffness[int(sub.template[g.members[0]])][g.loc][:, g.loc].toarray()

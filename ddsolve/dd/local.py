@@ -81,9 +81,10 @@ class _Factor:
     def _positions(self) -> tuple:
         """(block of each pivot position, positions sorted by block, their start per block, local index)."""
         if self._block_pos is None:
-            perm_c = self._f.perm_c                     # column perm_c[j] of K is column j of the factors
+            perm_c = self._f.perm_c                     # column i of K is column perm_c[i] of the factors
             block_of_col = np.searchsorted(self._blocks, np.arange(self.n), side="right") - 1
-            block_of_pos = block_of_col[perm_c]
+            block_of_pos = np.empty(self.n, dtype=np.int64)
+            block_of_pos[perm_c] = block_of_col
             order = np.argsort(block_of_pos, kind="stable")     # positions of block b, increasing
             starts = np.searchsorted(block_of_pos[order], np.arange(self._blocks.size))
             local = np.empty(self.n, dtype=np.int64)
@@ -94,10 +95,11 @@ class _Factor:
     def solve_block(self, b: int, B: np.ndarray) -> np.ndarray:
         """K_bb^{-1} B for diagonal block b only, B of shape (n_b,) or (n_b, k).
 
-        Sparse factors: P_r K P_c = L U with L, U block diagonal up to the
-        permutation (no fill between disconnected blocks, pivots stay in their
-        block), so x = P_c U_bb^{-1} L_bb^{-1} P_r B with the rows and columns of
-        block b; cost O(nnz(L_bb + U_bb) k).
+        Sparse factors: P_r K P_c = L U (SuperLU: row i of K is row perm_r[i]
+        of P_r K, column i of K is column perm_c[i] of K P_c), with L, U block
+        diagonal up to the permutation (no fill between disconnected blocks,
+        pivots stay in their block), so x = P_c U_bb^{-1} L_bb^{-1} P_r B on
+        the positions of block b; cost O(nnz(L_bb + U_bb) k).
         """
         lo, hi = int(self._blocks[b]), int(self._blocks[b + 1])
         if self.kind == "dense":
@@ -115,9 +117,7 @@ class _Factor:
         rhs[local[perm_r[lo:hi]]] = B                          # row i of K goes to position perm_r[i]
         y = spla.spsolve_triangular(Lb.tocsr(), rhs, lower=True, unit_diagonal=True)
         z = spla.spsolve_triangular(Ub.tocsr(), y, lower=False)
-        x = np.empty_like(z)
-        x[perm_c[pos] - lo] = z
-        return x
+        return z[local[perm_c[lo:hi]]]                         # x_i = z at the position of column i
 
 
 class _BlockView:
