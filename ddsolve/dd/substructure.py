@@ -8,7 +8,8 @@ the solvers need is derived from the scene here, once:
 * the block-diagonal stiffness diag(rho_i K_t) as one sparse matrix,
 * interface classification by multiplicity: interior (one subdomain), edge
   (two), vertex (three or more, or two on the boundary of the body: the ends
-  of local edges that lie on the body's boundary, Section 3.4),
+  of local edges that lie on the body's boundary, Section 3.4), completed on
+  irregular partitions so that no floating subdomain keeps a kernel,
 * the delta-dagger scaling of Section 2.3 (rho-scaling with exponent gamma;
   multiplicity scaling is rho = 1),
 * fully redundant jump operators B and their scaled versions B_D.
@@ -18,12 +19,17 @@ from __future__ import annotations
 import itertools
 import logging
 
+from scipy.sparse import csgraph
+
 import numpy as np
 import scipy.sparse as sp
 
 from ..scene.assembly import LocalProblems
 
 log = logging.getLogger(__name__)
+
+#: Primal constraints of FETI-DP / BDDC (``Substructures(primal=...)``).
+PRIMAL_KINDS = ("vertices",)
 
 
 class Substructures:
@@ -37,6 +43,18 @@ class Substructures:
         Weights delta-dagger of Section 2.3.
     gamma : float
         Exponent of the rho-scaling, gamma >= 1/2.
+    templates : bool
+        Share local matrices and factorizations between subdomains that are
+        translates (``LocalProblems.template``). ``False`` treats every
+        subdomain as distinct, as on an unstructured mesh: the solvers then
+        factor all subdomains together, one block-diagonal factorization per
+        kind (:class:`ddsolve.dd.local.BatchedSolver`). Same operators, same
+        iterates up to rounding.
+    primal : {"vertices"}
+        Primal constraints of FETI-DP and BDDC: the cross points, completed by
+        the rule of :meth:`_anchor_floating` where a floating subdomain would
+        keep a kernel (irregular partitions). Edge averages are not
+        implemented yet.
 
     Attributes
     ----------
@@ -50,7 +68,13 @@ class Substructures:
     multiplicity : ndarray, shape (n_W,)
         Number of subdomains sharing the entry's node.
     interface, vertex, floating_sub : ndarray of bool
-        Interface and vertex W entries; subdomains without Dirichlet nodes.
+        Interface and primal ("vertex") W entries; subdomains without Dirichlet nodes.
+    cross_point : ndarray of bool, shape (n_W,)
+        Entries of nodes shared by three or more subdomains, or by two on the
+        body boundary (Section 3.4); ``vertex`` is this set plus the nodes
+        added by :meth:`_anchor_floating`.
+    n_primal : int
+        Number of primal dofs (distinct global dofs of ``vertex``).
     delta : ndarray, shape (n_W,)
         delta-dagger_i(x) = rho_i^gamma / sum_{j in N_x} rho_j^gamma.
     K_W : scipy.sparse.csr_matrix, shape (n_W, n_W)
@@ -59,13 +83,23 @@ class Substructures:
         Stacked local loads f^(i).
     """
 
-    def __init__(self, local: LocalProblems, scaling: str = "rho", gamma: float = 1.0) -> None:
+    def __init__(self, local: LocalProblems, scaling: str = "rho", gamma: float = 1.0,
+                 templates: bool = True, primal: str = "vertices") -> None:
+        if primal not in PRIMAL_KINDS:
+            raise ValueError(f"primal: expected one of {PRIMAL_KINDS}, got {primal!r}")
         scene = local.scene
         self.local = local
         self.scene = scene
         self.n_sub = scene.n_subdomains
-        self.template = local.template
-        self.stiffness = local.stiffness
+        self.templates = bool(templates)
+        if templates:
+            self.template = local.template
+            self.stiffness = local.stiffness
+            self.batch_local = None         # decided by the solvers (many distinct subdomains: batched)
+        else:                               # every subdomain its own template (unstructured behaviour)
+            self.template = np.arange(self.n_sub)
+            self.stiffness = [local.stiffness[t] for t in local.template]
+            self.batch_local = True
         self.rho = np.asarray(scene.rho, dtype=float)
         self.body_of_sub = scene.subdomain_body
 
@@ -83,7 +117,8 @@ class Substructures:
         self.n_W = int(keep.sum())
         counts = np.bincount(self.sub_of_W, minlength=self.n_sub)
         self.offsets = np.concatenate([[0], np.cumsum(counts)])
-        self.floating_sub = np.array([not scene.dirichlet[nd].any() for nd in nodes])
+        self.floating_sub = np.bincount(sub_full, weights=scene.dirichlet[node_full],
+                                        minlength=self.n_sub) == 0
 
         dof_of_node = np.full(scene.n_nodes, -1, dtype=np.int64)
         free_nodes = np.flatnonzero(~scene.dirichlet)
@@ -98,7 +133,9 @@ class Substructures:
         for b in range(scene.n_bodies):
             in_b = self.body_of_sub[self.sub_of_W] == b
             on_body_boundary[in_b] = scene.boundary_nodes(b)[self.node_of_W[in_b]]
-        self.vertex = (self.multiplicity >= 3) | ((self.multiplicity == 2) & on_body_boundary)
+        self.cross_point = (self.multiplicity >= 3) | ((self.multiplicity == 2) & on_body_boundary)
+        self.vertex = self._anchor_floating(self.cross_point.copy())
+        self.primal = primal
 
         self.scaling = scaling
         self.gamma = float(gamma)
@@ -108,6 +145,71 @@ class Substructures:
         f_full = np.concatenate(local.loads)
         self.f_W = f_full[keep]
         self._free_local = [self.local_index[self.offsets[s]:self.offsets[s + 1]] for s in range(self.n_sub)]
+
+    # ------------------------------------------------------------------ primal
+    def _primal_components(self, vertex: np.ndarray) -> np.ndarray:
+        """Connected components of the subdomain graph joined by shared primal nodes, (n_sub,)."""
+        pw = np.flatnonzero(vertex)
+        n = self.n_sub + self.scene.n_nodes          # bipartite graph: subdomains and primal nodes
+        G = sp.coo_matrix((np.ones(pw.size), (self.sub_of_W[pw], self.n_sub + self.node_of_W[pw])),
+                          shape=(n, n))
+        _, label = csgraph.connected_components(G, directed=False)
+        return label[:self.n_sub]
+
+    def _anchor_floating(self, vertex: np.ndarray) -> np.ndarray:
+        """Add primal nodes until no floating subdomain keeps a kernel in A~ (2.17).
+
+        A~ (subdomains coupled only at primal nodes) is singular exactly on
+        the connected components of the "primal graph" (subdomains joined by
+        shared primal nodes) that contain no subdomain with Dirichlet nodes;
+        with cross points alone this happens on irregular partitions (an
+        interface that ends on the Dirichlet boundary or on another body, a
+        subdomain touching only one neighbour). Rule: while some component of
+        a body has no Dirichlet subdomain and is not the whole body (a
+        floating body, handled by the solvers that pin it), promote to primal
+        the interface node of that component, shared with a subdomain outside
+        it, of largest multiplicity (ties: smallest node id), preferring
+        nodes shared with a component that has Dirichlet nodes. Every
+        floating subdomain then has at least one primal node. Structured
+        scenes are unchanged (their cross points already connect each body).
+        Vectorised per round; the rounds are few (each joins every
+        unanchored component to a neighbour).
+        """
+        subs_in_body = np.bincount(self.body_of_sub, minlength=self.scene.n_bodies)
+        for _ in range(self.n_sub):
+            comp = self._primal_components(vertex)
+            n_comp = int(comp.max()) + 1 if comp.size else 0
+            anchored = np.bincount(comp, weights=~self.floating_sub, minlength=n_comp) > 0
+            size = np.bincount(comp, minlength=n_comp)
+            body_of_comp = np.zeros(n_comp, dtype=np.int64)
+            body_of_comp[comp] = self.body_of_sub
+            bad = ~anchored & (size < subs_in_body[body_of_comp])
+            if not bad.any():
+                return vertex
+            # candidate W entries: interface entries of a bad component whose node is shared with another component
+            comp_W = comp[self.sub_of_W]
+            node = self.node_of_W
+            cmin = np.full(self.scene.n_nodes, n_comp)
+            cmax = np.full(self.scene.n_nodes, -1)
+            np.minimum.at(cmin, node, comp_W)
+            np.maximum.at(cmax, node, comp_W)
+            anch_node = np.zeros(self.scene.n_nodes, dtype=bool)
+            np.logical_or.at(anch_node, node, anchored[comp_W])
+            cand = np.flatnonzero(bad[comp_W] & (cmin[node] != cmax[node]) & ~vertex)
+            if cand.size == 0:
+                raise ValueError("primal: a floating component of subdomains has no interface node to constrain")
+            # best candidate per bad component: anchored neighbour, largest multiplicity, smallest node
+            order = np.lexsort((node[cand], -self.multiplicity[cand], ~anch_node[node[cand]], comp_W[cand]))
+            cand = cand[order]
+            first = np.r_[True, comp_W[cand][1:] != comp_W[cand][:-1]]
+            chosen = np.unique(node[cand[first]])
+            vertex |= np.isin(node, chosen)
+        return vertex
+
+    @property
+    def n_primal(self) -> int:
+        """Number of primal constraints (distinct primal global dofs)."""
+        return int(np.unique(self.l2g[self.vertex]).size)
 
     # ------------------------------------------------------------------ layout
     def _block_diagonal(self, full_off: np.ndarray, keep: np.ndarray) -> sp.csr_matrix:
