@@ -19,6 +19,7 @@ from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
 from .krylov import TRUE_RESIDUAL_FACTOR, attained  # noqa: F401  (TRUE_RESIDUAL_FACTOR re-exported)
+from .limits import check_resources
 from .options import METHODS
 from .prepared import Prepared, check_decomposition, prepare, scene_from_spec  # noqa: F401  (re-exported)
 from .result import SolveResult
@@ -153,13 +154,16 @@ SOLVERS: dict[str, dict[str, Runner]] = {
 }
 
 
-def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
+def solve(spec: ProblemSpec | dict[str, Any], *, max_memory: int | float | str | None = None) -> SolveResult:
     """Build, assemble and solve the problem described by ``spec``.
 
     Parameters
     ----------
     spec : ProblemSpec or dict
         A dict is validated with :meth:`ProblemSpec.from_mapping`.
+    max_memory : int, float or str, optional
+        Memory limit for the size check (bytes, or a size such as ``"8G"``);
+        default: 90 % of the available memory (:func:`ddsolve.limits.check_resources`).
 
     Returns
     -------
@@ -170,10 +174,12 @@ def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
     Raises
     ------
     InputError
-        Invalid specification.
+        Invalid specification, or a problem whose estimated memory or set-up
+        time exceeds the limits (refused before anything is allocated).
     """
     if not isinstance(spec, ProblemSpec):
         spec = ProblemSpec.from_mapping(spec)
+    check_resources(spec, max_memory=max_memory)
     # Subdomain blocks are small: multithreaded BLAS only adds contention
     # (measured 100x slower multi-RHS solves on a loaded 2-core machine).
     with threadpool_limits(limits=1, user_api="blas"):
