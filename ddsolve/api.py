@@ -104,44 +104,51 @@ Runner = Callable[[Prepared], Any]
 
 def _poisson_runner(method: Callable[..., MethodOutput]) -> Runner:
     def run(prep: Prepared) -> MethodRun:
+        from .presets import solver_options
         spec = prep.spec
-        out = method(prep.sub, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
-        return MethodRun(out, reference=lambda: solve_direct(prep.sub))
+        options = solver_options(spec.preset, spec.problem, spec.method)
+        out = method(prep.sub, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond, **options)
+        return MethodRun(out, reference=lambda: solve_direct(prep.sub), extra={"preset": spec.preset})
     return run
 
 
 def _poisson_direct(prep: Prepared) -> MethodRun:
     out = solve_direct(prep.sub)
-    return MethodRun(out, reference=lambda: out)
+    return MethodRun(out, reference=lambda: out, extra={"preset": prep.spec.preset})
 
 
 def _multibody_runner(method: str) -> Runner:
     def run(prep: Prepared) -> MethodRun:
         from .multibody import GlobalInterface
         from .multibody.direct import solve_constrained_direct
+        from .presets import solver_options
 
         spec, sub = prep.spec, prep.sub
         gi = GlobalInterface(sub)
         active = gi.contact_mask(spec.contact)
         reference = lambda: solve_constrained_direct(sub, gi, active)   # noqa: E731
+        extra = {"n_active": int(active.sum()), "preset": spec.preset}
+        options = solver_options(spec.preset, spec.problem, method)
         if method == "direct":
             out = reference()
-            return MethodRun(out, reference=lambda: out, extra={"n_active": int(active.sum())})
+            return MethodRun(out, reference=lambda: out, extra=extra)
         if method == "feti-feti":
             from .multibody.fetifeti import FetiFetiSolver
-            out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
+            out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
+                                                **options)
         else:  # hybrid: PCR has no Lanczos estimate, so cond stays None
             from .multibody.hybrid import HybridSolver
             out = HybridSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
-                                              norm=spec.norm, projection=spec.projection)
-        return MethodRun(out, reference=reference, extra={"n_active": int(active.sum())})
+                                              norm=spec.norm, projection=spec.projection, **options)
+        return MethodRun(out, reference=reference, extra=extra)
     return run
 
 
 def _contact_runner(method: str) -> Runner:
     def run(prep: Prepared):
         from .contact.run import run_contact
-        return run_contact(method, prep)
+        from .presets import solver_options
+        return run_contact(method, prep, **solver_options(prep.spec.preset, "contact", method))
     return run
 
 
