@@ -45,8 +45,19 @@ from typing import Any, Mapping
 import yaml
 
 from .errors import InputError, brief
-from .options import CONTACTS, DEFAULT_F, DEFAULT_RTOL, METHODS, NORMS, PCR_METHODS, PROJECTIONS, SCALINGS
-from .options import GEOMETRIES, MESHES, PRIMALS
+from .options import (
+    CONTACTS,
+    DEFAULT_F,
+    DEFAULT_RTOL,
+    GEOMETRIES,
+    MESHES,
+    METHODS,
+    NORMS,
+    PCR_METHODS,
+    PRIMALS,
+    PROJECTIONS,
+    SCALINGS,
+)
 
 #: Largest scene file read (bytes).
 MAX_SCENE_BYTES = 1 << 20
