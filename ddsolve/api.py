@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import math
+import resource
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -197,20 +198,61 @@ def _scalar_extras(extra: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in extra.items() if isinstance(v, (bool, int, float, str, np.number, np.bool_))}
 
 
+# --- mesh report and output (unstructured scenes, timings, --output) --------------------------
+def _sizes(spec: ProblemSpec) -> dict[str, int]:
+    """The ``subdomains`` and ``elements`` of the result: the spec's, or (parts, 0) for unstructured meshes."""
+    if spec.mesh == "unstructured":
+        return {"subdomains": spec.parts, "elements": 0}
+    return {"subdomains": spec.subdomains, "elements": spec.elements}
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far (MiB; ``ru_maxrss`` is in KiB on Linux)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _mesh_report(spec: ProblemSpec, prep: Prepared, setup_seconds: float, solve_seconds: float) -> dict[str, Any]:
+    """``timings`` (seconds: mesh, partition, assembly, setup, solve), ``peak_rss_mb``, ``n_primal``,
+    ``mesh`` and ``parts`` (METIS parts per body; subdomains per body, subdomains^2, when structured)."""
+    scene_seconds = prep.timings.get("scene", 0.0)
+    assembly = prep.timings.get("assembly", 0.0)
+    timings = {"mesh": float(prep.scene_timings.get("mesh", scene_seconds)),
+               "partition": float(prep.scene_timings.get("partition", 0.0)),
+               "assembly": float(assembly),
+               "setup": float(max(setup_seconds - scene_seconds - assembly, 0.0)),
+               "solve": float(solve_seconds)}
+    parts = spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2
+    return {"timings": timings, "peak_rss_mb": peak_rss_mb(), "n_primal": int(prep.sub.n_primal),
+            "mesh": spec.mesh, "parts": int(parts)}
+
+
+def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: np.ndarray | None = None) -> None:
+    """Write ``spec.output`` (a .vtu file for ParaView, :mod:`ddsolve.io.vtk`) if it is set."""
+    if not spec.output or u is None:
+        return
+    from .io.vtk import solution_fields, write_vtu
+    nodal, cellwise = solution_fields(prep, u, lam)
+    write_vtu(spec.output, prep.scene, nodal, cellwise)
+    log.info("wrote %s", spec.output)
+# --- end of the mesh report block ----------------------------------------------------------------
+
+
 def _solve(spec: ProblemSpec) -> SolveResult:
     prep = prepare(spec)
     t1 = time.perf_counter()
     run = SOLVERS[spec.problem][spec.method](prep)
     t_total = time.perf_counter() - t1
-    identity = dict(problem=spec.problem, method=spec.method, bodies=spec.bodies, subdomains=spec.subdomains,
-                    elements=spec.elements, ndof=prep.sub.ndof)
+    identity = dict(problem=spec.problem, method=spec.method, bodies=spec.bodies, **_sizes(spec),
+                    ndof=prep.sub.ndof)
     if spec.problem == "contact":
         from .contact.run import contact_result_fields
         fields = contact_result_fields(spec, prep.contact, run)
         fields["setup_seconds"] += prep.seconds
         fields["extra"]["n_templates"] = prep.local.n_templates
+        fields["extra"].update(_mesh_report(spec, prep, fields["setup_seconds"], fields["solve_seconds"]))
         result = SolveResult(**identity, **fields)
         log.info("contact %s: %s", spec.method, result.reason)
+        _write_output(spec, prep, result.u, run.lam)
         return result
 
     out = run.output
@@ -238,6 +280,8 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         fields["error_vs_direct"] = error
         if why:
             extra["check_reason"] = why
+    extra.update(_mesh_report(spec, prep, fields["setup_seconds"], fields["solve_seconds"]))
     result = SolveResult(**identity, **fields, extra=extra)
     log.info("%s %s: %s", spec.problem, spec.method, result.reason)
+    _write_output(spec, prep, result.u)
     return result
