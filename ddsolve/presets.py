@@ -21,8 +21,9 @@ method, and :mod:`ddsolve.api`'s runners pass them on.
       per outer iteration (default: all negative multipliers at once, ``removal="blocking"``);
     - SMALBE (Section 6.4): the stopping rule ||g^P|| <= eps ||b||, ||G lambda|| <= eps ||b||
       (default: ||G lambda|| <= eps min(||b||, ||e||), ``equality_rule="section-6.4"``),
-      rho_bar = ||P F P|| (default 1, ``rho_bar=None``) and no FETI-FETI polish
-      (``polish=False``).
+      rho_bar = ||P F P|| (default 1, ``rho_bar=None``), no FETI-FETI polish
+      (``polish=False``), and SMALBE's own verdict: the project's acceptance check
+      (force balance, KKT stationarity) is reported, not enforced (``acceptance="report"``).
 
 Methods whose defaults already are the thesis's rules (fetidp, bddc, hybrid, the
 direct solvers) take no option and run identically under both presets.
@@ -39,7 +40,8 @@ THESIS_OPTIONS: dict[tuple[str, str], dict[str, Any]] = {
     ("multibody", "feti-feti"): {"projection": "orthogonal"},
     ("contact", "active-set"): {"face_rtol_rule": "initial", "initial_active": "positive",
                                 "removal": "blocking"},
-    ("contact", "smalbe"): {"equality_rule": "section-6.4", "rho_bar": None, "polish": False},
+    ("contact", "smalbe"): {"equality_rule": "section-6.4", "rho_bar": None, "polish": False,
+                            "acceptance": "report"},
 }
 
 __all__ = ["THESIS_OPTIONS", "solver_options"]

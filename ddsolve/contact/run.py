@@ -14,7 +14,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: SMALBE diagnostics copied into the result (when the solver reports them).
 SMALBE_KEYS = ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty", "rho_bar", "force_error",
-               "polish", "polish_iterations")
+               "polish", "polish_iterations", "acceptance")
 
 
 def run_contact_method(method: str, problem: ContactProblem, *, rtol: float, maxiter: int,
