@@ -38,9 +38,12 @@ Scale invariance: the iteration runs on the problem rescaled by powers of two
 (:mod:`ddsolve.qp.scaling`; ``rho`` and ``mu`` rescaled with ``A`` and ``b``), which
 is exact: the same numbers as the unscaled iteration wherever that one does not over-
 or underflow, and representable curvatures, norms and tolerances (``eps ||b||``) for
-data anywhere in the double range. The parameters ``rho0``, ``eta`` and ``atol`` are
-absolute (in the units of ``A / ||BE||^2`` and of ``b``): scaling ``A`` alone changes
-the iteration unless ``rho0`` is scaled with it.
+data anywhere in the double range. The parameters are absolute: ``rho0`` in the units of
+``A / ||BE||^2``, ``M`` in those of ``A``, ``eta`` and ``atol`` in those of ``b``, ``feas_tol``
+in those of ``x`` (``BE x - c``); the default ``feas_tol = eps ||b||`` of Section 6.4
+compares ``||BE x - c||`` with a quantity in the units of ``b``. Scaling ``A`` by ``s`` and
+``b`` by ``t`` gives the same iterations (and ``x`` scaled by ``t/s``) when ``rho0`` and ``M``
+are scaled by ``s`` and ``feas_tol`` by ``t/s``; scaling ``b`` alone needs nothing.
 """
 from __future__ import annotations
 
