@@ -5,6 +5,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..errors import InputError
 from ..spec import ProblemSpec
 from .direct import ContactSolution, solve_contact_direct
 from .problem import ContactProblem
@@ -27,13 +28,22 @@ def run_contact_method(method: str, problem: ContactProblem, *, rtol: float, max
     """
     if method == "direct":
         return solve_contact_direct(problem, **options)
-    if method == "active-set":
-        from .active_set import solve_contact_active_set
-        return solve_contact_active_set(problem, rtol=rtol, pcg_rtol=rtol, maxiter=maxiter, **options)
-    if method == "smalbe":
+    if method not in ("active-set", "smalbe"):
+        raise ValueError(f"unknown contact method {method!r}")
+    try:
+        if method == "active-set":
+            from .active_set import solve_contact_active_set
+            return solve_contact_active_set(problem, rtol=rtol, pcg_rtol=rtol, maxiter=maxiter, **options)
         from .smalbe_dual import solve_contact_smalbe
         return solve_contact_smalbe(problem, eps=rtol, maxiter=maxiter, **options)
-    raise ValueError(f"unknown contact method {method!r}")
+    except InputError:
+        raise
+    except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+        # non-finite values (a solution beyond the double range) reached a factorization or a
+        # finiteness check of scipy: a numerical breakdown, reported, never raised
+        return ContactSolution(u=np.full(problem.ndof, np.nan), lam=np.full(problem.n_contact, np.nan),
+                               active=np.zeros(problem.n_contact, dtype=bool), converged=False,
+                               reason=f"numerical breakdown in {method}: {type(exc).__name__}: {exc}")
 
 
 def run_contact(method: str, prep: "Prepared", **options: Any) -> ContactSolution:
