@@ -678,7 +678,9 @@ def _judge(problem: ContactProblem, res: QPResult, rec: RecoveredSolution, enfor
     if converged and not ok:
         if enforce:
             converged = False
-        reason = f"{reason}; acceptance check failed: {why}"
+            reason = f"not accepted: stopping rule met ({reason.removeprefix('converged: ')}) but acceptance check failed: {why}"
+        else:
+            reason = f"{reason}; acceptance check failed: {why}"
     return converged, reason
 
 
