@@ -98,6 +98,8 @@ def grid_report_files():
     if MULTIBODY:
         files += [f"reports/{STUDY}/{name}.png" for name, fig in config["figures"].items()
                   if fig["method"] in methods]
+        if "hybrid" in methods:   # Table 4.2 evidence (multibody.smk, rule table_4_2_optimal)
+            files.append(f"reports/{STUDY}/table_4_2_optimal.md")
         return files
     if {"active-set", "smalbe"} <= methods:
         files += [f"reports/{STUDY}/comparison.{ext}" for ext in ("md", "tex", "png")]
