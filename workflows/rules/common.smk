@@ -100,6 +100,8 @@ def grid_report_files():
                   if fig["method"] in methods]
         if "hybrid" in methods:   # Table 4.2 evidence (multibody.smk, rule table_4_2_optimal)
             files.append(f"reports/{STUDY}/table_4_2_optimal.md")
+        if "feti-feti" in methods:   # Table 4.1 readings (multibody.smk, rule table_4_1_readings)
+            files.append(f"reports/{STUDY}/table_4_1_readings.md")
         return files
     if {"active-set", "smalbe"} <= methods:
         files += [f"reports/{STUDY}/comparison.{ext}" for ext in ("md", "tex", "png")]

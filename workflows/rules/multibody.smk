@@ -74,3 +74,29 @@ rule table_4_2_optimal:
         "python -m ddstudies.optimal {params.cases} --contacts {params.contacts} "
         "--thesis {input.thesis} --f '{params.f}' --rtol {params.rtol} --max-n {params.max_n} "
         "--out {output.md} > {log} 2>&1"
+
+
+# Table 4.1 readings (ddstudies.fetifeti_readings): exact FETI-FETI condition numbers of the
+# small cases under the readings of the thesis's open points (projection, scaling of B_gl at
+# body cross points, redundancy of the global multipliers); the closing paragraph compares
+# the closest reading with the thesis (computed). docs/findings.md cites this file.
+rule table_4_1_readings:
+    input:
+        thesis=thesis_table("table_4_1"),
+    output:
+        md=report("reports/{study}/table_4_1_readings.md", caption="../report/table_4_1_readings.rst",
+                  category="Chapter 4: multibody"),
+        json="reports/{study}/table_4_1_readings.json",
+    params:
+        cases=" ".join(f"--case {b},{s},{e}" for b, s, e in CASES),
+        contacts=" ".join(CONTACTS),
+        f=config["f"],
+        max_n=1100,
+    log:
+        "logs/{study}/table_4_1_readings.log",
+    threads: 1
+    conda:
+        "../envs/ddsolve.yaml"
+    shell:
+        "python -m ddstudies.fetifeti_readings {params.cases} --contacts {params.contacts} "
+        "--thesis {input.thesis} --f '{params.f}' --max-n {params.max_n} --out {output.md} > {log} 2>&1"
