@@ -105,6 +105,7 @@ def grid_report_files():
         return files
     if {"active-set", "smalbe"} <= methods:
         files += [f"reports/{STUDY}/comparison.{ext}" for ext in ("md", "tex", "png")]
+        files += [f"reports/{STUDY}/work_precision.{ext}" for ext in ("md", "png")]   # contact.smk
     files += [f"reports/{STUDY}/figure_5_2_{part}" for part in ("surface.png", "contact.png", "contact.csv")]
     return files
 

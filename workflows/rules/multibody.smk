@@ -64,6 +64,7 @@ rule table_4_2_optimal:
         contacts=" ".join(CONTACTS),
         f=config["f"],
         rtol=config["rtol"],
+        presets=" ".join(studies_workflow.rule_sets()),
         max_n=4000,
     log:
         "logs/{study}/table_4_2_optimal.log",
@@ -72,7 +73,8 @@ rule table_4_2_optimal:
         "../envs/ddsolve.yaml"
     shell:
         "python -m ddstudies.optimal {params.cases} --contacts {params.contacts} "
-        "--thesis {input.thesis} --f '{params.f}' --rtol {params.rtol} --max-n {params.max_n} "
+        "--thesis {input.thesis} --f '{params.f}' --rtol {params.rtol} --presets {params.presets} "
+        "--max-n {params.max_n} "
         "--out {output.md} > {log} 2>&1"
 
 
