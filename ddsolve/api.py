@@ -19,6 +19,7 @@ from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
 from .krylov import TRUE_RESIDUAL_FACTOR, attained  # noqa: F401  (TRUE_RESIDUAL_FACTOR re-exported)
+from .limits import check_resources
 from .options import METHODS
 from .prepared import Prepared, check_decomposition, prepare, scene_from_spec  # noqa: F401  (re-exported)
 from .result import SolveResult
@@ -103,44 +104,51 @@ Runner = Callable[[Prepared], Any]
 
 def _poisson_runner(method: Callable[..., MethodOutput]) -> Runner:
     def run(prep: Prepared) -> MethodRun:
+        from .presets import solver_options
         spec = prep.spec
-        out = method(prep.sub, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
-        return MethodRun(out, reference=lambda: solve_direct(prep.sub))
+        options = solver_options(spec.preset, spec.problem, spec.method)
+        out = method(prep.sub, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond, **options)
+        return MethodRun(out, reference=lambda: solve_direct(prep.sub), extra={"preset": spec.preset})
     return run
 
 
 def _poisson_direct(prep: Prepared) -> MethodRun:
     out = solve_direct(prep.sub)
-    return MethodRun(out, reference=lambda: out)
+    return MethodRun(out, reference=lambda: out, extra={"preset": prep.spec.preset})
 
 
 def _multibody_runner(method: str) -> Runner:
     def run(prep: Prepared) -> MethodRun:
         from .multibody import GlobalInterface
         from .multibody.direct import solve_constrained_direct
+        from .presets import solver_options
 
         spec, sub = prep.spec, prep.sub
         gi = GlobalInterface(sub)
         active = gi.contact_mask(spec.contact)
         reference = lambda: solve_constrained_direct(sub, gi, active)   # noqa: E731
+        extra = {"n_active": int(active.sum()), "preset": spec.preset}
+        options = solver_options(spec.preset, spec.problem, method)
         if method == "direct":
             out = reference()
-            return MethodRun(out, reference=lambda: out, extra={"n_active": int(active.sum())})
+            return MethodRun(out, reference=lambda: out, extra=extra)
         if method == "feti-feti":
             from .multibody.fetifeti import FetiFetiSolver
-            out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
+            out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
+                                                **options)
         else:  # hybrid: PCR has no Lanczos estimate, so cond stays None
             from .multibody.hybrid import HybridSolver
             out = HybridSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
-                                              norm=spec.norm, projection=spec.projection)
-        return MethodRun(out, reference=reference, extra={"n_active": int(active.sum())})
+                                              norm=spec.norm, projection=spec.projection, **options)
+        return MethodRun(out, reference=reference, extra=extra)
     return run
 
 
 def _contact_runner(method: str) -> Runner:
     def run(prep: Prepared):
         from .contact.run import run_contact
-        return run_contact(method, prep)
+        from .presets import solver_options
+        return run_contact(method, prep, **solver_options(prep.spec.preset, "contact", method))
     return run
 
 
@@ -153,13 +161,16 @@ SOLVERS: dict[str, dict[str, Runner]] = {
 }
 
 
-def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
+def solve(spec: ProblemSpec | dict[str, Any], *, max_memory: int | float | str | None = None) -> SolveResult:
     """Build, assemble and solve the problem described by ``spec``.
 
     Parameters
     ----------
     spec : ProblemSpec or dict
         A dict is validated with :meth:`ProblemSpec.from_mapping`.
+    max_memory : int, float or str, optional
+        Memory limit for the size check (bytes, or a size such as ``"8G"``);
+        default: 90 % of the available memory (:func:`ddsolve.limits.check_resources`).
 
     Returns
     -------
@@ -170,10 +181,12 @@ def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
     Raises
     ------
     InputError
-        Invalid specification.
+        Invalid specification, or a problem whose estimated memory or set-up
+        time exceeds the limits (refused before anything is allocated).
     """
     if not isinstance(spec, ProblemSpec):
         spec = ProblemSpec.from_mapping(spec)
+    check_resources(spec, max_memory=max_memory)
     # Subdomain blocks are small: multithreaded BLAS only adds contention
     # (measured 100x slower multi-RHS solves on a loaded 2-core machine).
     with threadpool_limits(limits=1, user_api="blas"):

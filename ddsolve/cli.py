@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="compute the Lanczos condition estimate (feti, fetidp, bddc, feti-feti; hybrid reports none)")
     s.add_argument("--check", action="store_const", const=True,
                    help="also solve directly and report the error (iterative methods)")
+    s.add_argument("--preset", help="rule set: default (the project's improved rules) or thesis (the thesis's "
+                                    "rules as printed: FETI/FETI-FETI orthogonal projection, active set and "
+                                    "SMALBE stopping, start and removal rules; docs/methods.md)")
     s.add_argument("--max-memory", dest="max_memory",
                    help="memory limit for the size check, e.g. 500M or 16G (default: 90%% of the available memory)")
     s.add_argument("--json", action="store_true", help="print one JSON object")

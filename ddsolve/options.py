@@ -28,8 +28,11 @@ NORMS: tuple[str, ...] = ("l2", "M")
 PROJECTIONS: tuple[str, ...] = ("orthogonal", "dirichlet", "lumped")
 #: Methods that take ``norm`` and ``projection`` other than the defaults.
 PCR_METHODS: tuple[str, ...] = ("hybrid",)
+#: Rule sets (:mod:`ddsolve.presets`): ``"default"`` (the project's improved rules) or ``"thesis"``
+#: (the thesis's rules as printed, wherever the defaults differ; docs/methods.md, "The thesis preset").
+PRESETS: tuple[str, ...] = ("default", "thesis")
 #: All method names, in a stable order.
 ALL_METHODS: tuple[str, ...] = tuple(dict.fromkeys(m for ms in METHODS.values() for m in ms))
 
 __all__ = ["METHODS", "DEFAULT_F", "DEFAULT_RTOL", "CONTACTS", "SCALINGS", "NORMS", "PROJECTIONS",
-           "PCR_METHODS", "ALL_METHODS"]
+           "PCR_METHODS", "PRESETS", "ALL_METHODS"]

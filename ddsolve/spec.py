@@ -40,7 +40,7 @@ from typing import Any, Mapping
 import yaml
 
 from .errors import InputError, brief
-from .options import CONTACTS, DEFAULT_F, DEFAULT_RTOL, METHODS, NORMS, PCR_METHODS, PROJECTIONS, SCALINGS
+from .options import CONTACTS, DEFAULT_F, DEFAULT_RTOL, METHODS, NORMS, PCR_METHODS, PRESETS, PROJECTIONS, SCALINGS
 
 #: Largest scene file read (bytes).
 MAX_SCENE_BYTES = 1 << 20
@@ -294,9 +294,10 @@ def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
     check = _as_bool("check", raw["check"])
     if check and direct:
         raise _inapplicable("check", check, "method 'direct' is the direct solve")
+    preset = _choice("preset", raw["preset"], PRESETS)
     return dict(problem=problem, method=method, bodies=bodies, subdomains=subdomains, elements=elements,
                 rho=rho, f=f, contact=contact, scaling=scaling, gamma=gamma, norm=norm, projection=projection,
-                rtol=rtol, maxiter=maxiter, cond=cond, check=check)
+                rtol=rtol, maxiter=maxiter, cond=cond, check=check, preset=preset)
 
 
 class SceneLoader(yaml.SafeLoader):
@@ -467,6 +468,12 @@ class ProblemSpec:
         Compute Lanczos estimates of the extreme eigenvalues.
     check : bool
         Also solve directly and report the relative energy-norm error.
+    preset : str
+        Rule set (:mod:`ddsolve.presets`): ``"default"`` (the project's improved
+        rules) or ``"thesis"`` (the thesis's rules as printed wherever they
+        differ: FETI and FETI-FETI, the active set method, SMALBE). Accepted
+        for every method; those whose defaults are the thesis's rules run
+        identically under both.
     """
 
     problem: str = "poisson"
@@ -485,6 +492,7 @@ class ProblemSpec:
     maxiter: int = DEFAULT_MAXITER
     cond: bool = False
     check: bool = False
+    preset: str = "default"
 
     def __post_init__(self) -> None:
         # One validation for the constructor, from_mapping, from_yaml and dataclasses.replace;
