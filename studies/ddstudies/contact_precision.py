@@ -46,7 +46,7 @@ def run_grid(subdomains: int, elements: int, rtols: Sequence[float], *, preset: 
     """Both methods at every tolerance on one grid; one record per run (keys :data:`COLUMNS`)."""
     from threadpoolctl import threadpool_limits
 
-    from ddsolve.contact.run import run_contact
+    from ddsolve.api import SOLVERS      # the registry's contact runners apply the spec's preset
     from ddsolve.prepared import prepare
     from ddsolve.spec import ProblemSpec
 
@@ -62,7 +62,7 @@ def run_grid(subdomains: int, elements: int, rtols: Sequence[float], *, preset: 
             for rtol in rtols:
                 run_prep = dataclasses.replace(prep, spec=dataclasses.replace(spec, method=method, rtol=float(rtol)))
                 t0 = time.perf_counter()
-                sol = run_contact(method, run_prep)
+                sol = SOLVERS["contact"][method](run_prep)
                 seconds = time.perf_counter() - t0
                 kkt = prep.contact.kkt(sol.u, sol.lam)
                 records.append(dict(rule_set=preset or "default", subdomains=subdomains, elements=elements,

@@ -45,6 +45,8 @@ WEIGHTS = ("all", "free", "pair")
 REDUNDANCY = ("full", "tree")
 #: every combination, ddsolve's default first
 READINGS = list(itertools.product(PROJECTIONS, WEIGHTS, REDUNDANCY))
+#: the reading of ddsolve's ``preset="thesis"`` (FETI-FETI with the orthogonal projection)
+THESIS_PRESET_READING = ("orthogonal", "all", "full")
 DENSE_LIMIT = 1500
 
 
@@ -262,12 +264,14 @@ def summary(rows: Sequence[ReadingRow]) -> str:
             continue
         best = min(rs, key=lambda r: abs(r.cond - th))
         default = rs[0]
+        literal = next((r for r in rs if (r.projection, r.weights, r.redundancy) == THESIS_PRESET_READING), None)
         dev = best.cond / th - 1
         worst = max(worst, abs(dev))
         out.append(f"({key[0]},{key[1]},{key[2]}) case {CONTACT_CASE[key[3]]}: thesis {th:.4f}, "
                    f"ddsolve's reading {default.cond:.4f} ({default.cond / th - 1:+.1%}), closest "
                    f"{best.cond:.4f} ({dev:+.1%}; projection {best.projection}, weights {best.weights}, "
-                   f"multipliers {best.redundancy})")
+                   f"multipliers {best.redundancy})"
+                   + (f", thesis preset {literal.cond:.4f} ({literal.cond / th - 1:+.1%})" if literal else ""))
     if not out:
         return "No case has a thesis value."
     return ("Exact condition numbers against Table 4.1. " + "; ".join(out) +

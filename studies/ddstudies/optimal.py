@@ -140,9 +140,10 @@ def hybrid_optimal_row(bodies: int, subdomains: int, elements: int, contact: str
         gi = GlobalInterface(prep.sub)
         hs = HybridSolver(prep.sub, gi)
         active = gi.contact_mask(contact)
-        projection = getattr(ps, "projection", "orthogonal")
+        options = _solver_options(ps)      # the preset's hybrid keywords (none today: same rules)
+        projection = options.pop("projection", getattr(ps, "projection", "orthogonal"))
         out = hs.solve(active, rtol=ps.rtol, maxiter=max(ps.maxiter, maxiter), norm=ps.norm,
-                       projection=projection)
+                       projection=projection, **options)
         A, M, b, x0 = hs.system(active, projection=projection)
         opt = minimal_residual_counts(A, b, M, x0, rtol=ps.rtol, maxiter=maxiter, norm=ps.norm)
         ev = None
@@ -155,6 +156,15 @@ def hybrid_optimal_row(bodies: int, subdomains: int, elements: int, contact: str
                       float(neg.min()) if neg.size else None, float(neg.max()) if neg.size else None,
                       float(pos.min()) if pos.size else None, float(pos.max()) if pos.size else None,
                       rule_set=preset or "default")
+
+
+def _solver_options(spec: Any) -> dict[str, Any]:
+    """The hybrid solver's keywords of ``spec.preset`` ({} without presets in ddsolve)."""
+    try:
+        from ddsolve.presets import solver_options
+    except ImportError:
+        return {}
+    return solver_options(getattr(spec, "preset", "default"), "multibody", "hybrid")
 
 
 def read_thesis_counts(path: str | os.PathLike | None) -> dict[tuple[int, int, int, str], int]:
@@ -229,6 +239,9 @@ def _atomic_write(path: str | os.PathLike, text: str) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
     with os.fdopen(fd, "w") as fh:
         fh.write(text)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)      # mkstemp creates 0600; give the file the usual mode
     os.replace(tmp, path)
 
 
