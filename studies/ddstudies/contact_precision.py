@@ -111,11 +111,17 @@ def verdict(df: pd.DataFrame) -> str:
         fewer_s = int(np.sum(tight[f"it {METHODS[0]}"] > tight[f"it {METHODS[1]}"]))
         winner = ("the active set method" if a.sum() < s.sum() else
                   "SMALBE" if s.sum() < a.sum() else "neither method")
+        runs = df[df["rule_set"] == rs]
+        failed = runs[~runs["converged"].astype(bool)]
+        left_out = ""
+        if len(failed):
+            who = ", ".join(f"{LABELS.get(m, m)} {n}" for m, n in failed["method"].value_counts().sort_index().items())
+            left_out = f"; {len(failed)} of {len(runs)} runs reported not converged are left out ({who})"
         parts.append(
             f"rule set {rs}: {winner} needs fewer total iterations at matched KKT residual "
             f"({a.sum():.0f} vs {s.sum():.0f} summed over {len(g)} (grid, target) pairs; at each grid's "
             f"tightest common target the active set method needs fewer on {fewer_a} and SMALBE on "
-            f"{fewer_s} of {len(tight)} grids)")
+            f"{fewer_s} of {len(tight)} grids{left_out})")
     return "; ".join(parts) + "."
 
 

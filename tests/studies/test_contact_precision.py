@@ -42,6 +42,12 @@ def test_verdict_per_rule_set_and_markdown_names_both():
     assert "| default | 4 | 4 | active set | 1e-04 | 10 |" in md and "| thesis | 4 | 4 | SMALBE | 1e-06 | 18 |" in md
     assert md.rstrip().endswith(text)
     assert cp.verdict(pd.DataFrame(columns=cp.COLUMNS)) == "No grid has converged runs of both methods."
+    df = frame()
+    df.loc[(df["rule_set"] == "thesis") & (df["method"] == "smalbe") & (df["rtol"] == 1e-6), "converged"] = False
+    text = cp.verdict(df)
+    assert "1 of 4 runs reported not converged are left out (SMALBE 1)" in text
+    # SMALBE's converged run reaches 1e-6 only: targets 1e-5, 1e-6 (active set 25 + 40, SMALBE 12 + 12)
+    assert "rule set thesis: SMALBE needs fewer total iterations at matched KKT residual (65 vs 24" in text
 
 
 def test_plot_and_rule_sets(tmp_path):
