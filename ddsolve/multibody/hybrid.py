@@ -552,6 +552,54 @@ class HybridSolver:
                    "constraint_residual": jump,
                    "state": {"u_gamma": u_g.copy(), "lambda": lam_full, "active": a.active.copy()}})
 
+    def system(self, active: np.ndarray, *, x0: Any = None,
+               projection: str = "orthogonal") -> tuple[Any, Any, np.ndarray, np.ndarray | None]:
+        """The system PCR solves in :meth:`solve`: ``(A, M, b, x0)`` of (4.13)/(4.5) with (4.11).
+
+        For analysis (e.g. :func:`ddsolve.krylov.optimal.minimal_residual_counts`
+        or a tiny exact spectrum of ``M A``); :meth:`solve` builds the same
+        operators.
+
+        Parameters
+        ----------
+        active : ndarray of bool, shape (n_gl,)
+        x0 : dict or ndarray, optional
+            Warm start as in :meth:`solve`.
+        projection : {"orthogonal", "dirichlet", "lumped"}
+
+        Returns
+        -------
+        A : LinearOperator, shape (n, n)
+            The symmetric indefinite operator of (4.13), n = n_gamma + n_active.
+        M : LinearOperator, shape (n, n)
+            The SPD (on range(P_R) x V^k) preconditioner (4.11).
+        b : ndarray, shape (n,)
+            The right-hand side of (4.5) (lambda_0 eliminated).
+        x0 : ndarray, shape (n,), or None
+            The projected initial guess (None: zero).
+        """
+        if projection not in PROJECTIONS:
+            raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
+        a = self.active_set(active)
+        n_g, n_act = self.gamma_space.n, a.n_active
+        lam0 = a.projection.particular(self.kernel_load()) if self.floating.size else np.zeros(n_act)
+        proj = self.projection(a, projection)
+
+        def A_op(x: np.ndarray) -> np.ndarray:
+            u, mu = x[:n_g], x[n_g:]
+            return np.concatenate([self.S_hat(u) + a.jump.rmatvec(proj.apply(mu)),
+                                   proj.apply_transpose(a.jump.matvec(u))])
+
+        def M_op(r: np.ndarray) -> np.ndarray:
+            zu = self.P_R(self.M_bddc(self.P_R(r[:n_g])))
+            zl = proj.apply(self.M_D(a, proj.apply_transpose(r[n_g:])))
+            return np.concatenate([zu, zl])
+
+        b = np.concatenate([self.g_hat - a.jump.rmatvec(lam0), np.zeros(n_act)])
+        n = n_g + n_act
+        return (linear_operator(n, A_op), linear_operator(n, M_op), b,
+                self._initial_guess(a, x0, lam0, proj))
+
     @staticmethod
     def _pcr(A: Any, b: np.ndarray, x0: np.ndarray | None, M: Any, rtol: float, maxiter: int,
              restart: int, norm: str = "l2", relative_to_rhs: bool = True) -> KrylovResult:

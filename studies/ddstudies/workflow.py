@@ -17,7 +17,7 @@ import yaml
 
 from ddsolve import options
 
-__all__ = ["KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate", "unique_labels", "bench_tol_label",
+__all__ = ["rule_sets", "contact_precision_grids", "KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate", "unique_labels", "bench_tol_label",
            "bench_rtols"]
 
 #: Study kinds (config key ``kind``) and the schema each is validated against.
@@ -125,3 +125,20 @@ def bench_rtols(rtols: Iterable[float]) -> dict[str, float]:
     {'rtol1e-02': 0.01, 'rtol1e-06': 1e-06}
     """
     return unique_labels(((bench_tol_label(r), float(r)) for r in rtols), "rtols")
+
+
+def rule_sets() -> list[str]:
+    """The rule sets the fidelity reports sweep: ``"default"``, then every other preset of ddsolve.
+
+    ``ddsolve.options.PRESETS`` (branch ``preset``: ``("default", "thesis")``) when it
+    exists; until then only ``["default"]``.
+    """
+    from ddsolve import options
+
+    presets = [str(p) for p in getattr(options, "PRESETS", ()) if p != "default"]
+    return ["default", *presets]
+
+
+def contact_precision_grids(subdomains: Iterable[int], elements: Iterable[int], limit: int = 32) -> list[str]:
+    """``"N,H/h"`` of the study's grids with N * H/h <= ``limit`` (the work-precision comparison's grids)."""
+    return [f"{n},{m}" for n in subdomains for m in elements if int(n) * int(m) <= limit]

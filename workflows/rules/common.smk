@@ -98,9 +98,14 @@ def grid_report_files():
     if MULTIBODY:
         files += [f"reports/{STUDY}/{name}.png" for name, fig in config["figures"].items()
                   if fig["method"] in methods]
+        if "hybrid" in methods:   # Table 4.2 evidence (multibody.smk, rule table_4_2_optimal)
+            files.append(f"reports/{STUDY}/table_4_2_optimal.md")
+        if "feti-feti" in methods:   # Table 4.1 readings (multibody.smk, rule table_4_1_readings)
+            files.append(f"reports/{STUDY}/table_4_1_readings.md")
         return files
     if {"active-set", "smalbe"} <= methods:
         files += [f"reports/{STUDY}/comparison.{ext}" for ext in ("md", "tex", "png")]
+        files += [f"reports/{STUDY}/work_precision.{ext}" for ext in ("md", "png")]   # contact.smk
     files += [f"reports/{STUDY}/figure_5_2_{part}" for part in ("surface.png", "contact.png", "contact.csv")]
     return files
 
