@@ -151,26 +151,22 @@ def check_decomposition(spec: ProblemSpec) -> None:
     """
     if spec.method == "direct":
         return
-    if spec.mesh == "unstructured":   # the structured rules read subdomains; unstructured ones read parts
-        if spec.parts != 1 or spec.mesh_file:
+    # the structured rules read subdomains (per body side), the unstructured ones parts (per body)
+    if spec.mesh == "unstructured":
+        field, count, what = "parts", spec.parts, "parts per body"
+        if spec.mesh_file:
             return
-        if spec.problem == "poisson":
-            raise InputError("parts", f"method {spec.method!r} needs at least 2 parts (one subdomain has no "
-                                      f"interface); use method 'direct'")
-        if spec.problem == "contact" or (spec.problem == "multibody" and spec.bodies >= 3):
-            raise InputError("parts", f"method {spec.method!r} needs at least 2 parts per body when a body "
-                                      f"floats (a floating body pins one of its primal vertices); "
-                                      f"use method 'direct'")
-        return
-    if spec.subdomains != 1:
+    else:
+        field, count, what = "subdomains", spec.subdomains, "subdomains per body side"
+    if count != 1:
         return
     if spec.problem == "poisson":
-        raise InputError("subdomains", f"method {spec.method!r} needs at least 2 subdomains per side "
-                                       f"(one subdomain has no interface); use method 'direct'")
+        raise InputError(field, f"method {spec.method!r} needs at least 2 {what.split(' per')[0]} "
+                                f"(one subdomain has no interface); use method 'direct'")
     if spec.problem == "contact" or (spec.problem == "multibody" and spec.bodies >= 3):
-        raise InputError("subdomains", f"method {spec.method!r} needs at least 2 subdomains per body side "
-                                       f"when a body floats (a floating body pins one of its primal "
-                                       f"vertices, and a one-subdomain body has none); use method 'direct'")
+        raise InputError(field, f"method {spec.method!r} needs at least 2 {what} when a body floats "
+                                f"(a floating body pins one of its primal vertices, and a one-subdomain "
+                                f"body has none); use method 'direct'")
 
 
 @dataclass(frozen=True)
