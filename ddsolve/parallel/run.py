@@ -171,6 +171,7 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int:
             summary = result.to_dict()
             print(json.dumps(summary) if as_json else human(summary), flush=True)
     except Exception as exc:     # noqa: BLE001 - any failure on any rank ends the whole job
-        print(f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        sys.stderr.write(f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n")   # one write
+        sys.stderr.flush()
         comm.Abort(1)
     return 0

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from ddsolve.api import SOLVERS
+from ddsolve.parallel.model import messages_bytes
 from ddsolve.prepared import prepare
 
 HERE = Path(__file__).resolve().parent
@@ -70,13 +71,13 @@ def test_distributed_equals_serial(tmp_path, method, kind, n):
 
 
 def test_cli_json_contract():
-    proc = _mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4", "--cond", "--json"])
+    proc = _mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "4", "--elements", "4", "--cond", "--json"])
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 1                      # rank 0 alone prints
     import json
     summary = json.loads(lines[0])
-    serial = subprocess.run([sys.executable, "-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4",
+    serial = subprocess.run([sys.executable, "-m", "ddsolve", "solve", "--subdomains", "4", "--elements", "4",
                              "--cond", "--json"], capture_output=True, text=True, timeout=TIMEOUT, env=_env(),
                             cwd=ROOT)
     ref = json.loads(serial.stdout)
@@ -86,7 +87,10 @@ def test_cli_json_contract():
     assert set(summary["comm"]) >= {"messages_per_iteration", "bytes_per_iteration", "allreduces_per_iteration",
                                     "coarse_seconds"}
     assert summary["comm"]["allreduces_per_iteration"] == 4.0      # 3 PCG reductions + 1 coarse rhs
-    assert summary["comm"]["messages_per_iteration"] > 0
+    # two strips of 2 x 4 subdomains: 2 exchanges of the 4 x 3 dual multipliers on the cut, each way
+    assert summary["comm"]["messages_per_iteration"] == 4.0
+    assert summary["comm"]["bytes_per_iteration"] == 2 * 2 * 12 * 8
+    assert 2 * messages_bytes(2, 8, 4)[1] == summary["comm"]["bytes_per_iteration"]      # the model's count
 
 
 def test_failure_on_one_rank_aborts_all():
@@ -99,10 +103,10 @@ def test_failure_on_one_rank_aborts_all():
 
 
 @pytest.mark.parametrize("args,field", [(["--subdomains", "0"], "subdomains"),
-                                        (["--method", "feti"], "method"),
-                                        (["--subdomains", "1", "--elements", "4", "--method", "direct"], "method")])
+                                        (["--method", "feti"], "method")])
 def test_bad_input_exits_2_on_every_rank(args, field):
     proc = _mpiexec(2, ["-m", "ddsolve", "solve", *args])
     assert proc.returncode == 2, proc.stderr
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 2 and all(line.startswith(f"ddsolve: error: {field}") for line in lines)
+    # one line per rank (the launcher may join two ranks' lines: count the messages, not the lines)
+    assert proc.stderr.count("ddsolve: error: ") == 2, proc.stderr
+    assert proc.stderr.count(f"ddsolve: error: {field}: ") == 2, proc.stderr
