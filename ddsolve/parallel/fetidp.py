@@ -32,8 +32,11 @@ from .setup import RankProblem, gather_solution
 __all__ = ["solve_fetidp_mpi"]
 
 
-def local_jump(prob: RankProblem, mask_global: np.ndarray):
-    """B_loc, B_D_loc (rows: this rank's multipliers, columns: its W entries), sharing, n_lambda."""
+def local_jump(prob: RankProblem, mask_global: np.ndarray, with_pairs: bool = False):
+    """B_loc, B_D_loc (rows: this rank's multipliers, columns: its W entries), sharing, n_lambda.
+
+    With ``with_pairs``, also the global W entries (pa, pb) of the two copies of each local row.
+    """
     topo, sub, rank = prob.topo, prob.sub, prob.comm.rank
     B, _ = topo.jump_operators(mask_global)
     n_lam = B.shape[0]
@@ -57,6 +60,8 @@ def local_jump(prob: RankProblem, mask_global: np.ndarray):
                           shape=(n_loc, sub.n_W))
     B_D_loc = sp.csr_matrix((np.r_[delta[pb[rows][a_mine]], -delta[pa[rows][b_mine]]], (r_idx, c_idx)),
                             shape=(n_loc, sub.n_W))
+    if with_pairs:
+        return B_loc, B_D_loc, shared, n_lam, (pa[rows], pb[rows])
     return B_loc, B_D_loc, shared, n_lam
 
 

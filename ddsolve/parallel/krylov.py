@@ -52,8 +52,9 @@ class DistributedPCG(PCG):
         local = float(np.max(np.abs(v))) if v.size else 0.0
         return self.comm.allreduce_scalar(math.inf if math.isnan(local) else local, op="max")
 
-def distributed_pcg(A: Any, b: Any, *, comm: CountingComm, owned: np.ndarray, rtol: float = 1e-6,
-                    maxiter: int | None = None, M: Any = None, cond: bool = False) -> tuple[KrylovResult, tuple]:
+def distributed_pcg(A: Any, b: Any, x0: Any = None, *, comm: CountingComm, owned: np.ndarray, rtol: float = 1e-6,
+                    maxiter: int | None = None, M: Any = None, P: Any = None,
+                    cond: bool = False) -> tuple[KrylovResult, tuple]:
     """:func:`ddsolve.krylov.pcg` with a distributed inner product (see :class:`DistributedPCG`).
 
     Returns
@@ -66,7 +67,7 @@ def distributed_pcg(A: Any, b: Any, *, comm: CountingComm, owned: np.ndarray, rt
     """
     marks: list[tuple[int, int, int]] = []
     start = comm.counters.snapshot()
-    kr = DistributedPCG(A, b, None, comm=comm, owned=owned, rtol=rtol, maxiter=maxiter, M=M, cond=cond,
+    kr = DistributedPCG(A, b, x0, comm=comm, owned=owned, rtol=rtol, maxiter=maxiter, M=M, P=P, cond=cond,
                         callback=lambda _x: marks.append(comm.counters.snapshot())).solve()
     if len(marks) >= 2:
         per = tuple((b_ - a_) / (len(marks) - 1) for a_, b_ in zip(marks[0], marks[-1]))

@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 __all__ = ["METHODS", "MPI_ENV", "check_supported", "mpi_world_size", "solve", "main"]
 
 #: Methods with a distributed implementation (problem poisson).
-METHODS = ("fetidp", "bddc")
+METHODS = ("fetidp", "bddc", "feti")
 #: Environment variables that mark a process started by mpiexec (MPICH/Hydra, Open MPI, PMIx).
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")
 #: Test hook: a rank number; that rank raises once its setup is done (tests of the abort path only).
@@ -111,7 +111,7 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
 
 
 def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: bool = True) -> SolveResult | None:
-    """Distributed solve of ``spec`` (poisson, fetidp or bddc) over the ranks of ``comm``.
+    """Distributed solve of ``spec`` (poisson: fetidp, bddc or feti) over the ranks of ``comm``.
 
     Parameters
     ----------
@@ -131,6 +131,7 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
     from threadpoolctl import threadpool_limits
 
     from .bddc import solve_bddc_mpi
+    from .feti import solve_feti_mpi
     from .fetidp import solve_fetidp_mpi
     from .setup import prepare_rank
 
@@ -148,7 +149,7 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         fail = os.environ.get(FAIL_ENV)
         if fail is not None and fail == str(comm.rank):
             raise RuntimeError(f"injected failure ({FAIL_ENV}={fail})")
-        method = solve_fetidp_mpi if spec.method == "fetidp" else solve_bddc_mpi
+        method = {"fetidp": solve_fetidp_mpi, "bddc": solve_bddc_mpi, "feti": solve_feti_mpi}[spec.method]
         t1 = time.perf_counter()
         out, info = method(prob, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
                            gather=gather or spec.check)

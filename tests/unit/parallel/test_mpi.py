@@ -1,4 +1,4 @@
-"""Distributed FETI-DP / BDDC under mpiexec agree with the serial solvers; errors end every rank.
+"""Distributed FETI-DP / BDDC / FETI under mpiexec agree with the serial solvers; errors end every rank.
 
 Each test launches ``mpiexec -n P`` through subprocess (marker ``mpi``); skipped only when
 ``mpiexec`` or mpi4py is missing.
@@ -56,7 +56,8 @@ def _serial(method: str, kind: str):
 
 
 @pytest.mark.parametrize("method,kind,n", [("fetidp", "structured", 2), ("bddc", "structured", 2),
-                                           ("fetidp", "unstructured", 2), ("bddc", "unstructured", 3)])
+                                           ("fetidp", "unstructured", 2), ("bddc", "unstructured", 3),
+                                           ("feti", "structured", 3)])
 def test_distributed_equals_serial(tmp_path, method, kind, n):
     out_file = tmp_path / "u.npz"
     proc = _mpiexec(n, [str(HERE / "mpi_case.py"), method, kind, str(out_file)])
@@ -103,7 +104,7 @@ def test_failure_on_one_rank_aborts_all():
 
 
 @pytest.mark.parametrize("args,field", [(["--subdomains", "0"], "subdomains"),
-                                        (["--method", "feti"], "method")])
+                                        (["--method", "direct"], "method")])
 def test_bad_input_exits_2_on_every_rank(args, field):
     proc = _mpiexec(2, ["-m", "ddsolve", "solve", *args])
     assert proc.returncode == 2, proc.stderr
