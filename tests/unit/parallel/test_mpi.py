@@ -111,3 +111,23 @@ def test_bad_input_exits_2_on_every_rank(args, field):
     # one line per rank (the launcher may join two ranks' lines: count the messages, not the lines)
     assert proc.stderr.count("ddsolve: error: ") == 2, proc.stderr
     assert proc.stderr.count(f"ddsolve: error: {field}: ") == 2, proc.stderr
+
+
+def test_without_mpi4py_is_a_clear_error(tmp_path):
+    broken = tmp_path / "mpi4py"
+    broken.mkdir()
+    (broken / "__init__.py").write_text('raise ImportError("mpi4py broken (test)")\n')
+    proc = _mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4"],
+                    PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT), str(ROOT / "studies")]))
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("ddsolve: error: mpi: running under mpiexec with 2 ranks needs mpi4py") == 2
+
+
+def test_serial_run_never_imports_mpi4py():
+    code = ("import sys; from ddsolve.cli import main; main(['solve', '--subdomains', '2', '--elements', '2']); "
+            "print('mpi4py' in sys.modules, 'ddsolve.parallel' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=TIMEOUT,
+                          env={k: v for k, v in _env().items() if k not in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE",
+                                                                             "PMIX_SIZE")}, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == "False False"
