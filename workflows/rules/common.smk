@@ -18,7 +18,7 @@ CONTACT = KIND == "contact"
 #: Config keys shared by every case, passed unchanged to ddsolve.spec.ProblemSpec
 #: (a multibody case overrides `bodies` with its own value and adds `contact`).
 SHARED_SPEC_KEYS = ("problem", "bodies", "rho", "f", "scaling", "gamma", "norm", "projection", "rtol", "maxiter",
-                    "cond", "check")
+                    "cond", "check", "preset")
 
 
 def _as_list(value):
