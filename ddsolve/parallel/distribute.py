@@ -129,18 +129,24 @@ class RankSubstructures(Substructures):
     w1: int
 
     @classmethod
-    def build(cls, topo: Substructures, local, lo: int, hi: int) -> "RankSubstructures":
-        """``local``: the :class:`~ddsolve.scene.LocalProblems` of :func:`owned_scene` (subdomains lo..hi-1)."""
+    def build(cls, topo: Substructures, local, lo: int, hi: int, templates: bool = True) -> "RankSubstructures":
+        """``local``: the :class:`~ddsolve.scene.LocalProblems` of :func:`owned_scene` (subdomains lo..hi-1);
+        ``templates`` as for :class:`Substructures` (False: every subdomain distinct, batched factorizations)."""
         self = cls.__new__(cls)
         w0, w1 = int(topo.offsets[lo]), int(topo.offsets[hi])
         self.lo, self.hi, self.w0, self.w1 = lo, hi, w0, w1
         self.local = local
         self.scene = local.scene
         self.n_sub = hi - lo
-        self.templates = True
-        self.template = local.template
-        self.stiffness = local.stiffness
-        self.batch_local = None
+        self.templates = bool(templates)
+        if templates:
+            self.template = local.template
+            self.stiffness = local.stiffness
+            self.batch_local = None
+        else:                               # as Substructures(..., templates=False)
+            self.template = np.arange(hi - lo)
+            self.stiffness = [local.stiffness[t] for t in local.template]
+            self.batch_local = True
         self.rho = topo.rho[lo:hi]
         self.body_of_sub = topo.body_of_sub[lo:hi]
         sl = slice(w0, w1)

@@ -87,8 +87,11 @@ class DistributedProjection:
 
 
 def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
-                   gather: bool = True) -> tuple[MethodOutput, dict]:
+                   gather: bool = True, projection: str = "weighted") -> tuple[MethodOutput, dict]:
     """One-level FETI on the ranks of ``prob.comm``; the serial :func:`ddsolve.dd.solve_feti`, distributed.
+
+    ``projection``: ``"weighted"`` (Q-weighted under rho-scaling) or ``"orthogonal"`` (Q = I, the
+    thesis preset), as in the serial solver.
 
     Returns ``(output, info)`` as :func:`ddsolve.parallel.fetidp.solve_fetidp_mpi`.
     """
@@ -135,7 +138,7 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
         e = comm.allreduce_sum(R_loc.T @ sub.f_W)
         n_fact += 1
     q = None
-    if topo.scaling != "multiplicity":
+    if topo.scaling != "multiplicity" and projection != "orthogonal":
         delta, rho = topo.delta, topo.rho
         q = delta[pb] ** 2 * rho[sa] + delta[pa] ** 2 * rho[sb]
     setup = time.perf_counter() - t0
@@ -151,17 +154,17 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
 
     d_scaled = sq * F_d
     mu0 = np.zeros(n_loc)
-    projection = None
+    proj = None
     if k:
-        projection = DistributedProjection((sp.diags(sq) @ G).tocsr(), shared.owned, comm)
-        mu0 = projection.apply(mu0) + projection.particular(e)
+        proj = DistributedProjection((sp.diags(sq) @ G).tocsr(), shared.owned, comm)
+        mu0 = proj.apply(mu0) + proj.particular(e)
     t1 = time.perf_counter()
     kr, per_iteration = distributed_pcg(
         linear_operator(n_loc, F_scaled), d_scaled, mu0, comm=comm, owned=shared.owned, rtol=rtol,
         maxiter=maxiter, M=linear_operator(n_loc, M_scaled),
-        P=None if projection is None else linear_operator(n_loc, projection.apply), cond=cond)
+        P=None if proj is None else linear_operator(n_loc, proj.apply), cond=cond)
     krylov_seconds = time.perf_counter() - t1
-    alpha = projection.coefficients(F_scaled(kr.x) - d_scaled) if projection is not None else None
+    alpha = proj.coefficients(F_scaled(kr.x) - d_scaled) if proj is not None else None
     lam = sq * kr.x
     u_W = Kplus.solve(sub.f_W - B.T @ lam)
     if alpha is not None:
@@ -169,6 +172,6 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     u = gather_solution(prob, u_W) if gather else None
     out = MethodOutput(u=u, krylov=kr, nlambda=n_lam, n_factorizations=n_fact, setup_seconds=setup,
                        extra={"n_floating": k})
-    info = {"coarse_seconds": 0.0 if projection is None else projection.coarse_seconds,
+    info = {"coarse_seconds": 0.0 if proj is None else proj.coarse_seconds,
             "krylov_seconds": krylov_seconds, "per_iteration": per_iteration}
     return out, info

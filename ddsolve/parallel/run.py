@@ -54,15 +54,20 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
     ------
     InputError
         ``method`` outside :data:`METHODS` or a problem other than poisson; ``subdomains``
-        when there are fewer subdomains than ranks; ``check`` is supported.
+        (``parts``) when there are fewer subdomains than ranks; ``output`` (not written under mpiexec).
     """
     if spec.problem != "poisson" or spec.method not in METHODS:
         raise InputError("method", f"{spec.problem}/{spec.method} has no distributed (mpiexec) implementation; "
                                    f"distributed methods: poisson with {', '.join(METHODS)} "
                                    f"(run without mpiexec for the others)")
-    n_sub = spec.bodies ** 2 * spec.subdomains ** 2
+    if spec.output:
+        raise InputError("output", "writing a .vtu file is not available under mpiexec yet (run without mpiexec)")
+    n_sub = spec.parts if spec.mesh == "unstructured" else spec.bodies ** 2 * spec.subdomains ** 2
+    if spec.mesh_file and spec.mesh == "unstructured":
+        return                          # the parts of a mesh file are counted once it is read (in solve)
     if n_sub < size:
-        raise InputError("subdomains", f"{n_sub} subdomains for {size} ranks: need at least one subdomain per rank")
+        raise InputError("parts" if spec.mesh == "unstructured" else "subdomains",
+                         f"{n_sub} subdomains for {size} ranks: need at least one subdomain per rank")
 
 
 def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solve_seconds: float,
@@ -77,12 +82,16 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
     solve_seconds = comm.comm.allreduce(solve_seconds, op=comm.MPI.MAX)
     krylov_seconds = comm.comm.allreduce(info["krylov_seconds"], op=comm.MPI.MAX)
     n_fact = comm.comm.allreduce(int(out.n_factorizations))
+    rank_timings = {k: comm.comm.allreduce(float(v), op=comm.MPI.MAX) for k, v in sorted(prob.timings.items())}
+    from ..api import peak_rss_mb
+    peak = comm.comm.allreduce(peak_rss_mb(), op=comm.MPI.MAX)
     if comm.rank != 0:
         return None
     kr = out.krylov
     converged, reason = attained(kr, spec.rtol)
     extra: dict[str, Any] = {k: v for k, v in out.extra.items()}
     extra["restarts"] = int(getattr(kr, "restarts", 0))
+    extra["preset"] = spec.preset
     extra["n_ranks"] = comm.size
     extra["comm"] = {"messages_per_iteration": float(totals[0]),
                      "bytes_per_iteration": float(totals[1]),
@@ -106,8 +115,22 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
         fields["error_vs_direct"] = error
         if why:
             extra["check_reason"] = why
-    return SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, subdomains=spec.subdomains,
-                       elements=spec.elements, ndof=prob.topo.ndof, **fields, extra=extra)
+    from ..api import _sizes
+    n_sub = prob.topo.n_sub
+    extra["timings"] = {"mesh": rank_timings.get("scene", 0.0), "partition": 0.0,
+                        "assembly": rank_timings.get("assembly", 0.0),
+                        "setup": max(setup_seconds - rank_timings.get("scene", 0.0) - rank_timings.get("assembly", 0.0),
+                                     0.0),
+                        "solve": solve_seconds}
+    extra["peak_rss_mb"] = peak                                   # the largest over ranks
+    extra["mesh"] = spec.mesh
+    extra["parts"] = spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2
+    sizes = _sizes(spec) if spec.mesh == "unstructured" else {"subdomains": spec.subdomains,
+                                                               "elements": spec.elements}
+    if spec.mesh == "unstructured" and spec.mesh_file:
+        sizes["subdomains"] = n_sub
+    return SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
+                       ndof=prob.topo.ndof, **fields, extra=extra)
 
 
 def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: bool = True) -> SolveResult | None:
@@ -151,8 +174,11 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
             raise RuntimeError(f"injected failure ({FAIL_ENV}={fail})")
         method = {"fetidp": solve_fetidp_mpi, "bddc": solve_bddc_mpi, "feti": solve_feti_mpi}[spec.method]
         t1 = time.perf_counter()
+        from ..presets import solver_options
+        if prob.topo.n_sub < comm.size:
+            raise InputError("parts", f"{prob.topo.n_sub} subdomains for {comm.size} ranks")
         out, info = method(prob, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
-                           gather=gather or spec.check)
+                           gather=gather or spec.check, **solver_options(spec.preset, spec.problem, spec.method))
         total = time.perf_counter() - t1
         return _result(spec, prob, out, info, prep_seconds + out.setup_seconds, total - out.setup_seconds, comm)
 

@@ -59,7 +59,7 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     lo, hi = owned_range(scene.n_subdomains, comm.size, comm.rank)
     local = assemble(owned_scene(scene, lo, hi))
     t3 = time.perf_counter()
-    sub = RankSubstructures.build(topo, local, lo, hi)
+    sub = RankSubstructures.build(topo, local, lo, hi, templates=spec.mesh != "unstructured")
     t4 = time.perf_counter()
     return RankProblem(spec=spec, comm=comm, topo=topo, sub=sub,
                        rank_of_sub=rank_of_subdomain(scene.n_subdomains, comm.size),
