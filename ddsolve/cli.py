@@ -178,6 +178,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         max_memory = None if args.max_memory is None else parse_size(args.max_memory, "max-memory")
         spec = _spec_from_args(args)
         check_resources(spec, max_memory=max_memory)   # before NGSolve is imported or anything is built
+        # --- distributed solve under mpiexec (docs/parallel.md): launcher env vars, no mpi4py import otherwise
+        import os
+        if any(name in os.environ for name in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")):
+            from .parallel.run import METHODS as MPI_METHODS, check_supported, main as mpi_main, mpi_world_size
+            size = mpi_world_size() or 1
+            if size > 1 or (spec.problem == "poisson" and spec.method in MPI_METHODS):
+                check_supported(spec, size)
+                return mpi_main(spec, args.json, _human)
+        # --- end of the distributed block
         from .api import solve
         result = solve(spec)
     except InputError as exc:

@@ -228,8 +228,23 @@ if KIND == "stress":
     STRESS_SERIES = list(dict.fromkeys(_stress_job(case) for case in STRESS_CASES))
 
 
+# --- kind mpi (mpi.smk) ---------------------------------------------------------------------
+# One job per number of ranks P, each launched with mpiexec -n P (resources tasks=P, mpi).
+
+
+def mpi_spec(wildcards=None):
+    """The ddsolve solve flags of the case (a plain dict: a params value)."""
+    return {key: config[key] for key in ("method", "subdomains", "elements", "rtol", "maxiter")}
+
+
+def mpi_case_files(wildcards=None):
+    return [f"results/{STUDY}/{config['method']}/P{P}.json" for P in config["ranks"]]
+
+
 def targets():
     """The reports of the study (the input of rule all)."""
+    if KIND == "mpi":
+        return [f"reports/{STUDY}/mpi.csv", f"reports/{STUDY}/mpi.md"]
     if KIND in GRID_KINDS:
         return grid_report_files()
     if KIND == "bench":
