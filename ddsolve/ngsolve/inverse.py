@@ -158,13 +158,15 @@ class DDInverse(ngsolve.BaseMatrix):
         t = time.perf_counter()
         V = vertex_table(fes.mesh)
         T = element_dofs(fes)
-        part = element_parts(fes.mesh, V, parts, partition, seed=seed)
-        self.timings["partition"] = time.perf_counter() - t
+        self.timings["dof_table"] = time.perf_counter() - t
         t = time.perf_counter()
         Ke = element_matrices(a, fes, T.shape[1])
         self.timings["assembly"] = time.perf_counter() - t
         if not is_symmetric(Ke):
             raise InputError("a", f"the form is not symmetric; method {method!r} needs a symmetric form")
+        t = time.perf_counter()
+        part = element_parts(fes.mesh, V, parts, partition, seed=seed)
+        self.timings["partition"] = time.perf_counter() - t
         t = time.perf_counter()
         self.cond_data = condense(Ke, T, self.free)
         del Ke
