@@ -226,6 +226,10 @@ class DDInverse(ngsolve.BaseMatrix):
     def MultAdd(self, s: float, x: Any, y: Any) -> None:
         y.FV().NumPy()[:] += s * self.solve(np.asarray(x.FV().NumPy()))
 
+    def MultTrans(self, x: Any, y: Any) -> None:
+        """The inverse of a symmetric form is symmetric."""
+        self.Mult(x, y)
+
     # ------------------------------------------------------------- solves
     def _condense_rhs(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Free rhs -> W load (bubbles condensed) and the bubble loads (n_elements, n_b)."""
@@ -305,3 +309,7 @@ class DDPreconditioner(ngsolve.BaseMatrix):
         inv = self.inv
         f_W, fb = inv._condense_rhs(np.asarray(x.FV().NumPy()))
         y.FV().NumPy()[:] = inv._expand(inv._bddc.precondition(f_W), fb)
+
+    def MultTrans(self, x: Any, y: Any) -> None:
+        """P is symmetric."""
+        self.Mult(x, y)

@@ -236,3 +236,51 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def hh_study(order: int = 1, parts: int = 16, refinements: tuple[int, ...] = (0, 1, 2), maxh: float = 0.05,
+             method: str = "bddc") -> dict:
+    """Condition numbers at a fixed METIS partition of the coarse mesh while h halves (H/h doubles).
+
+    The partition is computed once on the coarse mesh; a refined element gets
+    the part of the coarse element containing its centroid (a point search
+    per element: a study, not a timed path). Fits
+    cond = c0 + c1 (1 + log(H/h))^2, with H/h = 4 * 2^r as a nominal value,
+    and returns the sizes, iterations, condition numbers and the fit.
+    """
+    import ngsolve as ngs
+    from netgen.geom2d import unit_square
+
+    from ddsolve.ngsolve import DDInverse
+    from ddsolve.ngsolve.dofs import vertex_table
+    from ddsolve.scene.partition import partition_elements
+
+    coarse = ngs.Mesh(unit_square.GenerateMesh(maxh=maxh))
+    label = partition_elements(vertex_table(coarse), parts)
+    out = {"ndof": [], "iterations": [], "cond": [], "h_ratio": []}
+    for r in refinements:
+        ngmesh = unit_square.GenerateMesh(maxh=maxh)
+        for _ in range(r):
+            ngmesh.Refine()
+        mesh = ngs.Mesh(ngmesh)
+        centroids = _centroids(mesh)
+        coarse_el = np.array([coarse(float(x), float(y)).nr for x, y in centroids])
+        fes, a, f = _forms(mesh, order)
+        inv = DDInverse(a, method=method, partition=label[coarse_el], rtol=1e-10, cond=True)
+        gfu = ngs.GridFunction(fes)
+        gfu.vec.data = inv * f.vec
+        out["ndof"].append(fes.ndof)
+        out["iterations"].append(inv.iterations)
+        out["cond"].append(inv.cond)
+        out["h_ratio"].append(2 ** r)
+    logs = (1 + np.log(np.asarray(out["h_ratio"], dtype=float) * 4)) ** 2
+    c1, c0 = np.polyfit(logs, np.asarray(out["cond"]), 1)
+    out["fit"] = {"c0": float(c0), "c1": float(c1)}
+    return out
+
+
+def _centroids(mesh) -> np.ndarray:
+    from ddsolve.ngsolve.dofs import vertex_table
+
+    pts = np.asarray(mesh.ngmesh.Coordinates())[:, :2]
+    return pts[vertex_table(mesh)].mean(axis=1)

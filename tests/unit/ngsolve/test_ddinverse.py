@@ -105,13 +105,23 @@ def test_materials_partition_and_coefficient_jump():
     assert relerr(x, direct(fes, a, f)) < 1e-8
 
 
-def test_preconditioner_in_ngsolve_cg():
+@pytest.mark.parametrize("order", [2, 3])
+def test_preconditioner_in_ngsolve_cg(order):
     from ngsolve.krylovspace import CGSolver
 
     mesh = lshape(0.08)
-    fes, a, f = forms(mesh, 2, 1 + ngs.x)
+    fes, a, f = forms(mesh, order, 1 + ngs.x)
     ref = direct(fes, a, f)                 # assembles a
     inv = DDInverse(a, parts=8)
+    # P is symmetric on the free dofs (CG needs it): <x, P y> = <y, P x>
+    rng = np.random.default_rng(0)
+    free = np.array(fes.FreeDofs(), dtype=bool)
+    x, y, px, py = (ngs.GridFunction(fes).vec for _ in range(4))
+    x.FV().NumPy()[:] = rng.standard_normal(fes.ndof) * free
+    y.FV().NumPy()[:] = rng.standard_normal(fes.ndof) * free
+    px.data = inv.preconditioner * x
+    py.data = inv.preconditioner * y
+    assert abs(ngs.InnerProduct(x, py) - ngs.InnerProduct(y, px)) < 1e-10 * abs(ngs.InnerProduct(x, px))
     solver = CGSolver(a.mat, inv.preconditioner, tol=1e-12, maxiter=100)
     gfu = ngs.GridFunction(fes)
     gfu.vec.data = solver * f.vec
