@@ -62,8 +62,10 @@ class DofScene:
 def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: int = 0) -> np.ndarray:
     """Part label of every element, shape (n_elements,), labels 0..n_parts-1, every part connected.
 
-    ``partition``: None (METIS on the element graph into ``parts``), ``"materials"``
-    (the mesh's materials), or an array of length n_elements. Parts that are
+    ``partition``: None (METIS on the element graph into ``parts``), ``"coarse"``
+    (METIS into ``parts`` on the coarsest mesh of a ``mesh.Refine()`` hierarchy,
+    inherited by the children), ``"materials"`` (the mesh's materials), or an
+    array of length n_elements. Parts that are
     not connected through element edges are split into their connected pieces.
     """
     ne = V.shape[0]
@@ -73,9 +75,11 @@ def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: in
         if parts > ne:
             raise InputError("parts", f"{parts} parts requested but the mesh has only {ne} elements")
         return partition_elements(V, int(parts), seed=seed, field="parts")
+    if isinstance(partition, str) and partition == "coarse":
+        return coarse_partition(mesh, V, parts, seed=seed)
     if isinstance(partition, str):
         if partition != "materials":
-            raise InputError("partition", f"expected None, 'materials' or an array, got {partition!r}")
+            raise InputError("partition", f"expected None, 'materials', 'coarse' or an array, got {partition!r}")
         index = np.asarray(mesh.ngmesh.Elements2D().NumPy()["index"], dtype=np.int64)
         _, label = np.unique(index, return_inverse=True)
     else:
@@ -89,6 +93,58 @@ def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: in
             raise InputError("partition", f"{int((counts == 0).sum())} empty parts (labels must be 0..P-1, "
                                           f"each used)")
     return split_disconnected(V, label.astype(np.int64))
+
+
+def refinement_roots(mesh: Any) -> np.ndarray:
+    """Coarsest ancestor of every element of a mesh refined by ``mesh.Refine()``, shape (n_elements,).
+
+    netgen keeps the parent of each element (``parentsurfaceelements``, -1 for
+    the elements that replaced their parent in place), so the ancestors are
+    found by pointer jumping, one vectorised step per refinement level.
+    """
+    parent = np.asarray(mesh.ngmesh.parentsurfaceelements, dtype=np.int64).reshape(-1)
+    ne = mesh.ne
+    if parent.size != ne:
+        return np.arange(ne)
+    root = np.arange(ne)
+    nxt = np.where(parent >= 0, parent, root)
+    while True:
+        jumped = nxt[nxt]
+        if np.array_equal(jumped, nxt):
+            return nxt
+        nxt = jumped
+
+
+def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0) -> np.ndarray:
+    """METIS on the coarsest mesh of the refinement hierarchy; children inherit the part.
+
+    The coarse element graph is the fine element graph contracted by the
+    coarsest ancestor (no coarse mesh is rebuilt). METIS then works on the
+    coarse elements only, which is much cheaper than on the refined mesh.
+    """
+    import pymetis
+
+    root = refinement_roots(mesh)
+    roots, coarse = np.unique(root, return_inverse=True)
+    n_c = roots.size
+    if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
+        raise InputError("parts", f"must be a positive integer, got {parts!r}")
+    if parts > n_c:
+        raise InputError("parts", f"{parts} parts requested but the coarse mesh has only {n_c} elements")
+    if parts == 1:
+        return np.zeros(V.shape[0], dtype=np.int64)
+    first, second = element_graph(V)
+    a, b = coarse[first], coarse[second]
+    keep = a != b
+    G = sp.coo_matrix((np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(n_c, n_c)).tocsr()
+    G = ((G + G.T) > 0).astype(np.int64).tocsr()
+    adjacency = pymetis.CSRAdjacency(G.indptr.astype(np.int64), G.indices.astype(np.int64))
+    _, membership = pymetis.part_graph(int(parts), adjacency, options=pymetis.Options(seed=int(seed), contig=1))
+    label = np.asarray(membership, dtype=np.int64)[coarse]
+    counts = np.bincount(label, minlength=parts)
+    if (counts == 0).any():
+        raise InputError("parts", f"METIS left {int((counts == 0).sum())} of {parts} parts empty on the coarse mesh")
+    return split_disconnected(V, label)
 
 
 def split_disconnected(V: np.ndarray, label: np.ndarray) -> np.ndarray:

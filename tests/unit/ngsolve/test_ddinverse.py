@@ -176,3 +176,23 @@ def test_nonsymmetric_form():
     a += (ngs.grad(u) * ngs.grad(v) + ngs.CF((1, 0)) * ngs.grad(u) * v) * ngs.dx
     with pytest.raises(InputError, match="a: the form is not symmetric"):
         DDInverse(a)
+
+
+def test_coarse_partition_is_inherited_by_refinement():
+    from ddsolve.ngsolve.dofs import vertex_table
+    from ddsolve.ngsolve.local import refinement_roots
+
+    coarse = ngs.Mesh(unit_square.GenerateMesh(maxh=0.1))
+    mesh = ngs.Mesh(unit_square.GenerateMesh(maxh=0.1))
+    mesh.Refine()
+    mesh.Refine()
+    root = refinement_roots(mesh)
+    centroids = np.asarray(mesh.ngmesh.Coordinates())[:, :2][vertex_table(mesh)].mean(axis=1)
+    located = np.array([coarse(float(x), float(y)).nr for x, y in centroids[::7]])
+    np.testing.assert_array_equal(root[::7], located)
+    fes, a, f = forms(mesh, 2, 1 + ngs.x, dirichlet=".*")
+    x, inv = dd(fes, a, f, parts=8, partition="coarse")
+    assert inv.n_parts >= 8
+    assert relerr(x, direct(fes, a, f)) < 1e-8
+    with pytest.raises(InputError, match="parts: .*coarse mesh"):
+        DDInverse(a, parts=coarse.ne + 1, partition="coarse")
