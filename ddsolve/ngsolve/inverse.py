@@ -12,7 +12,7 @@ from ..dd import Substructures, solve_feti
 from ..dd.dual import dual_operators
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from ..errors import InputError
-from ..krylov import pcg
+from ..krylov import KrylovResult, pcg
 from .dofs import check_space, element_dofs, element_matrices, is_symmetric, vertex_table
 from .local import boundary_vertex_dofs, condense, element_parts, part_matrices
 
@@ -32,6 +32,11 @@ def _free_mask(fes: Any, freedofs: Any) -> np.ndarray:
     if free.shape != (fes.ndof,):
         raise InputError("freedofs", f"expected {fes.ndof} entries, got shape {free.shape}")
     return free
+
+
+def _no_interface() -> KrylovResult:
+    return KrylovResult(x=np.zeros(0), converged=True, reason="no interface: solved directly", iterations=0,
+                        residuals=np.zeros(1))
 
 
 class _BDDC:
@@ -62,12 +67,16 @@ class _BDDC:
         return self.gather(self.primal.solve(self.scatter(r, self.delta_g)), self.delta_g)
 
     def solve(self, f_W: np.ndarray, rtol: float, maxiter: int, cond: bool):
+        if self.n_g == 0:           # one subdomain: no interface, the interior solve is the answer
+            return self.schur.interior_solution(f_W, np.zeros(self.sub.n_W)), _no_interface()
         g = self.gather(self.schur.harmonic_extension_rhs(f_W))
         kr = pcg(self.S_hat, g, None, rtol=rtol, maxiter=maxiter, M=self.M, cond=cond)
         return self.schur.interior_solution(f_W, self.scatter(kr.x)), kr
 
     def precondition(self, f_W: np.ndarray) -> np.ndarray:
         """One BDDC application in the full space: H M H^T + blockdiag(A_II^{-1})."""
+        if self.n_g == 0:
+            return self.schur.interior_solution(f_W, np.zeros(self.sub.n_W))
         g = self.gather(self.schur.harmonic_extension_rhs(f_W))
         return self.schur.interior_solution(f_W, self.scatter(self._M(g)))
 
@@ -84,6 +93,8 @@ class _FETIDP:
         self.F, self.M = linear_operator(n, F), linear_operator(n, M)
 
     def solve(self, f_W: np.ndarray, rtol: float, maxiter: int, cond: bool):
+        if self.B.shape[0] == 0:    # no dual interface: A~ is the assembled matrix
+            return self.primal.solve(f_W), _no_interface()
         d = self.B @ self.primal.solve(f_W)
         kr = pcg(self.F, d, None, rtol=rtol, maxiter=maxiter, M=self.M, cond=cond)
         return self.primal.solve(f_W - self.BT @ kr.x), kr
@@ -257,7 +268,7 @@ class DDInverse(ngsolve.BaseMatrix):
         """u with A u = f on the free dofs, zero elsewhere; f, u of shape (ndof,)."""
         t = time.perf_counter()
         f_W, fb = self._condense_rhs(f)
-        if self.method == "bddc":
+        if self.method == "bddc" or self._bddc.n_g == 0:
             u_W, kr = self._bddc.solve(f_W, self.rtol, self.maxiter, self.want_cond)
         elif self.method == "fetidp":
             u_W, kr = self._fetidp.solve(f_W, self.rtol, self.maxiter, self.want_cond)

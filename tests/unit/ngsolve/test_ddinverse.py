@@ -87,6 +87,15 @@ def test_feti_reaction_diffusion():
         assert relerr(x, ref) < 1e-8, method
 
 
+@pytest.mark.parametrize("method", ["bddc", "fetidp", "feti"])
+def test_one_part_is_a_direct_solve(method):
+    mesh = ngs.Mesh(unit_square.GenerateMesh(maxh=0.2))
+    fes, a, f = forms(mesh, 3, 1.0, dirichlet="left")
+    x, inv = dd(fes, a, f, method=method, partition="materials")
+    assert inv.n_parts == 1 and inv.iterations == 0 and inv.converged
+    assert relerr(x, direct(fes, a, f)) < 1e-10
+
+
 def test_square_with_hole_order3_bubbles():
     mesh = holed(0.1)
     fes, a, f = forms(mesh, 3, 1.0 + ngs.x, dirichlet="hole")
