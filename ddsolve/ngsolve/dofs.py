@@ -68,10 +68,10 @@ def element_dofs(fes: Any) -> np.ndarray:
 
 def _triangle_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     """Vectorised table for a uniform-order H1 space on triangles, None if NGSolve numbers differently."""
-    import ngsolve
-
     p = int(fes.globalorder)
     ne, nv = V.shape[0], fes.mesh.nv
+    if p == 1:                          # vertex dofs only: dof = vertex number
+        return V.copy() if fes.ndof == nv and _matches(fes, V) else None
     edges = np.stack([np.sort(V[:, list(e)], axis=1) for e in ((2, 0), (1, 2), (0, 1))], axis=1)
     keys = (edges[:, :, 0] * nv + edges[:, :, 1]).ravel()
     uniq, edge_num = np.unique(keys, return_inverse=True)
@@ -86,12 +86,20 @@ def _triangle_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     if nb:
         parts.append(nv + ned * (p - 1) + np.arange(ne)[:, None] * nb + np.arange(nb))
     table = np.concatenate(parts, axis=1)
+    return table if _matches(fes, table) else None
+
+
+def _matches(fes: Any, table: np.ndarray) -> bool:
+    """Whether ``table`` agrees with ``fes.GetDofNrs`` on CHECK_ELEMENTS elements spread over the mesh."""
+    import ngsolve
+
+    ne = table.shape[0]
     sample = np.unique(np.linspace(0, ne - 1, min(ne, CHECK_ELEMENTS)).astype(np.int64))
     for e in sample:
         if tuple(fes.GetDofNrs(ngsolve.ElementId(ngsolve.VOL, int(e)))) != tuple(table[e]):
             log.info("NGSolve dof numbering differs from the vectorised table; using ConvertOperator")
-            return None
-    return table
+            return False
+    return True
 
 
 def _converted_dofs(fes: Any) -> np.ndarray:

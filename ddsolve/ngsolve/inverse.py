@@ -13,7 +13,13 @@ from ..dd.dual import dual_operators
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from ..errors import InputError
 from ..krylov import KrylovResult, pcg
-from .dofs import check_space, element_dofs, element_matrices, is_symmetric, vertex_table
+from .dofs import (
+    check_space,
+    element_dofs,
+    element_matrices,
+    is_symmetric,
+    vertex_table,
+)
 from .local import boundary_vertex_dofs, condense, element_parts, part_matrices
 
 log = logging.getLogger(__name__)
@@ -286,7 +292,7 @@ class DDInverse(ngsolve.BaseMatrix):
         return u
 
     @property
-    def preconditioner(self) -> "DDPreconditioner":
+    def preconditioner(self) -> DDPreconditioner:
         """One BDDC application (full space, bubbles exact) as a BaseMatrix for NGSolve's Krylov solvers."""
         return DDPreconditioner(self)
 

@@ -57,7 +57,7 @@ def make_mesh(order: int, ndof: int):
     from netgen.geom2d import unit_square
 
     nv = ndof / order ** 2
-    refine = max(0, int(math.floor(math.log(max(nv / 4000.0, 1.0), 4))))
+    refine = max(0, math.floor(math.log(max(nv / 4000.0, 1.0), 4)))
     h = math.sqrt(1.17 / (nv / 4 ** refine))
     ngmesh = unit_square.GenerateMesh(maxh=h)
     for _ in range(refine):
@@ -122,7 +122,7 @@ def run_study(cfg: dict) -> list[Row]:
         order = int(order_cfg["order"])
         for ndof in order_cfg["ndofs"]:
             mesh = make_mesh(order, int(ndof))
-            parts = max(2, int(round(int(ndof) / int(cfg["dofs_per_part"]))))
+            parts = max(2, round(int(ndof) / int(cfg["dofs_per_part"])))
             ref = None
             results = []
             for name in solvers:
@@ -131,7 +131,7 @@ def run_study(cfg: dict) -> list[Row]:
                     if name == "sparsecholesky":
                         ref = x
                     results.append((name, s, t, its, x, ""))
-                except Exception as exc:       # a missing backend (pardiso) is reported, not fatal
+                except Exception as exc:  # noqa: BLE001  (a missing backend, e.g. pardiso, is reported, not fatal)
                     results.append((name, math.nan, math.nan, 0, None, f"{type(exc).__name__}: {exc}"[:120]))
                 log.info("order %d ndof %s %s done", order, ndof, name)
             n = int(np.asarray(results[0][4]).size) if results[0][4] is not None else int(ndof)

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 ngs = pytest.importorskip("ngsolve")
-from netgen.geom2d import CSG2d, Circle, Rectangle, SplineGeometry, unit_square  # noqa: E402
+from netgen.geom2d import Circle, CSG2d, Rectangle, SplineGeometry, unit_square
 
-from ddsolve.errors import InputError  # noqa: E402
-from ddsolve.ngsolve import DDInverse  # noqa: E402
+from ddsolve.errors import InputError
+from ddsolve.ngsolve import DDInverse
 
 
 def lshape(maxh: float):
@@ -83,7 +83,7 @@ def test_feti_reaction_diffusion():
     fes, a, f = forms(mesh, 2, 1.0, reaction=10.0, dirichlet="")
     ref = direct(fes, a, f)
     for method in ("bddc", "fetidp", "feti"):
-        x, inv = dd(fes, a, f, method=method, parts=6)
+        x, _ = dd(fes, a, f, method=method, parts=6)
         assert relerr(x, ref) < 1e-8, method
 
 
@@ -165,7 +165,7 @@ def test_bad_space(space, word):
 
 def test_bad_partition_and_parts():
     mesh = _small()
-    fes, a, _ = forms(mesh, 1, 1.0)
+    _, a, _ = forms(mesh, 1, 1.0)
     with pytest.raises(InputError, match="partition: expected"):
         DDInverse(a, partition=np.zeros(mesh.ne + 1, dtype=int))
     labels = np.zeros(mesh.ne, dtype=int)

@@ -8,10 +8,9 @@ import yaml
 
 pytest.importorskip("ngsolve")
 
-from ddstudies.ngsolve_bench import Row, run_study, summary  # noqa: E402
-from ddstudies.workflow import SCHEMAS, ConfigError, validate  # noqa: E402
-
-from conftest import ROOT, copy_workflow, run_snakemake  # noqa: E402
+from conftest import ROOT, copy_workflow, run_snakemake
+from ddstudies.ngsolve_bench import Row, run_study, summary
+from ddstudies.workflow import SCHEMAS, ConfigError, validate
 
 SCHEMA = ROOT / "workflows" / "schemas" / "ngsolve.schema.yaml"
 
