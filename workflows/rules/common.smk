@@ -202,6 +202,14 @@ if KIND == "scaling":
     SCALING_PROFILE.setdefault("elements", max(config["elements"]))
 
 
+# --- kind ngsolve (ngsolve.smk) -------------------------------------------------------------
+# One job for the whole study (ddstudies.ngsolve_bench); its settings travel as JSON in params.
+import json
+
+#: Config keys handed to ddstudies.ngsolve_bench.
+NGSOLVE_KEYS = ("orders", "solvers", "dofs_per_part", "rtol", "maxiter", "parts_sweep")
+
+
 # --- kind stress (stress.smk) ---------------------------------------------------------------
 # The cases are the catalog of ddstudies.stress (tier `tier`); each series job gets its
 # cases in `params`, so a changed case reruns its series. Case names are unique.
@@ -251,4 +259,6 @@ def targets():
         return [f"reports/{STUDY}/work_precision.png", f"reports/{STUDY}/work_precision.csv"]
     if KIND == "scaling":
         return [f"reports/{STUDY}/{name}" for name in ("scaling.png", "scaling.csv", "scaling.md", "profile.txt")]
+    if KIND == "ngsolve":
+        return [f"reports/{STUDY}/ngsolve.md", f"reports/{STUDY}/ngsolve.png", f"results/{STUDY}/ngsolve.csv"]
     return [f"reports/{STUDY}/stress.md", f"results/{STUDY}/stress.csv"]

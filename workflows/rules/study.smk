@@ -6,6 +6,7 @@
 #   scaling  the scaling study of the contact solvers (config/scaling.yaml)
 #   stress   the numerical stability stress study (config/stress.yaml)
 #   mpi      distributed solves with P MPI ranks (config/mpi.yaml; not in the reproduction)
+#   ngsolve  DDInverse against NGSolve's solvers (config/ngsolve.yaml)
 # Its targets (rule all) are `targets()` of common.smk.
 KIND = validate_study(config)
 
@@ -41,6 +42,9 @@ elif KIND == "scaling":
 elif KIND == "mpi":
 
     include: "mpi.smk"
+elif KIND == "ngsolve":
+
+    include: "ngsolve.smk"
 
 else:
 
