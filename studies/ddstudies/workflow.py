@@ -22,7 +22,8 @@ __all__ = ["KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate", "unique
 
 #: Study kinds (config key ``kind``) and the schema each is validated against.
 SCHEMAS: dict[str, str] = {"grid": "config", "table_4": "config", "contact": "config", "bench": "bench",
-                           "scaling": "scaling", "stress": "stress"}
+                           "scaling": "scaling", "stress": "stress",
+                           "unstructured": "unstructured"}
 #: The study kinds.
 KINDS: tuple[str, ...] = tuple(SCHEMAS)
 

@@ -5,6 +5,7 @@
 #   bench    the work-precision benchmark (config/bench.yaml)
 #   scaling  the scaling study of the contact solvers (config/scaling.yaml)
 #   stress   the numerical stability stress study (config/stress.yaml)
+#   unstructured  DD against direct solvers on METIS-partitioned P1 meshes (config/unstructured.yaml)
 # Its targets (rule all) are `targets()` of common.smk.
 KIND = validate_study(config)
 
@@ -36,6 +37,10 @@ elif KIND == "bench":
 elif KIND == "scaling":
 
     include: "scaling.smk"
+
+elif KIND == "unstructured":
+
+    include: "unstructured.smk"
 
 else:
 
