@@ -43,6 +43,10 @@ def test_ratios_divide_by_the_reference_of_the_same_job():
     assert row["reference"] == "pardiso"
     assert row["ratio"] == pytest.approx(1e-5 * 4e4 ** 1.05 / (1e-6 * 4e4 ** 1.5), rel=1e-12)
     assert df.loc[(df["problem"] == "contact") & (df["method"] == "active-set"), "ratio"].item() == 0.5
+    assert "cpu_ratio" not in df                             # no CPU times recorded
+    cpu = synthetic().assign(cpu_seconds=lambda d: 2.0 * d["seconds"])
+    cpu.loc[cpu["method"] == "pdas", "cpu_seconds"] = 16.0
+    assert add_ratios(cpu).loc[lambda d: d["method"] == "active-set", "cpu_ratio"].item() == 0.25
 
 
 def test_fits_recover_exponents_and_targets_are_checked():

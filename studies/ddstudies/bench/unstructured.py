@@ -27,7 +27,10 @@ assembly are common to all and reported as ``mesh_seconds``/``assembly_seconds``
 job (:data:`REFERENCE`; the fastest direct method of the job when it is
 missing). Peak memory: ``peak_mb`` the process's peak resident size during the
 method (reset before it through ``/proc/self/clear_refs`` where Linux allows),
-``added_mb`` its increase over the resident size before it.
+``added_mb`` its increase over the resident size before it. ``cpu_seconds``:
+process CPU time of the method's own call (DD: setup and solve, without the
+partition and substructuring), and ``cpu_ratio`` its ratio to the reference's:
+on a shared, loaded machine the CPU times are the steadier comparison.
 """
 from __future__ import annotations
 
@@ -124,7 +127,7 @@ def run_unstructured_case(problem: str, *, maxh: float, refine: int, parts: int,
         ndof, n_sub, converged, iterations, cond, seconds, setup_seconds,
         solve_seconds, partition_seconds, substructure_seconds, mesh_seconds,
         split_seconds, assembly_seconds, global_matrix_seconds, peak_mb, added_mb,
-        error (relative 2-norm difference to the reference peer's solution), reason,
+        cpu_seconds, error (relative 2-norm difference to the reference peer's solution), reason,
         load (1-minute load average at the start of the method), cpu_count.
     """
     from ddsolve.prepared import prepare
@@ -163,12 +166,14 @@ def run_unstructured_case(problem: str, *, maxh: float, refine: int, parts: int,
                    else ("amg" if method == "pyamg" else "direct"), load=float(os.getloadavg()[0]))
         base = current_rss_mb()
         _reset_peak()
+        cpu0 = time.process_time()
         try:
             u = (_run_poisson(method, prep, A, b, rtol, maxiter, cond, row) if problem == "poisson"
                  else _run_contact(method, prep, rtol, maxiter, direct, direct_threads, row))
             solutions[method] = u
         except ImportError as exc:          # an unavailable peer (BackendUnavailable)
             row.update(converged=False, reason=f"unavailable: {exc}")
+        row["cpu_seconds"] = time.process_time() - cpu0
         peak = _peak_mb()
         row.update(peak_mb=peak, added_mb=max(peak - base, 0.0))
         log.info("%s: %.3f s, %s iterations (%s), peak %.0f MiB", method, row.get("seconds", math.nan),
@@ -259,6 +264,8 @@ def add_ratios(df: pd.DataFrame) -> pd.DataFrame:
     df = df.reset_index(drop=True)
     df["reference"] = ""
     df["ratio"] = math.nan
+    if "cpu_seconds" in df:
+        df["cpu_ratio"] = math.nan
     for _, rows in df.groupby(["problem", "refine"], sort=False):
         ref = reference_method(rows)
         if ref is None:
@@ -266,13 +273,17 @@ def add_ratios(df: pd.DataFrame) -> pd.DataFrame:
         t_ref = float(rows.loc[rows["method"] == ref, "seconds"].iloc[0])
         df.loc[rows.index, "reference"] = ref
         df.loc[rows.index, "ratio"] = rows["seconds"].astype(float) / t_ref
+        if "cpu_seconds" in rows:
+            c_ref = float(rows.loc[rows["method"] == ref, "cpu_seconds"].iloc[0])
+            df.loc[rows.index, "cpu_ratio"] = rows["cpu_seconds"].astype(float) / c_ref
     return df
 
 
 def unstructured_table(df: pd.DataFrame) -> pd.DataFrame:
     """One row per (problem, refine, method): sizes, times, ratio, iterations, cond, memory."""
     df = add_ratios(df)
-    columns = ["problem", "refine", "ndof", "n_sub", "method", "seconds", "ratio", "reference", "setup_seconds",
+    columns = ["problem", "refine", "ndof", "n_sub", "method", "seconds", "ratio", "cpu_seconds", "cpu_ratio",
+               "reference", "setup_seconds",
                "solve_seconds", "partition_seconds", "iterations", "cond", "peak_mb", "added_mb", "converged",
                "load"]
     columns = [c for c in columns if c in df]
@@ -329,12 +340,13 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Unstructured m
     table: pd.DataFrame = summary["table"]
     lines = [f"# {title}", "", "Wall times in seconds (DD: METIS partition + substructuring + setup + solve; "
              "direct: factorization + solve of the assembled matrix); ratio to the reference of the same job; "
-             "load: 1-minute load average at the start of the run.", ""]
+             "cpu_seconds/cpu_ratio: CPU time of the method's own call (DD without partition and "
+             "substructuring) and its ratio; load: 1-minute load average at the start of the run.", ""]
     shown = table.copy()
-    for col in ("seconds", "setup_seconds", "solve_seconds", "partition_seconds"):
+    for col in ("seconds", "cpu_seconds", "setup_seconds", "solve_seconds", "partition_seconds"):
         if col in shown:
             shown[col] = shown[col].map(lambda v: f"{v:.3g}" if pd.notna(v) else "")
-    for col in ("ratio", "load"):
+    for col in ("ratio", "cpu_ratio", "load"):
         if col in shown:
             shown[col] = shown[col].map(lambda v: f"{v:.2f}" if pd.notna(v) else "")
     if "cond" in shown:
