@@ -23,7 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .local import BatchedSolver, DenseBlocks
+from .local import BatchedSolver, DenseBlocks, _Group, solve_many
 from .substructure import Substructures
 
 log = logging.getLogger(__name__)
@@ -181,7 +181,15 @@ class DirichletSchur:
         blocks = []
         keep_ext = sum(g.interior_local.size * g.gamma_local.size for g in groups) * 8 <= EXPLICIT_EXTENSION_BYTES
         ext: list[ExtensionBlock] = []
-        for group in groups:
+        # harmonic extensions K_II^{-1} K_IG (rho cancels) of all groups first: the batched
+        # subdomains share multi-column solves (solve_many)
+        K_igs = {k: sub.stiffness[g.template][g.interior_local][:, g.gamma_local]
+                 for k, g in enumerate(groups) if g.interior_local.size}
+        solved = dict(zip(K_igs, solve_many([
+            (self._cache[groups[k].template.to_bytes(8, "little")           # built by self.II
+                         + groups[k].interior_local.astype(np.int64).tobytes()], K_ig)
+            for k, K_ig in K_igs.items()])))
+        for k, group in enumerate(groups):
             t, loc_i, loc_g, members = group.template, group.interior_local, group.gamma_local, group.members
             K = sub.stiffness[t]
             Kg = K[loc_g]
@@ -189,10 +197,8 @@ class DirichletSchur:
             members_arr = np.asarray(members)
             index = np.stack([sub.position(s, loc_g) for s in members_arr], axis=1)
             if loc_i.size:
-                key = t.to_bytes(8, "little") + loc_i.astype(np.int64).tobytes()
-                factor = self._cache[key]           # built by self.II
-                K_ig = K[loc_i][:, loc_g].toarray()
-                X = factor.solve(K_ig)              # harmonic extension K_II^{-1} K_IG (rho cancels)
+                K_ig = K_igs[k].toarray()
+                X = solved.pop(k)
                 S -= K_ig.T @ X
                 S = 0.5 * (S + S.T)
                 if keep_ext:
@@ -388,6 +394,8 @@ class PrimalConstrainedSolver:
         self.Psi = np.zeros((sub.n_W, p_max))
         S_loc = np.zeros((sub.n_sub, p_max, p_max))
         done = np.zeros(sub.n_sub, dtype=bool)
+        # all solves K_rr^{-1} K_rPi first (the batched subdomains share multi-column solves), then Psi, S
+        work: list[tuple[_Group, list[int], np.ndarray, np.ndarray, np.ndarray | None]] = []
         for g in self.rr.groups:
             members = g.members
             by_primal: dict[bytes, list[int]] = {}
@@ -397,21 +405,24 @@ class PrimalConstrainedSolver:
             for js in by_primal.values():
                 s0 = members[js[0]]
                 loc_p = sub.local_index[self.table[s0][valid[s0]]]
-                p = loc_p.size
                 K = sub.stiffness[int(sub.template[s0])]
                 KpP = K[loc_p][:, loc_p].toarray()
-                if p:
-                    KrP_t = K[g.loc][:, loc_p].toarray()
-                    Psi_t = g.factor.solve(KrP_t)
-                    S_t = KpP - KrP_t.T @ Psi_t
-                    idx = g.index[:, js]                                    # (n_r, n_js)
-                    for c in range(p):
-                        self.Psi[idx, c] = Psi_t[:, c][:, None]
-                else:
-                    S_t = KpP
-                sel = np.asarray(members)[js]
-                S_loc[sel, :p, :p] = sub.rho[sel][:, None, None] * S_t[None]
-                done[sel] = True
+                KrP_t = K[g.loc][:, loc_p].toarray() if loc_p.size else None
+                work.append((g, js, loc_p, KpP, KrP_t))
+        solved = iter(solve_many([(g.factor, KrP_t) for g, _, _, _, KrP_t in work if KrP_t is not None]))
+        for g, js, loc_p, KpP, KrP_t in work:
+            p = loc_p.size
+            if p:
+                Psi_t = next(solved)
+                S_t = KpP - KrP_t.T @ Psi_t
+                idx = g.index[:, js]                                    # (n_r, n_js)
+                for c in range(p):
+                    self.Psi[idx, c] = Psi_t[:, c][:, None]
+            else:
+                S_t = KpP
+            sel = np.asarray(g.members)[js]
+            S_loc[sel, :p, :p] = sub.rho[sel][:, None, None] * S_t[None]
+            done[sel] = True
         for s_ in np.flatnonzero(~done & (valid.sum(axis=1) > 0)):      # no r entries: S = A_PiPi
             loc_p = sub.local_index[self.table[s_][valid[s_]]]
             p = loc_p.size
@@ -662,30 +673,31 @@ class ExplicitInterfaceSolve(InterfaceSolve):
         solver, mask = self.solver, self.mask
         blocks = []
         coarse: list[CoarseBlock] | None = [] if solver.n_primal else None
+        work: list[tuple[_Group, list[int], np.ndarray]] = []
         for g in solver.rr.groups:
-            n_loc = g.index.shape[0]
             pattern = mask[g.index]                             # (n_loc, n_members)
             by_pattern: dict[bytes, list[int]] = {}
             for j in range(pattern.shape[1]):
                 by_pattern.setdefault(pattern[:, j].tobytes(), []).append(j)
             for members in by_pattern.values():
                 d = np.flatnonzero(pattern[:, members[0]])
-                if d.size == 0:
-                    continue
-                E = np.zeros((n_loc, d.size))
-                E[d, np.arange(d.size)] = 1.0
-                X = g.factor.solve(E)[d]
-                blocks.append((0.5 * (X + X.T), g.index[d][:, members], g.inv_rho[members]))
-                # Psi on D: shared by the members (same template, r set and primal set), with the
-                # coarse dof of each member's primal column (n_primal: none)
-                if coarse is not None:
-                    psi = solver.Psi[g.index[d][:, members]]               # (n_d, n_members, p_max)
-                    if np.array_equal(psi, np.broadcast_to(psi[:, :1], psi.shape)):
-                        cc = solver.coarse_cols[g.members[members]].T        # (p_max, n_members)
-                        coarse.append(CoarseBlock(np.ascontiguousarray(psi[:, 0]),
-                                                  np.where(cc >= 0, cc, solver.n_primal)))
-                    else:
-                        coarse = None
+                if d.size:
+                    work.append((g, members, d))
+        # unit columns on the interface entries D; one multi-column solve for all batched subdomains
+        rhs = [(g.factor, sp.csc_matrix((np.ones(d.size), (d, np.arange(d.size))),
+                                        shape=(g.index.shape[0], d.size)), d) for g, _, d in work]
+        for (g, members, d), X in zip(work, solve_many(rhs)):
+            blocks.append((0.5 * (X + X.T), g.index[d][:, members], g.inv_rho[members]))
+            # Psi on D: shared by the members (same template, r set and primal set), with the
+            # coarse dof of each member's primal column (n_primal: none)
+            if coarse is not None:
+                psi = solver.Psi[g.index[d][:, members]]               # (n_d, n_members, p_max)
+                if np.array_equal(psi, np.broadcast_to(psi[:, :1], psi.shape)):
+                    cc = solver.coarse_cols[g.members[members]].T        # (p_max, n_members)
+                    coarse.append(CoarseBlock(np.ascontiguousarray(psi[:, 0]),
+                                              np.where(cc >= 0, cc, solver.n_primal)))
+                else:
+                    coarse = None
         dense = DenseBlocks(blocks)
         if not solver.n_primal:
             return InterfaceBlocks(dense)

@@ -23,7 +23,7 @@ __all__ = ["rule_sets", "contact_precision_grids", "KINDS", "SCHEMAS", "ConfigEr
 #: Study kinds (config key ``kind``) and the schema each is validated against.
 SCHEMAS: dict[str, str] = {"grid": "config", "table_4": "config", "contact": "config", "bench": "bench",
                            "scaling": "scaling", "stress": "stress", "mpi": "mpi",
-                           "ngsolve": "ngsolve"}
+                           "ngsolve": "ngsolve", "unstructured": "unstructured"}
 #: The study kinds.
 KINDS: tuple[str, ...] = tuple(SCHEMAS)
 

@@ -23,6 +23,7 @@ REQUIRED_REPORTS = [
     "reports/table_5_6/table_5_1.md", "reports/table_5_6/table_6_1.md",
     "reports/table_5_6/figure_5_2_surface.png", "reports/table_5_6/figure_5_2_contact.png",
     "reports/bench/work_precision.png", "reports/scaling/scaling.png", "reports/stress/stress.md",
+    "reports/unstructured/unstructured.png", "reports/unstructured/unstructured.md",
 ]
 
 
@@ -47,7 +48,7 @@ def test_study_lists_validate(name):
     studies = load(name)
     validate(studies, schemas / "studies.schema.yaml")
     names = [entry["name"] for entry in studies["studies"]]
-    assert names == ["poisson", "table_4", "table_5_6", "bench", "scaling", "stress"]
+    assert names == ["poisson", "table_4", "table_5_6", "bench", "scaling", "stress", "unstructured"]
     for entry in studies["studies"]:
         config, kind = study_schema(entry)
         validate(config, schemas / f"{SCHEMAS[kind]}.schema.yaml")
@@ -72,6 +73,7 @@ def test_default_run_plans_every_report(workdir):
     counts = jobs(text)
     assert counts["poisson_solve_case"] == 36 and counts["table_4_solve_case"] == 92
     assert counts["table_5_6_solve_case"] == 50 and counts["scaling_scaling_case"] == 14
+    assert counts["unstructured_unstructured_case"] == 8     # refine 0..3 of each problem (not the 1M cases)
     assert counts["all"] == 1
     quick = jobs((lambda p: p.stdout + p.stderr)(snakemake(workdir, "-n", "--cores", "2", "--configfile",
                                                            "config/quick.yaml")))

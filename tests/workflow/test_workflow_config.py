@@ -38,7 +38,7 @@ def test_per_kind_methods():
         validate({**base, "problem": "poisson", "methods": ["hybrid"]}, SCHEMA_DIR / "config.schema.yaml")
 
 
-@pytest.mark.parametrize("name", ["poisson", "table_4", "table_5_6", "bench", "scaling", "stress"])
+@pytest.mark.parametrize("name", ["poisson", "table_4", "table_5_6", "bench", "scaling", "stress", "unstructured"])
 def test_every_config_names_its_kind(name):
     config = yaml.safe_load((ROOT / "config" / f"{name}.yaml").read_text())
     validate(config, SCHEMA_DIR / f"{SCHEMAS[config['kind']]}.schema.yaml")

@@ -210,6 +210,42 @@ import json
 NGSOLVE_KEYS = ("orders", "solvers", "dofs_per_part", "rtol", "maxiter", "parts_sweep")
 
 
+# --- kind unstructured (unstructured.smk) -----------------------------------------------------
+# One job per (problem, refinement), running every method of the problem (peers included) in one
+# process and taking all the cores given to Snakemake, so that jobs run one at a time.
+
+
+def unstructured_case_files(wildcards=None):
+    return [f"results/{STUDY}/{problem}/r{r}.csv"
+            for problem, series in config["problems"].items() for r in series["refine"]]
+
+
+def unstructured_case(wildcards):
+    """The parameters of one job (a params value: a changed parameter reruns the job)."""
+    from ddstudies.bench.unstructured import case_methods, parts_for
+
+    series = config["problems"][wildcards.problem]
+    refine = int(wildcards.refine)
+    try:
+        parts = parts_for(series["refine"], series["parts"])[refine]
+    except (ValueError, KeyError) as err:
+        raise WorkflowError(f"invalid config: problems: {wildcards.problem}: {err}") from None
+    contact = wildcards.problem == "contact"
+    return {"problem": wildcards.problem, "maxh": float(series["maxh"]), "refine": refine, "parts": parts,
+            "methods": case_methods(series["methods"], refine, series.get("max_refine")),
+            "rtol": float(config.get("contact_rtol", 1e-5) if contact else config.get("rtol", 1e-8)),
+            "maxiter": int(config.get("maxiter", 1000)), "cond": bool(config.get("cond", True)),
+            "direct": config.get("direct", "mkl-pardiso"), "direct_threads": int(config.get("direct_threads", 1)),
+            "seed": int(config.get("seed", 0))}
+
+
+if KIND == "unstructured":
+    for _problem, _series in config["problems"].items():
+        if not isinstance(_series["parts"], int) and len(_series["parts"]) != len(_series["refine"]):
+            raise WorkflowError(f"invalid config: problems: {_problem}: parts: {len(_series['parts'])} values for "
+                                f"{len(_series['refine'])} refinements")
+
+
 # --- kind stress (stress.smk) ---------------------------------------------------------------
 # The cases are the catalog of ddstudies.stress (tier `tier`); each series job gets its
 # cases in `params`, so a changed case reruns its series. Case names are unique.
@@ -261,4 +297,6 @@ def targets():
         return [f"reports/{STUDY}/{name}" for name in ("scaling.png", "scaling.csv", "scaling.md", "profile.txt")]
     if KIND == "ngsolve":
         return [f"reports/{STUDY}/ngsolve.md", f"reports/{STUDY}/ngsolve.png", f"results/{STUDY}/ngsolve.csv"]
+    if KIND == "unstructured":
+        return [f"reports/{STUDY}/{name}" for name in ("unstructured.png", "unstructured.csv", "unstructured.md")]
     return [f"reports/{STUDY}/stress.md", f"results/{STUDY}/stress.csv"]

@@ -7,6 +7,7 @@
 #   stress   the numerical stability stress study (config/stress.yaml)
 #   mpi      distributed solves with P MPI ranks (config/mpi.yaml; not in the reproduction)
 #   ngsolve  DDInverse against NGSolve's solvers (config/ngsolve.yaml)
+#   unstructured  DD against direct solvers on METIS-partitioned P1 meshes (config/unstructured.yaml)
 # Its targets (rule all) are `targets()` of common.smk.
 KIND = validate_study(config)
 
@@ -45,6 +46,9 @@ elif KIND == "mpi":
 elif KIND == "ngsolve":
 
     include: "ngsolve.smk"
+elif KIND == "unstructured":
+
+    include: "unstructured.smk"
 
 else:
 

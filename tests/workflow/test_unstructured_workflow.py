@@ -1,0 +1,77 @@
+"""The unstructured study (kind unstructured): schema, dry run, and a tiny run end to end."""
+from __future__ import annotations
+
+import re
+
+import pandas as pd
+import pytest
+import yaml
+from conftest import ROOT, copy_workflow
+from conftest import run_snakemake as snakemake
+
+from ddstudies.workflow import ConfigError, validate
+
+pytest.importorskip("snakemake")
+
+SCHEMA = ROOT / "workflows" / "schemas" / "unstructured.schema.yaml"
+
+
+def config() -> dict:
+    return yaml.safe_load((ROOT / "config" / "unstructured.yaml").read_text())
+
+
+def test_config_reaches_a_million_dofs_and_a_thousand_subdomains():
+    cfg = validate(config(), SCHEMA)
+    poisson = cfg["problems"]["poisson"]
+    assert max(poisson["refine"]) == 4 and max(poisson["parts"]) >= 1000 and poisson["maxh"] <= 0.017
+    assert cfg["problems"]["contact"]["max_refine"] == {"smalbe": 2}
+
+
+@pytest.mark.parametrize("change, where", [
+    ({"problems": {"poisson": {"maxh": 0.1, "refine": [0], "parts": 4, "methods": ["cg"]}}}, "methods/0"),
+    ({"problems": {"heat": {"maxh": 0.1, "refine": [0], "parts": 4, "methods": ["fetidp"]}}}, "heat"),
+    ({"extra": 1}, "extra"),
+])
+def test_schema_rejects(change, where):
+    with pytest.raises(ConfigError, match=where):
+        validate({**config(), **change}, SCHEMA)
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    return copy_workflow(tmp_path_factory.mktemp("unstructured"))
+
+
+def test_dry_run_plans_one_job_per_problem_and_refinement(workdir):
+    proc = snakemake(workdir, "-n", "--cores", "2", "--configfile", "config/unstructured.yaml")
+    counts = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)\s*$", proc.stdout + proc.stderr,
+                                                      flags=re.MULTILINE)}
+    assert counts["unstructured_case"] == 10 and counts["unstructured_summary"] == 1
+    assert counts["unstructured_plot"] == 1
+
+
+def test_mismatched_parts_are_refused(workdir):
+    (workdir / "bad.yaml").write_text("problems: {poisson: {maxh: 0.1, refine: [0, 1], parts: [4], "
+                                      "methods: [fetidp]}}\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/unstructured.yaml", "bad.yaml",
+                     check=False)
+    assert proc.returncode != 0 and "parts: 1 values for 2 refinements" in proc.stdout + proc.stderr
+
+
+@pytest.mark.slow
+def test_tiny_study_runs(workdir):
+    (workdir / "tiny.yaml").write_text(yaml.safe_dump({
+        "kind": "unstructured", "study": "tiny_unstructured",
+        "problems": {"poisson": {"maxh": 0.2, "refine": [0, 1], "parts": [2, 4],
+                                 "methods": ["fetidp", "bddc", "superlu", "pyamg"]},
+                     "contact": {"maxh": 0.25, "refine": [0], "parts": 2, "methods": ["active-set", "pdas"]}},
+        "direct": "superlu", "targets": {"poisson_max_ratio": 0.5, "max_exponent": 1.1}}))
+    snakemake(workdir, "--cores", "1", "--configfile", "tiny.yaml")
+    table = pd.read_csv(workdir / "reports" / "tiny_unstructured" / "unstructured.csv")
+    assert set(table["method"]) == {"fetidp", "bddc", "superlu", "pyamg", "active-set", "pdas"}
+    assert table["converged"].all()
+    ref = table[table["method"] == table["reference"]]
+    assert (ref["ratio"] == 1.0).all()
+    text = (workdir / "reports" / "tiny_unstructured" / "unstructured.md").read_text()
+    assert "## Targets" in text and "poisson fetidp" in text
+    assert (workdir / "reports" / "tiny_unstructured" / "unstructured.png").stat().st_size > 0

@@ -1,0 +1,22 @@
+"""Snakemake script of rule unstructured_summary: job CSVs -> summary.csv, unstructured.csv (table) and
+unstructured.md (table, exponent fits, targets). params.targets: see
+ddstudies.bench.unstructured.unstructured_summary."""
+
+from ddsolve.io.joblog import job_log  # noqa: E402
+
+with job_log(snakemake.log[0]) as log:  # noqa: F821
+    from pathlib import Path
+
+    import pandas as pd
+
+    from ddstudies.aggregate import write_table
+    from ddstudies.bench.unstructured import summary_markdown, unstructured_summary
+
+    sm = snakemake  # noqa: F821
+    df = pd.concat([pd.read_csv(path) for path in sm.input], ignore_index=True)
+    write_table(df, sm.output.summary)
+    summary = unstructured_summary(df, dict(sm.params.targets))
+    write_table(summary["table"], sm.output.table)
+    text = summary_markdown(summary)
+    Path(sm.output.markdown).write_text(text)
+    print(text, flush=True)
