@@ -13,6 +13,13 @@ from .problem import ContactProblem
 if TYPE_CHECKING:  # pragma: no cover
     from ..prepared import Prepared
 
+#: The active set method's result is accepted only if its KKT residual (5.5) is at most
+#: max(KKT_ACCEPT_FACTOR rtol, KKT_ACCEPT_FLOOR): its stopping rules bound the face-solve
+#: residuals, not the KKT conditions, and under extreme coefficients the l2 rule of the face
+#: solves can stop with unresolved displacements (SMALBE and the direct method check their own).
+KKT_ACCEPT_FACTOR = 100.0
+KKT_ACCEPT_FLOOR = 1e-8
+
 #: SMALBE diagnostics copied into the result (when the solver reports them).
 SMALBE_KEYS = ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty", "rho_bar", "force_error",
                "polish", "polish_iterations", "acceptance")
@@ -88,8 +95,15 @@ def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: Conta
     unpolished = "lambda_unpolished" in sol.extra
     if unpolished:
         extra["kkt_residual_unpolished"] = problem.kkt(sol.extra["u_unpolished"], sol.extra["lambda_unpolished"]).max
+    converged, reason = bool(sol.converged), sol.reason
+    if spec.method == "active-set" and converged:
+        limit = max(KKT_ACCEPT_FACTOR * float(spec.rtol), KKT_ACCEPT_FLOOR)
+        if not kkt.max <= limit:   # also catches NaN
+            converged = False
+            reason = (f"not accepted: {reason.removeprefix('converged: ')}, but the KKT residual "
+                      f"{kkt.max:.1e} > {limit:.1e} = max({KKT_ACCEPT_FACTOR:g} rtol, {KKT_ACCEPT_FLOOR:g})")
     fields: dict[str, Any] = dict(
-        u=sol.u, converged=bool(sol.converged), reason=sol.reason, iterations=sol.total_iterations,
+        u=sol.u, converged=converged, reason=reason, iterations=sol.total_iterations,
         nlambda=int(sol.extra.get("nlambda", problem.n_contact)), n_factorizations=int(sol.n_factorizations),
         setup_seconds=setup, solve_seconds=max(sol.seconds - setup, 0.0), extra=extra)
     if spec.check:
