@@ -13,6 +13,10 @@ report: "workflows/report/workflow.rst"
 include: "workflows/rules/validate.smk"
 
 
+# Integrity of results (docs/studies.md): result files are quick-checked before planning
+# (a truncated one is moved aside and recomputed) and validated when aggregated.
+
+
 if "kind" in config or "study" in config:  # one study (workflows/rules/study.smk)
     config.pop("studies", None)  # inherited from config/default.yaml by --configfile
 
@@ -21,6 +25,12 @@ if "kind" in config or "study" in config:  # one study (workflows/rules/study.sm
 else:  # the `studies` list (workflows/rules/reproduce.smk)
 
     include: "workflows/rules/reproduce.smk"
+
+
+onstart:
+    # temporary files of writers killed in an earlier run (the working directory is locked now)
+    for path in studies_workflow.remove_stale_tmp("results"):
+        print(f"removed stale temporary file {path}", file=sys.stderr)
 
 
 rule all:
