@@ -13,8 +13,11 @@ report: "workflows/report/workflow.rst"
 include: "workflows/rules/validate.smk"
 
 
-# Integrity of results (docs/studies.md): result files are quick-checked before planning
-# (a truncated one is moved aside and recomputed) and validated when aggregated.
+# Integrity of results (docs/studies.md, "Integrity of results"): the lock of a killed run is
+# released; result files are checked before planning (a corrupt one is moved aside and
+# recomputed) and validated when aggregated.
+if MAIN_PROCESS:
+    studies_workflow.release_stale_lock(log=lambda line: print(line, file=sys.stderr))
 
 
 if "kind" in config or "study" in config:  # one study (workflows/rules/study.smk)
@@ -28,7 +31,8 @@ else:  # the `studies` list (workflows/rules/reproduce.smk)
 
 
 onstart:
-    # temporary files of writers killed in an earlier run (the working directory is locked now)
+    # the working directory is locked now: record by whom, remove the temporary files of killed writers
+    studies_workflow.record_lock_owner()
     for path in studies_workflow.remove_stale_tmp("results"):
         print(f"removed stale temporary file {path}", file=sys.stderr)
 

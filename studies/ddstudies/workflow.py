@@ -19,7 +19,8 @@ from ddsolve import options
 
 __all__ = ["KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate", "unique_labels", "bench_tol_label",
            "bench_rtols", "check_finite", "check_cases", "case_mem_mb", "case_runtime", "machine_memory", "check_results",
-           "quarantine", "remove_stale_tmp", "sha256", "write_manifest", "read_manifest"]
+           "quarantine", "remove_stale_tmp", "release_complete", "record_lock_owner",
+           "release_stale_lock", "sha256", "write_manifest", "read_manifest"]
 
 #: Study kinds (config key ``kind``) and the schema each is validated against.
 SCHEMAS: dict[str, str] = {"grid": "config", "table_4": "config", "contact": "config", "bench": "bench",
@@ -394,6 +395,103 @@ def check_results(paths: Iterable[str | os.PathLike], summary: str | os.PathLike
                     f"{', ...' if len(rewritten) > 1 else ''})")
             log(f"ddsolve: {what}: removed it and the reports made from it; all are rebuilt")
     return removed
+
+
+def release_complete(paths: Iterable[str | os.PathLike], snakemake_dir: str | os.PathLike = ".snakemake",
+                     log=None) -> list[str]:
+    """Clear Snakemake's "incomplete" marks of results that are complete; the paths released.
+
+    Snakemake marks a job's outputs incomplete when the job starts and clears the
+    mark when it has recorded the job as finished; a run killed in between leaves a
+    finished file marked, and the next run refuses to start (or, with
+    ``--rerun-incomplete``, recomputes it). Our result files are written
+    atomically (:func:`ddsolve.io.hdf5.atomic_target`), so a file under its final
+    name is complete: a marked file that reads whole
+    (:func:`ddsolve.io.hdf5.validate_result`) is kept and its mark cleared; a
+    marked file that does not is moved aside (``<path>.corrupt``) and recomputed;
+    a marked path with no file is only unmarked (its job runs again anyway).
+    The marks are the files ``<snakemake_dir>/incomplete/<urlsafe base64 of the
+    path>`` of Snakemake's file persistence backend (Snakemake 8, 9).
+    """
+    from base64 import urlsafe_b64encode
+
+    folder = os.path.join(snakemake_dir, "incomplete")
+    if not os.path.isdir(folder):
+        return []
+    released = []
+    for path in paths:
+        key = urlsafe_b64encode(os.fspath(path).encode()).decode()
+        mark = os.path.join(folder, key)
+        if len(key) >= 255 or not os.path.isfile(mark):
+            continue
+        if os.path.exists(path):
+            from ddsolve.io.hdf5 import ResultFileError, validate_result
+
+            try:
+                validate_result(path)
+                released.append(os.fspath(path))
+                if log is not None:
+                    log(f"ddsolve: {os.fspath(path)} was marked incomplete by an interrupted run; it is complete "
+                        f"(written atomically, reads whole): kept")
+            except ResultFileError as err:
+                target = quarantine(path, err.what)
+                if log is not None:
+                    log(f"ddsolve: corrupt result {os.fspath(path)} ({err.what}): moved to {target}; "
+                        f"it is recomputed")
+        os.unlink(mark)
+    return released
+
+
+#: The file (under .snakemake/) naming the host and process of the run that holds the lock.
+OWNER_FILE = "ddsolve-lock-owner"
+
+
+def record_lock_owner(snakemake_dir: str | os.PathLike = ".snakemake") -> None:
+    """Write ``<host> <pid>`` of this (locked, running) Snakemake process; called from ``onstart``."""
+    import socket
+
+    os.makedirs(snakemake_dir, exist_ok=True)
+    with open(os.path.join(snakemake_dir, OWNER_FILE), "w") as stream:
+        stream.write(f"{socket.gethostname()} {os.getpid()}\n")
+
+
+def release_stale_lock(snakemake_dir: str | os.PathLike = ".snakemake", log=None) -> bool:
+    """Remove the locks that a killed run on this host left (its process is gone); True if removed.
+
+    Snakemake locks the working directory while it runs and never unlocks it when
+    killed (SIGKILL, a power loss): the next run stops until ``--unlock``. The
+    owner recorded by :func:`record_lock_owner` says which process held the lock;
+    only when it ran on this host and no longer exists are the locks removed.
+    """
+    import socket
+
+    locks = os.path.join(snakemake_dir, "locks")
+    owner = os.path.join(snakemake_dir, OWNER_FILE)
+    try:
+        names = [name for name in os.listdir(locks) if name.endswith(".lock")]
+        with open(owner) as stream:
+            host, pid = stream.read().split()
+        pid = int(pid)
+    except (OSError, ValueError):
+        return False
+    if not names or host != socket.gethostname():
+        return False
+    try:
+        os.kill(pid, 0)
+        return False              # alive (or not ours to signal): the lock may be real
+    except ProcessLookupError:
+        pass
+    except PermissionError:
+        return False
+    for name in names:
+        try:
+            os.unlink(os.path.join(locks, name))
+        except FileNotFoundError:
+            pass
+    os.unlink(owner)
+    if log is not None:
+        log(f"ddsolve: removed the lock of a killed run (process {pid} on {host} is gone)")
+    return True
 
 
 def remove_stale_tmp(root: str | os.PathLike = "results") -> list[str]:

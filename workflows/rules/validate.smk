@@ -7,6 +7,18 @@ import sys
 from ddstudies import workflow as studies_workflow
 
 
+def _main_process():
+    """True in the Snakemake process that plans the run (not in a cluster job re-reading the workflow)."""
+    try:
+        return bool(workflow.is_main_process)
+    except Exception:  # an older Snakemake or settings not set: the plain run
+        return True
+
+
+#: Integrity actions (locks, incomplete marks, moving corrupt results aside) happen only here.
+MAIN_PROCESS = _main_process()
+
+
 def schema_path(schema):
     return os.path.join(workflow.basedir, "workflows", "schemas", f"{schema}.schema.yaml")
 
@@ -49,8 +61,13 @@ def checked_cases(cases):
 
 
 def check_result_files(paths, summary=None, consumers=(), manifest=None):
-    """Move truncated / non-HDF5 result files aside (<file>.corrupt); if a result the summary was built
-    from is missing, remove the summary and its consumers, so that this run rebuilds them and the result
-    (ddstudies.workflow.check_results)."""
+    """Before planning: clear the "incomplete" marks that an interrupted run left on complete results
+    (ddstudies.workflow.release_complete); move truncated / non-HDF5 results aside (<file>.corrupt); if
+    a result the summary was built from is missing, remove the summary and its consumers, so that this
+    run rebuilds them and the result (ddstudies.workflow.check_results)."""
+    if not MAIN_PROCESS:
+        return
+    paths = list(paths)
+    studies_workflow.release_complete(paths, log=lambda line: print(line, file=sys.stderr))
     studies_workflow.check_results(paths, summary, consumers, manifest=manifest,
                                    log=lambda line: print(line, file=sys.stderr))
