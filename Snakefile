@@ -41,3 +41,4 @@ rule all:
     input:
         targets(),
     default_target: True
+    localrule: True
