@@ -17,9 +17,9 @@ __version__ = "0.1.0"
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 
-def solve(spec):  # noqa: D103 - documented in ddsolve.api.solve
+def solve(spec, *, max_memory=None):  # noqa: D103 - documented in ddsolve.api.solve
     from .api import solve as _solve
-    return _solve(spec)
+    return _solve(spec, max_memory=max_memory)
 
 
 def prepare(spec, scene=None):  # noqa: D103 - documented in ddsolve.prepared.prepare

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import math
+import resource
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -19,6 +20,7 @@ from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
 from .krylov import TRUE_RESIDUAL_FACTOR, attained  # noqa: F401  (TRUE_RESIDUAL_FACTOR re-exported)
+from .limits import check_resources
 from .options import METHODS
 from .prepared import Prepared, check_decomposition, prepare, scene_from_spec  # noqa: F401  (re-exported)
 from .result import SolveResult
@@ -103,44 +105,51 @@ Runner = Callable[[Prepared], Any]
 
 def _poisson_runner(method: Callable[..., MethodOutput]) -> Runner:
     def run(prep: Prepared) -> MethodRun:
+        from .presets import solver_options
         spec = prep.spec
-        out = method(prep.sub, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
-        return MethodRun(out, reference=lambda: solve_direct(prep.sub))
+        options = solver_options(spec.preset, spec.problem, spec.method)
+        out = method(prep.sub, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond, **options)
+        return MethodRun(out, reference=lambda: solve_direct(prep.sub), extra={"preset": spec.preset})
     return run
 
 
 def _poisson_direct(prep: Prepared) -> MethodRun:
     out = solve_direct(prep.sub)
-    return MethodRun(out, reference=lambda: out)
+    return MethodRun(out, reference=lambda: out, extra={"preset": prep.spec.preset})
 
 
 def _multibody_runner(method: str) -> Runner:
     def run(prep: Prepared) -> MethodRun:
         from .multibody import GlobalInterface
         from .multibody.direct import solve_constrained_direct
+        from .presets import solver_options
 
         spec, sub = prep.spec, prep.sub
         gi = GlobalInterface(sub)
         active = gi.contact_mask(spec.contact)
         reference = lambda: solve_constrained_direct(sub, gi, active)   # noqa: E731
+        extra = {"n_active": int(active.sum()), "preset": spec.preset}
+        options = solver_options(spec.preset, spec.problem, method)
         if method == "direct":
             out = reference()
-            return MethodRun(out, reference=lambda: out, extra={"n_active": int(active.sum())})
+            return MethodRun(out, reference=lambda: out, extra=extra)
         if method == "feti-feti":
             from .multibody.fetifeti import FetiFetiSolver
-            out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond)
+            out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
+                                                **options)
         else:  # hybrid: PCR has no Lanczos estimate, so cond stays None
             from .multibody.hybrid import HybridSolver
             out = HybridSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
-                                              norm=spec.norm, projection=spec.projection)
-        return MethodRun(out, reference=reference, extra={"n_active": int(active.sum())})
+                                              norm=spec.norm, projection=spec.projection, **options)
+        return MethodRun(out, reference=reference, extra=extra)
     return run
 
 
 def _contact_runner(method: str) -> Runner:
     def run(prep: Prepared):
         from .contact.run import run_contact
-        return run_contact(method, prep)
+        from .presets import solver_options
+        return run_contact(method, prep, **solver_options(prep.spec.preset, "contact", method))
     return run
 
 
@@ -153,13 +162,16 @@ SOLVERS: dict[str, dict[str, Runner]] = {
 }
 
 
-def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
+def solve(spec: ProblemSpec | dict[str, Any], *, max_memory: int | float | str | None = None) -> SolveResult:
     """Build, assemble and solve the problem described by ``spec``.
 
     Parameters
     ----------
     spec : ProblemSpec or dict
         A dict is validated with :meth:`ProblemSpec.from_mapping`.
+    max_memory : int, float or str, optional
+        Memory limit for the size check (bytes, or a size such as ``"8G"``);
+        default: 90 % of the available memory (:func:`ddsolve.limits.check_resources`).
 
     Returns
     -------
@@ -170,10 +182,12 @@ def solve(spec: ProblemSpec | dict[str, Any]) -> SolveResult:
     Raises
     ------
     InputError
-        Invalid specification.
+        Invalid specification, or a problem whose estimated memory or set-up
+        time exceeds the limits (refused before anything is allocated).
     """
     if not isinstance(spec, ProblemSpec):
         spec = ProblemSpec.from_mapping(spec)
+    check_resources(spec, max_memory=max_memory)
     # Subdomain blocks are small: multithreaded BLAS only adds contention
     # (measured 100x slower multi-RHS solves on a loaded 2-core machine).
     with threadpool_limits(limits=1, user_api="blas"):
@@ -184,20 +198,61 @@ def _scalar_extras(extra: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in extra.items() if isinstance(v, (bool, int, float, str, np.number, np.bool_))}
 
 
+# --- mesh report and output (unstructured scenes, timings, --output) --------------------------
+def _sizes(spec: ProblemSpec) -> dict[str, int]:
+    """The ``subdomains`` and ``elements`` of the result: the spec's, or (parts, 0) for unstructured meshes."""
+    if spec.mesh == "unstructured":
+        return {"subdomains": spec.parts, "elements": 0}
+    return {"subdomains": spec.subdomains, "elements": spec.elements}
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far (MiB; ``ru_maxrss`` is in KiB on Linux)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _mesh_report(spec: ProblemSpec, prep: Prepared, setup_seconds: float, solve_seconds: float) -> dict[str, Any]:
+    """``timings`` (seconds: mesh, partition, assembly, setup, solve), ``peak_rss_mb``, ``n_primal``,
+    ``mesh`` and ``parts`` (METIS parts per body; subdomains per body, subdomains^2, when structured)."""
+    scene_seconds = prep.timings.get("scene", 0.0)
+    assembly = prep.timings.get("assembly", 0.0)
+    timings = {"mesh": float(prep.scene_timings.get("mesh", scene_seconds)),
+               "partition": float(prep.scene_timings.get("partition", 0.0)),
+               "assembly": float(assembly),
+               "setup": float(max(setup_seconds - scene_seconds - assembly, 0.0)),
+               "solve": float(solve_seconds)}
+    parts = spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2
+    return {"timings": timings, "peak_rss_mb": peak_rss_mb(), "n_primal": int(prep.sub.n_primal),
+            "mesh": spec.mesh, "parts": int(parts)}
+
+
+def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: np.ndarray | None = None) -> None:
+    """Write ``spec.output`` (a .vtu file for ParaView, :mod:`ddsolve.io.vtk`) if it is set."""
+    if not spec.output or u is None:
+        return
+    from .io.vtk import solution_fields, write_vtu
+    nodal, cellwise = solution_fields(prep, u, lam)
+    write_vtu(spec.output, prep.scene, nodal, cellwise)
+    log.info("wrote %s", spec.output)
+# --- end of the mesh report block ----------------------------------------------------------------
+
+
 def _solve(spec: ProblemSpec) -> SolveResult:
     prep = prepare(spec)
     t1 = time.perf_counter()
     run = SOLVERS[spec.problem][spec.method](prep)
     t_total = time.perf_counter() - t1
-    identity = dict(problem=spec.problem, method=spec.method, bodies=spec.bodies, subdomains=spec.subdomains,
-                    elements=spec.elements, ndof=prep.sub.ndof)
+    identity = dict(problem=spec.problem, method=spec.method, bodies=spec.bodies, **_sizes(spec),
+                    ndof=prep.sub.ndof)
     if spec.problem == "contact":
         from .contact.run import contact_result_fields
         fields = contact_result_fields(spec, prep.contact, run)
         fields["setup_seconds"] += prep.seconds
         fields["extra"]["n_templates"] = prep.local.n_templates
+        fields["extra"].update(_mesh_report(spec, prep, fields["setup_seconds"], fields["solve_seconds"]))
         result = SolveResult(**identity, **fields)
         log.info("contact %s: %s", spec.method, result.reason)
+        _write_output(spec, prep, result.u, run.lam)
         return result
 
     out = run.output
@@ -225,6 +280,8 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         fields["error_vs_direct"] = error
         if why:
             extra["check_reason"] = why
+    extra.update(_mesh_report(spec, prep, fields["setup_seconds"], fields["solve_seconds"]))
     result = SolveResult(**identity, **fields, extra=extra)
     log.info("%s %s: %s", spec.problem, spec.method, result.reason)
+    _write_output(spec, prep, result.u)
     return result

@@ -25,7 +25,8 @@ _EPILOG = ("A flag left at its default is always accepted; a non-default value f
            "problem or method does not use is an error (e.g. --contact middle outside multibody, "
            "--rho body-checkerboard:V for poisson, --cond with direct or contact methods, --check, --rtol, "
            "--maxiter, --scaling or --gamma with --method direct, --gamma with --scaling multiplicity, "
-           "--norm/--projection outside hybrid). Scene files: a regular UTF-8 file of at most 1 MiB. "
+           "--norm/--projection outside hybrid, --parts/--maxh/--refine/--geometry with --mesh structured, "
+           "--subdomains/--elements with --mesh unstructured). Scene files: a regular UTF-8 file of at most 1 MiB. "
            "Problems whose estimated memory exceeds the available memory (or --max-memory) are refused "
            "before anything is built.")
 
@@ -67,6 +68,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="compute the Lanczos condition estimate (feti, fetidp, bddc, feti-feti; hybrid reports none)")
     s.add_argument("--check", action="store_const", const=True,
                    help="also solve directly and report the error (iterative methods)")
+    s.add_argument("--preset", help="rule set: default (the project's improved rules) or thesis (the thesis's "
+                                    "rules as printed: FETI/FETI-FETI orthogonal projection, active set and "
+                                    "SMALBE stopping, start and removal rules; docs/methods.md)")
+    # unstructured meshes and output (ddsolve.scene.unstructured, ddsolve.io.vtk)
+    s.add_argument("--mesh", help="structured (default: Q1 squares sized by --subdomains/--elements) or "
+                                  "unstructured (netgen P1 triangles, METIS parts)")
+    s.add_argument("--geometry", help="unstructured: poisson square (default), lshape or hole; multibody square; "
+                                      "contact membranes")
+    s.add_argument("--maxh", help="unstructured: netgen's largest element size (default 0.1)")
+    s.add_argument("--refine", help="unstructured: uniform refinements after meshing (default 0)")
+    s.add_argument("--parts", help="unstructured: METIS subdomains per body (default 4)")
+    s.add_argument("--mesh-file", dest="mesh_file", help="unstructured: a 2-D netgen mesh (.vol) whose "
+                                                         "materials are the bodies")
+    s.add_argument("--dirichlet", help="mesh file: comma-separated boundary names with u = 0 "
+                                       "(default: the whole outer boundary)")
+    s.add_argument("--contact-boundary", dest="contact_boundary",
+                   help="mesh file, contact: name of the contact interface (default 'contact')")
+    s.add_argument("--bodies-materials", dest="bodies_materials",
+                   help="mesh file: comma-separated material names in body order (default: all, in mesh order)")
+    s.add_argument("--primal", help="FETI-DP/BDDC primal constraints: vertices (default; edge averages are "
+                                    "not available yet)")
+    s.add_argument("--output", help="write the solution, subdomain ids and contact multipliers/gap to a "
+                                    ".vtu file for ParaView")
     s.add_argument("--max-memory", dest="max_memory",
                    help="memory limit for the size check, e.g. 500M or 16G (default: 90%% of the available memory)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
@@ -154,6 +178,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         max_memory = None if args.max_memory is None else parse_size(args.max_memory, "max-memory")
         spec = _spec_from_args(args)
         check_resources(spec, max_memory=max_memory)   # before NGSolve is imported or anything is built
+        # --- distributed solve under mpiexec (docs/parallel.md): launcher env vars, no mpi4py import otherwise
+        import os
+        if any(name in os.environ for name in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")):
+            from .parallel.run import METHODS as MPI_METHODS, check_supported, main as mpi_main, mpi_world_size
+            size = mpi_world_size() or 1
+            if size > 1 or (spec.problem == "poisson" and spec.method in MPI_METHODS):
+                check_supported(spec, size)
+                return mpi_main(spec, args.json, _human)
+        # --- end of the distributed block
         from .api import solve
         result = solve(spec)
     except InputError as exc:

@@ -43,6 +43,21 @@ one BLAS thread; measured / estimated MB)::
 so the estimate is within about -5 % / +40 % of the peak: a problem is
 refused only when it would need clearly more than the machine has.
 
+Unstructured meshes (``mesh: unstructured``) are estimated before netgen runs:
+triangles ``T ~ TRIANGLES_PER_AREA * area / maxh^2 * 4^refine`` (area of the
+geometry: :data:`GEOMETRY_AREA`; a mesh file: its size in bytes over
+:data:`MESH_FILE_BYTES_PER_TRIANGLE`), nodes ``~ T / 2``, subdomains
+``parts x bodies``, and :data:`BYTES_PER_UNSTRUCTURED_NODE` per node (netgen and
+NGSolve meshes, the broken assembly, W, the batched sparse local factors; no
+dense blocks: unstructured subdomains are factored as one sparse block
+diagonal). Calibration (peak RSS by ``/usr/bin/time -v``, poisson fetidp on the
+square; measured / estimated MiB)::
+
+    maxh 0.02            parts 16   ndof 2798     169 / 170
+    maxh 0.02  refine 2  parts 16   ndof 45953    285 / 294
+    maxh 0.01  refine 2  parts 64   ndof 184497   664 / 689
+    maxh 0.01  refine 2  parts 256  ndof 184497   578 / 689
+
 Work: set-up loops over subdomains in Python (scene, assembly, local
 factorization groups): :data:`SECONDS_PER_SUBDOMAIN` each, plus
 :data:`SECONDS_PER_W_DOF` for the vectorised work; the estimate is of set-up
@@ -74,6 +89,14 @@ SECONDS_PER_SUBDOMAIN = 2e-4
 SECONDS_PER_W_DOF = 2e-6
 #: Longest estimated set-up refused without an explicit larger ``max_seconds``.
 MAX_SETUP_SECONDS = 3600.0
+#: Triangles of a netgen mesh per unit area at maxh = 1 (T ~ 2.3 area / maxh^2, measured on the square).
+TRIANGLES_PER_AREA = 2.3
+#: Area of each built-in unstructured geometry (ddsolve.options.GEOMETRIES).
+GEOMETRY_AREA = {"square": 1.0, "lshape": 0.75, "hole": 1.0 - math.pi / 16.0, "membranes": 2.0}
+#: Bytes of a netgen .vol file per triangle (points and elements as text), for mesh files.
+MESH_FILE_BYTES_PER_TRIANGLE = 60.0
+#: Peak bytes per node of an unstructured solve (meshes, assembly, W, batched sparse local factors).
+BYTES_PER_UNSTRUCTURED_NODE = 3000.0
 #: Share of the available memory a solve may plan to use.
 MEMORY_FRACTION = 0.9
 
@@ -101,6 +124,8 @@ class Estimate:
 
 def estimate(spec: "ProblemSpec") -> Estimate:
     """The :class:`Estimate` of ``spec`` (see the module docstring for the model)."""
+    if getattr(spec, "mesh", "structured") == "unstructured":
+        return _estimate_unstructured(spec)
     B, S, E = int(spec.bodies), int(spec.subdomains), int(spec.elements)
     if spec.problem == "contact":
         n_sub, ndof, kinds = 2 * S * S, 2 * (S * E + 1) ** 2, 2
@@ -115,6 +140,34 @@ def estimate(spec: "ProblemSpec") -> Estimate:
         memory += BYTES_PER_DIRECT_DOF * ndof
     seconds = SECONDS_PER_SUBDOMAIN * n_sub + SECONDS_PER_W_DOF * n_w
     return Estimate(n_subdomains=n_sub, n_w=n_w, ndof=ndof, memory_bytes=float(memory), setup_seconds=seconds)
+
+
+def unstructured_triangles(spec: "ProblemSpec") -> float:
+    """Estimated triangles of an unstructured spec: 2.3 area / maxh^2 * 4^refine (mesh file: from its size)."""
+    if spec.mesh_file:
+        try:
+            size = os.stat(spec.mesh_file).st_size
+        except OSError:
+            size = 0
+        base = size / MESH_FILE_BYTES_PER_TRIANGLE
+        if spec.mesh_file.endswith(".gz"):
+            base *= 5.0                       # text compresses about 5:1
+    else:
+        base = TRIANGLES_PER_AREA * GEOMETRY_AREA.get(spec.geometry, 1.0) / float(spec.maxh) ** 2
+    return base * 4.0 ** int(spec.refine)
+
+
+def _estimate_unstructured(spec: "ProblemSpec") -> Estimate:
+    triangles = unstructured_triangles(spec)
+    nodes = 0.5 * triangles + 1.0
+    bodies = 2 if spec.problem == "contact" else (int(spec.bodies) ** 2 if not spec.mesh_file else 1)
+    n_sub = int(spec.parts) * bodies
+    memory = BASE_BYTES + BYTES_PER_UNSTRUCTURED_NODE * nodes
+    if spec.method == "direct":
+        memory += BYTES_PER_DIRECT_DOF * nodes
+    seconds = SECONDS_PER_SUBDOMAIN * n_sub + SECONDS_PER_W_DOF * nodes
+    return Estimate(n_subdomains=n_sub, n_w=int(min(nodes, 1e18)), ndof=int(min(nodes, 1e18)),
+                    memory_bytes=float(memory), setup_seconds=seconds)
 
 
 def estimate_memory(spec: "ProblemSpec") -> float:
@@ -205,6 +258,10 @@ def _human(nbytes: float) -> str:
 
 
 def _largest_field(spec: "ProblemSpec") -> str:
+    if getattr(spec, "mesh", "structured") == "unstructured":
+        if spec.mesh_file:
+            return "refine" if spec.refine else "mesh_file"
+        return "maxh" if spec.refine == 0 else "refine"
     sizes = {"elements": spec.elements, "subdomains": spec.subdomains, "bodies": spec.bodies}
     return max(sizes, key=lambda k: sizes[k])
 

@@ -28,8 +28,19 @@ NORMS: tuple[str, ...] = ("l2", "M")
 PROJECTIONS: tuple[str, ...] = ("orthogonal", "dirichlet", "lumped")
 #: Methods that take ``norm`` and ``projection`` other than the defaults.
 PCR_METHODS: tuple[str, ...] = ("hybrid",)
+#: Rule sets (:mod:`ddsolve.presets`): ``"default"`` (the project's improved rules) or ``"thesis"``
+#: (the thesis's rules as printed, wherever the defaults differ; docs/methods.md, "The thesis preset").
+PRESETS: tuple[str, ...] = ("default", "thesis")
+#: Meshes: the structured Q1 squares of the thesis, or netgen P1 triangles split by METIS.
+MESHES: tuple[str, ...] = ("structured", "unstructured")
+#: Built-in unstructured geometries of each problem (the first is the default; ddsolve.scene.unstructured).
+GEOMETRIES: dict[str, tuple[str, ...]] = {"poisson": ("square", "lshape", "hole"), "multibody": ("square",),
+                                          "contact": ("membranes",)}
+#: Primal (coarse) constraints of FETI-DP/BDDC: subdomain vertices (edge averages are not available yet).
+PRIMALS: tuple[str, ...] = ("vertices",)
 #: All method names, in a stable order.
 ALL_METHODS: tuple[str, ...] = tuple(dict.fromkeys(m for ms in METHODS.values() for m in ms))
 
 __all__ = ["METHODS", "DEFAULT_F", "DEFAULT_RTOL", "CONTACTS", "SCALINGS", "NORMS", "PROJECTIONS",
-           "PCR_METHODS", "ALL_METHODS"]
+           "PCR_METHODS", "PRESETS", "ALL_METHODS",
+           "MESHES", "GEOMETRIES", "PRIMALS"]

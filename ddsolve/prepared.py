@@ -22,7 +22,10 @@ if TYPE_CHECKING:  # pragma: no cover
     from .dd.substructure import Substructures
     from .scene import LocalProblems, Scene
 
-__all__ = ["Prepared", "prepare", "scene_from_spec", "check_decomposition"]
+__all__ = ["Prepared", "prepare", "scene_from_spec", "unstructured_scene_from_spec", "check_decomposition"]
+
+#: InputError fields of :func:`ddsolve.scene.unstructured.scene_from_mesh` -> the spec fields they stand for.
+_MESH_FILE_FIELDS = {"mesh": "mesh_file", "bodies": "bodies_materials", "contact": "contact_boundary"}
 
 
 def scene_from_spec(spec: ProblemSpec) -> "Scene":
@@ -36,6 +39,8 @@ def scene_from_spec(spec: ProblemSpec) -> "Scene":
     from .scene import checkerboard, structured_square
     from .scene.contact import two_membranes
 
+    if spec.mesh == "unstructured":
+        return unstructured_scene_from_spec(spec)
     kind, value = parse_rho(spec.rho)
     f_kind, f_value = parse_f(spec.f)
     if spec.problem == "contact":
@@ -63,6 +68,75 @@ def scene_from_spec(spec: ProblemSpec) -> "Scene":
     return scene
 
 
+def unstructured_scene_from_spec(spec: ProblemSpec) -> "Scene":
+    """The P1 scene of a spec with ``mesh == "unstructured"`` (a built-in geometry or ``mesh_file``).
+
+    Coefficient patterns (there is no subdomain grid): ``checkerboard:V`` puts
+    rho = V on the odd-numbered METIS parts of every body (subdomain
+    ``body * parts + part``), 1 elsewhere; ``body-checkerboard:V`` alternates
+    over the bodies like a chess board (multibody: body ``by * bodies + bx``;
+    contact and mesh files: by body index parity). ``f: random:SEED`` draws one
+    value per triangle.
+
+    Raises
+    ------
+    InputError
+        Naming the spec field: ``parts`` (more parts than elements),
+        ``mesh_file`` (missing or not a netgen mesh), ``bodies_materials``,
+        ``dirichlet``, ``contact_boundary`` (unknown names, a non-conforming
+        interface with its location), ``f`` (a contact load that does not press
+        Omega^2 onto Omega^1).
+    """
+    from .scene.unstructured import _check_contact_load, scene_from_mesh, unstructured_scene
+
+    kind, value = parse_rho(spec.rho)
+    f_kind, f_value = parse_f(spec.f)
+    contact = spec.problem == "contact"
+    if spec.mesh_file:
+        names = [n for n in spec.bodies_materials.split(",") if n] or None
+        dirichlet: Any = "boundary" if spec.dirichlet == "boundary" else spec.dirichlet.split(",")
+        try:
+            scene = scene_from_mesh(spec.mesh_file, bodies=names, dirichlet=dirichlet,
+                                    contact=spec.contact_boundary if contact else None, parts=spec.parts,
+                                    refine=spec.refine, f=1.0)
+        except InputError as exc:
+            raise InputError(_MESH_FILE_FIELDS.get(exc.field, exc.field), exc.message) from None
+        if contact and scene.n_bodies != 2:
+            raise InputError("bodies_materials", f"problem 'contact' needs two bodies, the mesh file has "
+                                                 f"{scene.n_bodies}")
+        if spec.problem == "poisson" and scene.n_bodies != 1:
+            raise InputError("bodies_materials", f"problem 'poisson' has one body, the mesh file has "
+                                                 f"{scene.n_bodies} (list one material in bodies_materials)")
+        if contact and f_kind == "dostal":
+            from .scene.contact import dostal_loads
+            scene.f = dostal_loads(scene.coords[scene.elements].mean(axis=1), *f_value)
+    else:
+        scene = unstructured_scene(spec.problem, geometry=spec.geometry, maxh=spec.maxh, refine=spec.refine,
+                                   parts=spec.parts, bodies=spec.bodies if spec.problem == "multibody" else 1,
+                                   f=(None if f_kind == "dostal" else f_value if f_kind == "constant" else -1.0),
+                                   patches=f_value if f_kind == "dostal" else (-3.0, -1.0))
+    if f_kind == "random":
+        scene.f = np.random.default_rng(int(f_value)).uniform(-1.0, 1.0, scene.elements.shape[0])
+    elif f_kind == "constant" and spec.mesh_file:
+        scene.f = float(f_value)
+    if contact and (spec.mesh_file or f_kind == "random"):
+        loads = scene.f if isinstance(scene.f, np.ndarray) else np.full(scene.elements.shape[0], float(scene.f))
+        _check_contact_load(scene, loads)
+    part = np.arange(scene.n_subdomains) % spec.parts
+    if kind == "checkerboard":
+        scene.rho = np.where(part % 2 == 1, value, 1.0)
+    elif kind == "body-checkerboard":
+        body = scene.subdomain_body
+        if spec.problem == "multibody" and not spec.mesh_file:
+            parity = (body % spec.bodies + body // spec.bodies) % 2
+        else:
+            parity = body % 2
+        scene.rho = np.where(parity == 1, value, 1.0)
+    else:
+        scene.rho = np.full(scene.n_subdomains, value)
+    return scene
+
+
 def check_decomposition(spec: ProblemSpec) -> None:
     """Reject decompositions that a substructuring method cannot handle.
 
@@ -75,15 +149,24 @@ def check_decomposition(spec: ProblemSpec) -> None:
         float; contact, whose Omega^2 floats): the generalized inverse of a
         floating body pins one of its primal vertices.
     """
-    if spec.method == "direct" or spec.subdomains != 1:
+    if spec.method == "direct":
+        return
+    # the structured rules read subdomains (per body side), the unstructured ones parts (per body)
+    if spec.mesh == "unstructured":
+        field, count, what = "parts", spec.parts, "parts per body"
+        if spec.mesh_file:
+            return
+    else:
+        field, count, what = "subdomains", spec.subdomains, "subdomains per body side"
+    if count != 1:
         return
     if spec.problem == "poisson":
-        raise InputError("subdomains", f"method {spec.method!r} needs at least 2 subdomains per side "
-                                       f"(one subdomain has no interface); use method 'direct'")
+        raise InputError(field, f"method {spec.method!r} needs at least 2 {what.split(' per')[0]} "
+                                f"(one subdomain has no interface); use method 'direct'")
     if spec.problem == "contact" or (spec.problem == "multibody" and spec.bodies >= 3):
-        raise InputError("subdomains", f"method {spec.method!r} needs at least 2 subdomains per body side "
-                                       f"when a body floats (a floating body pins one of its primal "
-                                       f"vertices, and a one-subdomain body has none); use method 'direct'")
+        raise InputError(field, f"method {spec.method!r} needs at least 2 {what} when a body floats "
+                                f"(a floating body pins one of its primal vertices, and a one-subdomain "
+                                f"body has none); use method 'direct'")
 
 
 @dataclass(frozen=True)
@@ -104,6 +187,10 @@ class Prepared:
         The assembled contact problem (3.1) (``problem == "contact"`` only).
     timings : dict
         Seconds spent in ``"scene"``, ``"assembly"`` and ``"substructures"`` (and ``"contact"``).
+    scene_timings : dict
+        The part of ``"scene"`` spent in ``"mesh"`` (netgen meshing, refinement, reading a
+        mesh file; the structured generator) and ``"partition"`` (splitting bodies, METIS);
+        not added to :attr:`seconds` again.
     """
 
     spec: ProblemSpec
@@ -112,6 +199,7 @@ class Prepared:
     sub: "Substructures"
     contact: "ContactProblem | None" = None
     timings: dict[str, float] = field(default_factory=dict)
+    scene_timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def seconds(self) -> float:
@@ -147,12 +235,20 @@ def prepare(spec: ProblemSpec | dict[str, Any], scene: "Scene | None" = None) ->
     check_decomposition(spec)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    scene_timings = {"mesh": 0.0, "partition": 0.0}
     if scene is None:
         scene = scene_from_spec(spec)
+        if spec.mesh == "unstructured":
+            from .scene.unstructured import LAST_TIMINGS
+            scene_timings = {"mesh": LAST_TIMINGS.get("mesh", 0.0),
+                             "partition": LAST_TIMINGS.get("split", 0.0) + LAST_TIMINGS.get("partition", 0.0)}
     t1 = time.perf_counter()
+    if spec.mesh != "unstructured" or scene.element_type != "P1":
+        scene_timings["mesh"] = t1 - t0
     local = assemble(scene)
     t2 = time.perf_counter()
-    sub = Substructures(local, scaling=spec.scaling, gamma=spec.gamma)
+    sub = Substructures(local, scaling=spec.scaling, gamma=spec.gamma, templates=spec.mesh != "unstructured",
+                        primal=spec.primal)
     t3 = time.perf_counter()
     timings.update(scene=t1 - t0, assembly=t2 - t1, substructures=t3 - t2)
     contact = None
@@ -160,4 +256,5 @@ def prepare(spec: ProblemSpec | dict[str, Any], scene: "Scene | None" = None) ->
         from .contact.problem import ContactProblem
         contact = ContactProblem(sub)
         timings["contact"] = time.perf_counter() - t3
-    return Prepared(spec=spec, scene=scene, local=local, sub=sub, contact=contact, timings=timings)
+    return Prepared(spec=spec, scene=scene, local=local, sub=sub, contact=contact, timings=timings,
+                    scene_timings=scene_timings)

@@ -20,7 +20,12 @@ silently ignored:
   hybrid method's PCR has no Lanczos estimate and reports none);
 - ``check``, ``scaling``, ``gamma``, ``rtol``, ``maxiter``: not with method ``direct``;
 - ``gamma``: scaling ``rho`` only (the exponent of the rho-scaling);
-- ``norm``, ``projection``: the hybrid method only.
+- ``norm``, ``projection``: the hybrid method only;
+- ``geometry``, ``maxh``, ``refine``, ``parts``, ``mesh_file``: ``mesh: unstructured`` only
+  (``geometry`` and ``maxh`` not with a ``mesh_file``); ``subdomains``, ``elements``:
+  ``mesh: structured`` only; ``dirichlet``, ``bodies_materials``, ``contact_boundary``: with a
+  ``mesh_file`` only (``contact_boundary``: problem ``contact``; ``bodies``: not with a ``mesh_file``,
+  whose materials are the bodies).
 
 Scene files are read with hard limits (:data:`MAX_SCENE_BYTES`, a regular
 file, UTF-8, :class:`SceneLoader`'s bounds on nesting and alias expansion), so
@@ -40,7 +45,20 @@ from typing import Any, Mapping
 import yaml
 
 from .errors import InputError, brief
-from .options import CONTACTS, DEFAULT_F, DEFAULT_RTOL, METHODS, NORMS, PCR_METHODS, PROJECTIONS, SCALINGS
+from .options import (
+    CONTACTS,
+    DEFAULT_F,
+    DEFAULT_RTOL,
+    GEOMETRIES,
+    MESHES,
+    METHODS,
+    NORMS,
+    PCR_METHODS,
+    PRESETS,
+    PRIMALS,
+    PROJECTIONS,
+    SCALINGS,
+)
 
 #: Largest scene file read (bytes).
 MAX_SCENE_BYTES = 1 << 20
@@ -48,6 +66,13 @@ MAX_SCENE_BYTES = 1 << 20
 DEFAULT_MAXITER = 1000
 #: Largest integer field value (sizes, iteration limit, random seed).
 MAX_INT = 2**31 - 1
+#: Defaults of the unstructured-mesh fields: netgen's largest element size, METIS parts per body.
+DEFAULT_MAXH = 0.1
+DEFAULT_PARTS = 4
+#: Most uniform refinements of an unstructured mesh (each quarters every triangle).
+MAX_REFINE = 12
+#: Longest file path accepted (mesh_file, output).
+_MAX_PATH = 4096
 #: Methods that compute a Lanczos condition estimate when ``cond`` is set (hybrid: accepted, reports none).
 COND_METHODS: tuple[str, ...] = ("feti", "fetidp", "bddc", "feti-feti", "hybrid")
 
@@ -294,9 +319,101 @@ def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
     check = _as_bool("check", raw["check"])
     if check and direct:
         raise _inapplicable("check", check, "method 'direct' is the direct solve")
-    return dict(problem=problem, method=method, bodies=bodies, subdomains=subdomains, elements=elements,
-                rho=rho, f=f, contact=contact, scaling=scaling, gamma=gamma, norm=norm, projection=projection,
-                rtol=rtol, maxiter=maxiter, cond=cond, check=check)
+    out = dict(problem=problem, method=method, bodies=bodies, subdomains=subdomains, elements=elements,
+               rho=rho, f=f, contact=contact, scaling=scaling, gamma=gamma, norm=norm, projection=projection,
+               rtol=rtol, maxiter=maxiter, cond=cond, check=check,
+               preset=_choice("preset", raw["preset"], PRESETS))
+    out.update(_validated_mesh(raw, problem))
+    return out
+
+
+def _path_text(field: str, value: Any) -> str:
+    """A file path field: a string ('' or None: none), stripped, at most :data:`_MAX_PATH` characters."""
+    value = _plain(value)
+    if value is None:
+        return ""
+    if not isinstance(value, str) or len(value) > _MAX_PATH or "\x00" in value:
+        raise InputError(field, f"must be a file path, got {brief(value)}")
+    return value.strip()
+
+
+def _names_text(field: str, value: Any, default: str) -> str:
+    """Comma-separated names (netgen boundaries or materials), normalised to 'a,b'."""
+    value = _plain(value)
+    if value is None:
+        return default
+    if isinstance(value, (list, tuple)):
+        value = ",".join(str(_plain(v)) for v in value)
+    if not isinstance(value, str) or len(value) > _MAX_TEXT:
+        raise InputError(field, f"must be comma-separated names, got {brief(value)}")
+    names = [n.strip() for n in value.split(",")]
+    if value.strip() and not all(names):
+        raise InputError(field, f"empty name in {brief(value)}")
+    return ",".join(names) if value.strip() else ""
+
+
+def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
+    """The unstructured-mesh fields (``mesh`` ... ``output``), validated against the structured ones."""
+    mesh = _choice("mesh", raw["mesh"], MESHES)
+    unstructured = mesh == "unstructured"
+    mesh_file = _path_text("mesh_file", raw["mesh_file"])
+    if mesh_file:
+        if not unstructured:
+            raise _inapplicable("mesh_file", mesh_file, "a netgen mesh file needs mesh 'unstructured'")
+        if not os.path.isfile(mesh_file):
+            raise InputError("mesh_file", f"no such file: {brief(mesh_file)}")
+    why_structured = "it applies to mesh 'unstructured' only"
+    default_geometry = GEOMETRIES[problem][0]
+    geometry = default_geometry if raw["geometry"] is None else _choice(
+        "geometry", raw["geometry"], GEOMETRIES[problem], where=f" for problem {problem!r}")
+    maxh = _as_positive_float("maxh", raw["maxh"])
+    for field, value, default in (("geometry", geometry, default_geometry), ("maxh", maxh, DEFAULT_MAXH)):
+        if value != default and not unstructured:
+            raise _inapplicable(field, value, why_structured)
+        if value != default and mesh_file:
+            raise _inapplicable(field, value, "the mesh comes from mesh_file")
+    refine = _as_int("refine", raw["refine"], 0, MAX_REFINE)
+    parts = _as_int("parts", raw["parts"], 1)
+    for field, value, default in (("refine", refine, 0), ("parts", parts, DEFAULT_PARTS)):
+        if value != default and not unstructured:
+            raise _inapplicable(field, value, why_structured)
+    if unstructured:
+        for field, default in (("subdomains", 2), ("elements", 4)):
+            value = _as_int(field, raw[field], 1)
+            if value != default:
+                raise _inapplicable(field, value, "an unstructured mesh is sized by maxh/refine and split "
+                                                  "into 'parts' METIS subdomains per body")
+        if mesh_file and _as_int("bodies", raw["bodies"], 1) not in (1, 2 if problem == "contact" else 1):
+            raise _inapplicable("bodies", raw["bodies"], "the bodies of a mesh_file are its materials "
+                                                         "(see bodies_materials)")
+    dirichlet = _names_text("dirichlet", raw["dirichlet"], "boundary") or "boundary"
+    bodies_materials = _names_text("bodies_materials", raw["bodies_materials"], "")
+    contact_boundary = _names_text("contact_boundary", raw["contact_boundary"], "contact") or "contact"
+    if "," in contact_boundary:
+        raise InputError("contact_boundary", f"one boundary name, got {brief(contact_boundary)}")
+    for field, value, default in (("dirichlet", dirichlet, "boundary"), ("bodies_materials", bodies_materials, ""),
+                                  ("contact_boundary", contact_boundary, "contact")):
+        if value != default and not mesh_file:
+            raise _inapplicable(field, value, "it names parts of a mesh_file")
+    if contact_boundary != "contact" and problem != "contact":
+        raise _inapplicable("contact_boundary", contact_boundary, "problem 'contact' only")
+    primal = _plain(raw["primal"])
+    if isinstance(primal, str) and primal.strip().lower() in ("vertices+edges", "edges"):
+        raise InputError("primal", f"{primal.strip()!r}: edge averages are not available yet "
+                                   f"(choose from {', '.join(PRIMALS)})")
+    primal = _choice("primal", primal, PRIMALS, what="primal constraints")
+    output = _path_text("output", raw["output"])
+    if output:
+        if not output.lower().endswith(".vtu"):
+            raise InputError("output", f"must be a .vtu file (ParaView), got {brief(output)}")
+        parent = os.path.dirname(os.path.abspath(output))
+        if not os.path.isdir(parent):
+            raise InputError("output", f"directory {brief(parent)} does not exist")
+        if os.path.isdir(output):
+            raise InputError("output", f"{brief(output)} is a directory")
+    return dict(mesh=mesh, geometry=geometry, maxh=maxh, refine=refine, parts=parts, mesh_file=mesh_file,
+                dirichlet=dirichlet, contact_boundary=contact_boundary, bodies_materials=bodies_materials,
+                primal=primal, output=output)
 
 
 class SceneLoader(yaml.SafeLoader):
@@ -467,6 +584,49 @@ class ProblemSpec:
         Compute Lanczos estimates of the extreme eigenvalues.
     check : bool
         Also solve directly and report the relative energy-norm error.
+    preset : str
+        Rule set (:mod:`ddsolve.presets`): ``"default"`` (the project's improved
+        rules) or ``"thesis"`` (the thesis's rules as printed wherever they
+        differ: FETI and FETI-FETI, the active set method, SMALBE). Accepted
+        for every method; those whose defaults are the thesis's rules run
+        identically under both.
+    mesh : str
+        ``"structured"`` (default: the Q1 squares above) or ``"unstructured"``
+        (netgen P1 triangles, each body split into ``parts`` METIS subdomains,
+        :mod:`ddsolve.scene.unstructured`). ``checkerboard:V`` on an
+        unstructured mesh gives rho = V on the odd-numbered METIS parts of each
+        body; ``body-checkerboard:V`` alternates over the body grid (multibody)
+        or the body index (contact, mesh files).
+    geometry : str or None
+        Built-in unstructured geometry (:data:`~ddsolve.options.GEOMETRIES`):
+        poisson ``square``/``lshape``/``hole``, multibody ``square``, contact
+        ``membranes``; None takes the problem's first.
+    maxh : float
+        netgen's largest element size before refinement.
+    refine : int
+        Uniform refinements (each quarters every triangle), 0..MAX_REFINE.
+    parts : int
+        METIS subdomains per body.
+    mesh_file : str
+        A user's 2-D netgen mesh (``.vol``/``.vol.gz``): its materials are the
+        bodies (``bodies_materials``), named boundaries carry u = 0
+        (``dirichlet``) and the contact interface (``contact_boundary``).
+        For multibody every inter-body interface is tied; for contact the file
+        must have two bodies, the first clamped.
+    dirichlet : str
+        Comma-separated boundary names of ``mesh_file`` with u = 0;
+        ``"boundary"`` (default): the whole outer boundary.
+    contact_boundary : str
+        Name of the contact interface of ``mesh_file`` (problem contact).
+    bodies_materials : str
+        Comma-separated material names of ``mesh_file`` in body order
+        (default ``""``: every material, in mesh order).
+    primal : str
+        Primal constraints of FETI-DP/BDDC: ``"vertices"`` (edge averages are
+        not available yet).
+    output : str
+        A ``.vtu`` file for ParaView (solution, subdomain ids, contact
+        multipliers); ``""``: none.
     """
 
     problem: str = "poisson"
@@ -485,6 +645,19 @@ class ProblemSpec:
     maxiter: int = DEFAULT_MAXITER
     cond: bool = False
     check: bool = False
+    preset: str = "default"
+    # unstructured meshes and output (ddsolve.scene.unstructured, ddsolve.io.vtk)
+    mesh: str = "structured"
+    geometry: str | None = None
+    maxh: float = DEFAULT_MAXH
+    refine: int = 0
+    parts: int = DEFAULT_PARTS
+    mesh_file: str = ""
+    dirichlet: str = "boundary"
+    contact_boundary: str = "contact"
+    bodies_materials: str = ""
+    primal: str = "vertices"
+    output: str = ""
 
     def __post_init__(self) -> None:
         # One validation for the constructor, from_mapping, from_yaml and dataclasses.replace;

@@ -60,7 +60,7 @@ import numpy as np
 from ..dd.operators import linear_operator, scaled_jump
 from ..krylov import pcg
 from ..krylov.result import KrylovResult
-from ..multibody.hybrid import HybridSolver
+from ..multibody.hybrid import RTOL_RULES, HybridSolver
 from ..qp import mprgp
 from ..qp.result import QPResult
 from .direct import ContactSolution
@@ -68,7 +68,12 @@ from .problem import ContactProblem
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ActiveSetHybrid", "solve_contact_active_set"]
+__all__ = ["ActiveSetHybrid", "solve_contact_active_set", "INITIAL_ACTIVE", "REMOVALS"]
+
+#: Initial active sets: {lambda^ > feasibility_tol max lambda^} (default) or {lambda^ > 0} (Chapter 5).
+INITIAL_ACTIVE: tuple[str, ...] = ("relative", "positive")
+#: Removal rules for negative multipliers: all at once (default) or Figure 6.3's blocking pair.
+REMOVALS: tuple[str, ...] = ("all", "blocking")
 
 
 class ActiveSetHybrid:
@@ -155,7 +160,8 @@ class ActiveSetHybrid:
     # ------------------------------------------------------------------ solve
     def solve(self, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5, maxiter: int = 1000, max_outer: int = 50,
               feasibility_tol: float | None = None, removal: str = "all",
-              forcing: float | None = None) -> ContactSolution:
+              forcing: float | None = None, face_rtol_rule: str = "max",
+              initial_active: str = "relative") -> ContactSolution:
         """Run the active set method.
 
         Parameters
@@ -189,6 +195,16 @@ class ActiveSetHybrid:
             still stops only on a face minimizer computed to ``rtol`` that
             passes the sign tests at ``feasibility_tol``. None (default): every
             face solve to ``rtol`` (Chapter 5 as printed).
+        face_rtol_rule : {"max", "initial"}
+            Stopping rule of every face solve (:meth:`HybridSolver.solve`'s
+            ``rtol_rule``): ``"max"`` (default) ||r_k|| <= rtol max(||r_0||, ||F||),
+            so a warm start stops where a cold start would; ``"initial"``
+            ||r_k|| <= rtol ||r_0|| (the thesis's rule, also for warm starts).
+        initial_active : {"relative", "positive"}
+            The initial active set: ``"relative"`` (default)
+            {lambda^_i > feasibility_tol max lambda^} (the projection by MPRGP
+            to 1e-10 leaves round-off-sized positive entries off the contact
+            zone); ``"positive"`` {lambda^_i > 0} (Chapter 5 as printed).
 
         Returns
         -------
@@ -201,10 +217,17 @@ class ActiveSetHybrid:
         t0 = time.perf_counter()
         if removal not in ("all", "blocking"):
             raise ValueError(f"removal must be 'all' or 'blocking', got {removal!r}")
+        if face_rtol_rule not in RTOL_RULES:
+            raise ValueError(f"face_rtol_rule must be one of {', '.join(RTOL_RULES)}, got {face_rtol_rule!r}")
+        if initial_active not in INITIAL_ACTIVE:
+            raise ValueError(f"initial_active must be one of {', '.join(INITIAL_ACTIVE)}, got {initial_active!r}")
         tol = 10.0 * rtol if feasibility_tol is None else float(feasibility_tol)
         h, n = self.hybrid, self.n_contact
         lam_star, lam_hat, kr0, qp = self.initial_multipliers(pcg_rtol, maxiter)
-        active = lam_hat > tol * max(float(lam_hat.max()), 1e-300)
+        if initial_active == "positive":
+            active = lam_hat > 0.0
+        else:
+            active = lam_hat > tol * max(float(lam_hat.max()), 1e-300)
         if not active.any():
             active[int(np.argmax(lam_star))] = True
         initial_active = active.copy()
@@ -221,7 +244,7 @@ class ActiveSetHybrid:
             face_rtol = float(forcing) if loose else rtol
             sign_tol = max(tol, face_rtol) if loose else tol
             out = h.solve(active, rtol=face_rtol, maxiter=maxiter,
-                          x0={"u_gamma": u_k, "lambda": lam_k})
+                          x0={"u_gamma": u_k, "lambda": lam_k}, rtol_rule=face_rtol_rule)
             inner.append(int(out.krylov.iterations))
             face_tols.append(face_rtol)
             if not out.krylov.converged:
@@ -282,10 +305,14 @@ class ActiveSetHybrid:
 
 def solve_contact_active_set(problem: ContactProblem, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5,
                              maxiter: int = 1000, max_outer: int = 50,
-                             solver: ActiveSetHybrid | None = None) -> ContactSolution:
+                             solver: ActiveSetHybrid | None = None, removal: str = "all",
+                             face_rtol_rule: str = "max", initial_active: str = "relative") -> ContactSolution:
     """Solve (3.1) by the active set method with the hybrid method (Chapter 5).
 
-    See :class:`ActiveSetHybrid`; ``solver`` reuses its factorizations.
+    See :meth:`ActiveSetHybrid.solve` (``removal``, ``face_rtol_rule``, ``initial_active``:
+    the defaults are the project's rules, the thesis preset passes "blocking", "initial",
+    "positive"); ``solver`` reuses its factorizations.
     """
     solver = solver if solver is not None else ActiveSetHybrid(problem)
-    return solver.solve(rtol=rtol, pcg_rtol=pcg_rtol, maxiter=maxiter, max_outer=max_outer)
+    return solver.solve(rtol=rtol, pcg_rtol=pcg_rtol, maxiter=maxiter, max_outer=max_outer, removal=removal,
+                        face_rtol_rule=face_rtol_rule, initial_active=initial_active)

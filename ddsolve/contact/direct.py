@@ -14,7 +14,7 @@ up to round-off.
 The sparse factorization of each face is pluggable: ``factorize(A)`` takes the
 merged SPD matrix (CSR) and returns a solve function. The default is SciPy's
 SuperLU (:func:`superlu_factorize`); the work-precision and scaling studies pass
-MKL PARDISO (``ddsolve.bench.peers.direct_solver("mkl-pardiso", A).solve``).
+MKL PARDISO (``ddstudies.bench.peers.direct_solver("mkl-pardiso", A).solve``).
 """
 from __future__ import annotations
 
@@ -156,7 +156,7 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
     factorize : callable, optional
         ``factorize(A) -> solve`` for each face matrix A = T^T K T (scipy CSR,
         SPD, both triangles); default SciPy SuperLU (:func:`superlu_factorize`).
-        E.g. ``lambda A: ddsolve.bench.peers.direct_solver("mkl-pardiso", A).solve``.
+        E.g. ``lambda A: ddstudies.bench.peers.direct_solver("mkl-pardiso", A).solve``.
 
     Returns
     -------

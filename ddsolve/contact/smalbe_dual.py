@@ -200,6 +200,12 @@ FORCE_FACTOR = 10.0
 #: coefficient jumps K turns them into force residuals up to ~1e6 eps (rho = 1 / 1e-6 across
 #: the membranes). On the Table 6.1 grids (rho = 1) it is 1..7 eps.
 STATIONARITY_FACTOR = 100.0
+#: Equality parts of the stopping rule: ||G lambda|| <= eps min(||b||, ||e||) (default, module
+#: docstring) or eps ||b|| (Section 6.4 as printed, the thesis preset).
+EQUALITY_RULES: tuple[str, ...] = ("min", "section-6.4")
+#: What a failed acceptance check does: turn converged into False (default) or only get reported
+#: (Section 6.4 has no check; the thesis preset).
+ACCEPTANCE: tuple[str, ...] = ("enforce", "report")
 #: PCG iteration limit of the FETI-FETI solve on the active set (polish): it needs 8..18 on the
 #: Table 6.1 grids; at eps near round-off (1e-10) its target eps x the warm start's residual is out
 #: of reach, and the limit bounds the cost of finding that out (the result is then rejected).
@@ -415,11 +421,14 @@ def enforce(homogeneous: HomogeneousProblem, rho_bar: float | None) -> EnforcedP
 
 
 def solve_enforced(enforced: EnforcedProblem, *, eps: float, M: float, rho0: float, Gamma: float,
-                   maxiter: int | None, max_outer: int) -> tuple[QPResult, float | None]:
+                   maxiter: int | None, max_outer: int, equality_rule: str = "min"
+                   ) -> tuple[QPResult, float | None]:
     """SMALBE (Figure 6.7) with MPRGP inner solves (Figure 6.6) on (6.17).
 
     Stopping rule ||g^P|| <= eps ||b|| and ||G lambda|| <= eps min(||b||, ||e||) (module
-    docstring, "Stopping rule"); steplength from ``norm_A = NORM_SAFETY max(||P F P||, rho_bar)``.
+    docstring, "Stopping rule"; ``equality_rule="min"``) or ||G lambda|| <= eps ||b||
+    (``"section-6.4"``, as printed); steplength from
+    ``norm_A = NORM_SAFETY max(||P F P||, rho_bar)``.
 
     Returns
     -------
@@ -433,6 +442,8 @@ def solve_enforced(enforced: EnforcedProblem, *, eps: float, M: float, rho0: flo
     e = enforced.homogeneous.dual.e
     tol_eq = eps * min(enforced.norm_b, abs(e)) if isinstance(eps, numbers.Real) and math.isfinite(eps) else 0.0
     tol_eq = tol_eq if tol_eq > 0.0 else None              # invalid eps: smalbe reports it; b = 0: its rule
+    if equality_rule == "section-6.4":
+        tol_eq = None                                      # smalbe's own rule: eps ||b||
     result = smalbe(enforced.hessian, enforced.b, enforced.homogeneous.lower, enforced.equality, None, None,
                     M=M, rho0=rho0, Gamma=Gamma, eps=eps, maxiter=maxiter,
                     norm_A=NORM_SAFETY * max(enforced.norm_PFP, enforced.rho_bar), norm_BE=1.0,
@@ -474,7 +485,8 @@ def map_back(enforced: EnforcedProblem, lam: np.ndarray) -> RecoveredSolution:
 def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float = 1.0, rho0: float = 30.0,
                          Gamma: float = 1.0, maxiter: int | None = None,
                          solver: FetiFetiSolver | None = None, rho_bar: float | None = DEFAULT_RHO_BAR,
-                         polish: bool | str = "auto", max_outer: int = 100) -> ContactSolution:
+                         polish: bool | str = "auto", max_outer: int = 100,
+                         equality_rule: str = "min", acceptance: str = "enforce") -> ContactSolution:
     """Solve (3.1) by SMALBE/MPRGP on the FETI-DP dual (6.17) (thesis Section 6.4).
 
     See the module docstring for the formulation (6.13)-(6.17), the stopping rule
@@ -522,6 +534,17 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         ``extra["polish_iterations"]``, not part of ``inner_iterations``.
     max_outer : int
         Maximum number of SMALBE outer iterations.
+    equality_rule : {"min", "section-6.4"}
+        Equality part of the stopping rule: ``"min"`` (default)
+        ``||G lambda|| <= eps min(||b||, ||e||)``; ``"section-6.4"``
+        ``||G lambda|| <= eps ||b||`` as printed (the thesis preset, with
+        ``rho_bar=None`` and ``polish=False``).
+    acceptance : {"enforce", "report"}
+        ``"enforce"`` (default): a result that fails the acceptance check (force
+        balance, KKT stationarity) is ``converged=False``. ``"report"``: the
+        verdict is SMALBE's stopping rule alone (Section 6.4 has no such check);
+        the check is still made and its outcome recorded in ``extra["acceptance"]``
+        and in the reason (the thesis preset).
 
     Returns
     -------
@@ -545,13 +568,20 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         ``force_error`` (|sum(lam) - net load| / net load), ``kkt`` (the four relative
         KKT residuals of the returned pair), ``gradient_norms``, ``constraint_norms``
         (per outer iteration), ``setup_seconds``, ``qp_seconds``, ``polish``
-        (``"accepted"`` / ``"rejected"`` when tried), ``polish_iterations``.
+        (``"accepted"`` / ``"rejected"`` when tried), ``polish_iterations``,
+        ``u_unpolished`` (ndof,) and ``lambda_unpolished`` (n_c,): SMALBE's own recovered
+        pair before any polish (the returned pair when there was none).
         Non-convergence, and a result that fails the acceptance check, give
         ``converged=False`` and a reason; nothing is raised for it.
     """
     t0 = time.perf_counter()
     if polish not in ("auto", True, False):
         return _failure(problem, t0, f"polish must be 'auto', True or False, got {polish!r}")
+    if acceptance not in ACCEPTANCE:
+        return _failure(problem, t0, f"acceptance must be one of {', '.join(ACCEPTANCE)}, got {acceptance!r}")
+    if equality_rule not in EQUALITY_RULES:
+        return _failure(problem, t0, f"equality_rule must be one of {', '.join(EQUALITY_RULES)}, "
+                                     f"got {equality_rule!r}")
     new_factorizations = solver is None
     if solver is None:
         solver = FetiFetiSolver(problem.sub, problem.gi)
@@ -574,7 +604,7 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
     # solve (SMALBE/MPRGP)
     try:
         res, tol_eq = solve_enforced(enforced, eps=eps, M=M, rho0=rho0, Gamma=Gamma, maxiter=maxiter,
-                                     max_outer=max_outer)
+                                     max_outer=max_outer, equality_rule=equality_rule)
     except ValueError as exc:                                # invalid parameters: report, do not raise
         return _failure(problem, t0, f"invalid SMALBE input: {exc}")
     # map back: balanced multiplier P lambda + lambda~, primal recovery
@@ -593,9 +623,9 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         "gradient_norms": res.gradient_norms, "constraint_norms": res.constraint_norms,
         "local_jump": float(np.linalg.norm(solver.B_loc @ rec.u_W)),
         "equality_defect": Gx, "setup_seconds": setup, "qp_seconds": res.seconds,
-        "lambda": rec.lambda_balanced,
+        "lambda": rec.lambda_balanced, "u_unpolished": rec.u, "lambda_unpolished": rec.lam_contact,
     }
-    converged, reason = _judge(problem, res, rec, enforced, eps, tol_eq, extra)
+    converged, reason = _judge(problem, res, rec, enforced, eps, tol_eq, extra, enforce=acceptance == "enforce")
     # the rule of Section 6.4 alone (||G lambda|| <= eps ||b||): met, but the contact force is not resolved
     gp_last = float(res.gradient_norms[-1]) if res.gradient_norms.size else math.inf
     section_64 = gp_last <= eps * norm_b and abs(Gx) <= eps * norm_b
@@ -629,8 +659,11 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
 
 
 def _judge(problem: ContactProblem, res: QPResult, rec: RecoveredSolution, enforced: EnforcedProblem,
-           eps: float, tol_eq: float | None, extra: dict) -> tuple[bool, str]:
-    """SMALBE's verdict, the note when only the rule of Section 6.4 is met, and the acceptance check."""
+           eps: float, tol_eq: float | None, extra: dict, enforce: bool = True) -> tuple[bool, str]:
+    """SMALBE's verdict, the note when only the rule of Section 6.4 is met, and the acceptance check.
+
+    ``enforce=False``: a failed check is noted in the reason but leaves SMALBE's verdict.
+    """
     converged, reason = bool(res.converged), res.reason
     norm_b, Gx = enforced.norm_b, rec.equality_defect
     net = enforced.homogeneous.dual.net_load
@@ -641,8 +674,13 @@ def _judge(problem: ContactProblem, res: QPResult, rec: RecoveredSolution, enfor
                   f"||G lambda|| <= eps ||e|| = {tol_eq or 0.0:.2e}: the contact force (net load {net:.3g}) "
                   f"is not resolved ({res.reason})")
     ok, why = _accept(problem, rec.u, rec.lam_contact, net, eps, extra)
+    extra["acceptance"] = "passed" if ok else f"failed: {why}"
     if converged and not ok:
-        converged, reason = False, f"{reason}; acceptance check failed: {why}"
+        if enforce:
+            converged = False
+            reason = f"not accepted: stopping rule met ({reason.removeprefix('converged: ')}) but acceptance check failed: {why}"
+        else:
+            reason = f"{reason}; acceptance check failed: {why}"
     return converged, reason
 
 

@@ -25,6 +25,37 @@ from .projection import Projection
 
 Matvec = Callable[[np.ndarray], np.ndarray]
 
+#: Projections of one-level FETI and FETI-FETI: ``"weighted"`` (default) Q = diag(B_D diag(rho) B_D^T)
+#: under rho-scaling (Q = I under multiplicity scaling); ``"orthogonal"`` Q = I always, P of (2.13).
+DUAL_PROJECTIONS: tuple[str, ...] = ("weighted", "orthogonal")
+
+
+def projection_weights(B_D: sp.spmatrix, rho_W: np.ndarray, scaling: str, projection: str = "weighted"
+                       ) -> np.ndarray | None:
+    """Diagonal of Q of the projection (None: Q = I, the orthogonal P of (2.13)).
+
+    Parameters
+    ----------
+    B_D : sparse matrix, shape (n_lambda, n_W)
+        Scaled jump operator.
+    rho_W : ndarray, shape (n_W,)
+        Coefficient of the subdomain of every W entry.
+    scaling : str
+        ``"rho"`` or ``"multiplicity"`` (the latter always gives Q = I).
+    projection : {"weighted", "orthogonal"}
+
+    Returns
+    -------
+    ndarray, shape (n_lambda,), or None
+        q = (B_D .* B_D) rho_W (for gamma = 1: rho_i rho_j / (rho_i + rho_j) on the
+        multiplier between subdomains i and j), or None.
+    """
+    if projection not in DUAL_PROJECTIONS:
+        raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(DUAL_PROJECTIONS)})")
+    if projection == "orthogonal" or scaling == "multiplicity":
+        return None
+    return B_D.multiply(B_D) @ rho_W
+
 
 def dual_operators(B: sp.spmatrix, B_D: sp.spmatrix, primal_solve: Matvec,
                    schur: Matvec) -> tuple[Matvec, Matvec]:

@@ -6,13 +6,14 @@ import time
 import numpy as np
 
 from .common import MethodOutput
-from .dual import dual_operators, solve_dual
+from .dual import dual_operators, projection_weights, solve_dual
 from .local import BatchedSolver
 from .operators import DirichletSchur
 from .substructure import Substructures
 
 
-def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False) -> MethodOutput:
+def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
+               projection: str = "weighted") -> MethodOutput:
     """One-level FETI: PCG on P F lambda = P d, lambda in lambda_0 + V (2.14).
 
     * F = B A^+ B^T, d = B A^+ f with a generalized inverse A^+ of each
@@ -31,7 +32,8 @@ def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     between subdomains i and j is rho_i rho_j / (rho_i + rho_j)). It is applied
     as the orthogonal projection of the similar system in mu = Q^{-1/2} lambda,
     so PCG and the residual norms act on mu. With multiplicity scaling Q = I,
-    which is exactly (2.13)-(2.14).
+    which is exactly (2.13)-(2.14). ``projection="orthogonal"`` takes Q = I under
+    rho-scaling too (the thesis's P of (2.13); the thesis preset).
 
     Without floating subdomains there is no kernel: P, G and lambda_0 are skipped.
 
@@ -42,6 +44,8 @@ def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
         Stopping rule ||r_k|| / ||r_0|| < rtol.
     cond : bool
         Lanczos estimate of the condition number of P M_D^{-1} P F.
+    projection : {"weighted", "orthogonal"}
+        Q-weighted P under rho-scaling (default) or the orthogonal P of (2.13).
 
     Returns
     -------
@@ -68,7 +72,7 @@ def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
         G = (B @ R).tocsc()
         e = R.T @ sub.f_W
         n_fact += 1
-    q = None if sub.scaling == "multiplicity" else B_D.multiply(B_D) @ sub.rho[sub.sub_of_W]
+    q = projection_weights(B_D, sub.rho[sub.sub_of_W], sub.scaling, projection)
     setup = time.perf_counter() - t0
 
     sol = solve_dual(F, M, d, G, e, q, rtol=rtol, maxiter=maxiter, cond=cond)

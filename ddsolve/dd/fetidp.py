@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 
 from ..krylov import pcg
 from .common import MethodOutput

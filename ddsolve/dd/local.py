@@ -62,8 +62,10 @@ class _Factor:
             self._f = la.cho_factor(K.toarray(), lower=False, check_finite=False)
         else:
             self.kind = "sparse"
+            # SPD: diagonal pivots only (DiagPivotThresh 0); threshold pivoting off the diagonal destroys
+            # the symmetric ordering (measured on a P2 block of 14,224 dofs: 25x the fill, 30x the time)
             self._f = spla.splu(sp.csc_matrix(K), permc_spec="MMD_AT_PLUS_A",
-                                options={"SymmetricMode": True})
+                                options={"SymmetricMode": True, "DiagPivotThresh": 0.0})
 
     def solve(self, B: np.ndarray) -> np.ndarray:
         if self.kind == "dense":

@@ -366,7 +366,7 @@ class PrimalConstrainedSolver:
         self.r = ~primal_mask if exclude is None else ~primal_mask & ~exclude
         self.rr = BatchedSolver(sub, self.r, cache)
         # global primal numbering
-        prim_dofs = np.unique(sub.l2g[primal_mask])
+        prim_dofs = self._primal_dofs(sub, primal_mask)
         self.n_primal = prim_dofs.size
         coarse_of_W = np.full(sub.n_W, -1)
         coarse_of_W[primal_mask] = np.searchsorted(prim_dofs, sub.l2g[primal_mask])
@@ -422,6 +422,7 @@ class PrimalConstrainedSolver:
         cols = np.broadcast_to(self.coarse_cols[:, None, :], S_loc.shape)
         ok = (rows >= 0) & (cols >= 0)
         S_PiPi = sp.csr_matrix((S_loc[ok], (rows[ok], cols[ok])), shape=(self.n_primal, self.n_primal))
+        S_PiPi = self._assemble_coarse(S_PiPi)
         pinned = []
         for body in fixed_bodies:
             cand = np.flatnonzero(primal_mask & (sub.body_of_sub[sub.sub_of_W] == body))
@@ -440,6 +441,14 @@ class PrimalConstrainedSolver:
         self._psi_global: sp.csr_matrix | None = None      # Psi as sparse (n_W, n_primal), on first use
         self._psi_global_T: sp.csr_matrix | None = None
         self._interfaces: dict[tuple, InterfaceSolve] = {}  # by (mask bytes, n_W, explicit option)
+
+    def _primal_dofs(self, sub: Substructures, primal_mask: np.ndarray) -> np.ndarray:
+        """Sorted global dofs of the primal unknowns (hook: a rank-local ``sub`` sees only its own)."""
+        return np.unique(sub.l2g[primal_mask])
+
+    def _assemble_coarse(self, S_PiPi: sp.csr_matrix) -> sp.csr_matrix:
+        """The coarse matrix from the subdomains' contributions (hook: summed over ranks in parallel)."""
+        return S_PiPi
 
     @property
     def Psi_global(self) -> sp.csr_matrix:

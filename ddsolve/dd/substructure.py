@@ -242,6 +242,11 @@ class Substructures:
             weight = np.ones(self.n_W)
         else:
             weight = self.rho[self.sub_of_W] ** gamma
+            if not np.all((weight > 0.0) & np.isfinite(weight)):   # rho^gamma over/underflows: same ratios,
+                log_w = gamma * np.log(self.rho[self.sub_of_W])   # scaled to a largest weight of 1 per node
+                top = np.full(self.scene.n_nodes, -np.inf)
+                np.maximum.at(top, self.node_of_W, log_w)
+                weight = np.exp(log_w - top[self.node_of_W])
         total = np.bincount(self.node_of_W, weights=weight, minlength=self.scene.n_nodes)
         return weight / total[self.node_of_W]
 

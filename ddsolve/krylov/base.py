@@ -246,13 +246,29 @@ class KrylovSolver:
         self.reason = reason
         return BREAKDOWN
 
+    # ------------------------------------------------------------ reductions
+    # The only places where the recurrence reduces a vector to a number. A distributed
+    # solver (:mod:`ddsolve.parallel.krylov`) overrides them with global reductions;
+    # the recurrence itself is unchanged, so serial and parallel iterates agree.
+    def inner(self, a: np.ndarray, b: np.ndarray) -> float:
+        """Inner product ``<a, b>``."""
+        return float(np.dot(a, b))
+
+    def l2norm(self, v: np.ndarray) -> float:
+        """Euclidean norm ``||v||_2`` (:func:`~ddsolve.krylov.convergence.norm2`)."""
+        return norm2(v)
+
+    def absmax(self, v: np.ndarray) -> float:
+        """``max |v_i|`` (NaN if ``v`` holds a NaN)."""
+        return float(np.max(np.abs(v)))
+
     def label(self, reason: str) -> str:
         """Hook: name the stopping norm in a reason (identity for ``||.||_2``)."""
         return reason
 
     def initial_norm(self, r: np.ndarray) -> float:
         """Norm of the initial residual in the stopping norm (``||r||_2``)."""
-        return norm2(r)
+        return self.l2norm(r)
 
     def initial_failure(self, rnorm0: float) -> tuple[str, float]:
         """Reason and recorded norm when :meth:`initial_norm` is not finite."""
@@ -263,7 +279,7 @@ class KrylovSolver:
         r = self.b - apply(self.A, x)
         if self.P is not None:
             r = apply(self.P, r)
-        return norm2(r)
+        return self.l2norm(r)
 
     def result_fields(self) -> dict[str, Any]:
         """Hook: extra :class:`KrylovResult` fields (e.g. Lanczos estimates)."""
@@ -289,7 +305,7 @@ class KrylovSolver:
 
     def _rescale(self, r: np.ndarray) -> None:
         """Scale the system by a power of two so that max |r_0| is of order one (exact)."""
-        amax = float(np.max(np.abs(r)))
+        amax = self.absmax(r)
         if not (0.0 < amax < math.inf):
             return
         exponent = math.frexp(amax)[1]
@@ -318,7 +334,7 @@ class KrylovSolver:
     def solve(self) -> KrylovResult:
         """Run the iteration and apply the convergence policy; see the class docstring."""
         t0 = time.perf_counter()
-        if self.P is None and not np.any(self.b) and not np.any(np.isnan(self.b)):
+        if self.P is None and self.absmax(self.b) == 0.0:      # b = 0 (no NaN)
             self.x = np.zeros(self.n)
             self.residuals = [0.0]
             self.reason = "converged: zero right-hand side b = 0, so x = 0"

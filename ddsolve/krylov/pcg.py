@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from .base import BREAKDOWN, KrylovSolver
-from .convergence import norm2
 from .lanczos import lanczos_extreme_eigenvalues
 from .result import KrylovResult
 
@@ -43,14 +42,14 @@ class PCG(KrylovSolver):
         alphas, betas = self.alphas, self.betas
         op, precondition, advance = self.op, self.precondition, self.advance
         z = precondition(r)
-        rho = float(np.dot(r, z))
+        rho = self.inner(r, z)
         if not (rho > 0.0 and math.isfinite(rho)):
             return self.breakdown(f"breakdown: <r, M r> = {rho:.3e} at iteration 0 "
                                   "(preconditioner not positive definite or NaN/inf)")
         p = z
         for k in range(1, self.maxiter + 1):
             q = op(p)
-            pq = float(np.dot(p, q))
+            pq = self.inner(p, q)
             if not (pq > 0.0 and math.isfinite(pq)):
                 return self.breakdown(f"breakdown: <p, A p> = {pq:.3e} <= 0 at iteration {k} "
                                       "(operator not positive definite or NaN/inf)")
@@ -63,11 +62,11 @@ class PCG(KrylovSolver):
             r -= tmp
             if alphas is not None:
                 alphas.append(alpha)
-            outcome = advance(norm2(r))
+            outcome = advance(self.l2norm(r))
             if outcome is not None:
                 return outcome
             z = precondition(r)
-            rho_new = float(np.dot(r, z))
+            rho_new = self.inner(r, z)
             if not (rho_new > 0.0 and math.isfinite(rho_new)):
                 return self.breakdown(f"breakdown: <r, M r> = {rho_new:.3e} at iteration {k} "
                                       "(preconditioner not positive definite or NaN/inf)")

@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd.common import MethodOutput
-from ..dd.dual import dual_operators, solve_dual
+from ..dd.dual import dual_operators, projection_weights, solve_dual
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver
 from ..dd.substructure import Substructures
 from .interface import GlobalInterface
@@ -71,7 +71,7 @@ class FetiFetiSolver:
         return np.bincount(self.representative, weights=y, minlength=self.sub.n_W)
 
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
-              lam0: np.ndarray | None = None) -> MethodOutput:
+              lam0: np.ndarray | None = None, projection: str = "weighted") -> MethodOutput:
         """Solve (3.35) on the active set Z^k.
 
         Parameters
@@ -81,6 +81,9 @@ class FetiFetiSolver:
         rtol, maxiter, cond : see :func:`ddsolve.krylov.pcg`.
         lam0 : ndarray, optional
             Warm start (local multipliers first, then the active global ones).
+        projection : {"weighted", "orthogonal"}
+            Q-weighted projection under rho-scaling (default, as in one-level FETI) or
+            the orthogonal P = I - G (G^T G)^{-1} G^T of (2.13) (the thesis preset).
 
         Returns
         -------
@@ -100,7 +103,7 @@ class FetiFetiSolver:
         if self.floating.size:
             G = (B @ self.R).tocsc()
             e = self.R.T @ sub.f_W
-        q = None if sub.scaling == "multiplicity" else B_D.multiply(B_D) @ sub.rho[sub.sub_of_W]
+        q = projection_weights(B_D, sub.rho[sub.sub_of_W], sub.scaling, projection)
         setup = time.perf_counter() - t0
         sol = solve_dual(F, M, d, G, e, q, rtol=rtol, maxiter=maxiter, cond=cond, lam0=lam0)
         u_W = self.primal_solver.solve(sub.f_W - BT @ sol.lam)

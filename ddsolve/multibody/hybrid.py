@@ -56,7 +56,10 @@ from .interface import GlobalInterface
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ActiveSet", "HybridSolver", "InterfaceSpace", "PROJECTIONS", "NORMS"]
+__all__ = ["ActiveSet", "HybridSolver", "InterfaceSpace", "PROJECTIONS", "NORMS", "RTOL_RULES"]
+
+#: Stopping rules of a face solve: ||r_n|| <= rtol max(||r_0||, ||F_k||) (default) or rtol ||r_0|| (Section 4.4).
+RTOL_RULES: tuple[str, ...] = ("max", "initial")
 
 #: Projections onto V^k = ker(G^kT): ``"orthogonal"`` is P^k of Section 4.2;
 #: ``"dirichlet"`` and ``"lumped"`` are Q-weighted (FETI's P = I - QG(G^T Q G)^{-1} G^T)
@@ -420,7 +423,7 @@ class HybridSolver:
     # ---------------------------------------------------------------- solve
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000,
               x0: Any = None, restart: int = 100, norm: str = "l2",
-              projection: str = "orthogonal") -> MethodOutput:
+              projection: str = "orthogonal", rtol_rule: str = "max") -> MethodOutput:
         """Solve the KKT system (4.2) on the active set Z^k: PCR on (4.5) with (4.11).
 
         The iteration runs on range(P_R) x V^k for (u_Gamma, mu) with
@@ -436,7 +439,7 @@ class HybridSolver:
             Stopping rule ||r_n|| <= rtol max(||r_0||, ||F_k||), F_k the
             right-hand side of (4.5): ||r_n|| / ||r_0|| < rtol for a zero initial
             guess (the rule of Section 4.4); a good warm start stops at the
-            level a cold start would reach.
+            level a cold start would reach (``rtol_rule="max"``).
         maxiter : int
         x0 : dict or ndarray, optional
             Warm start: the ``extra["state"]`` of a previous solve (possibly on a
@@ -472,6 +475,11 @@ class HybridSolver:
             FETI), which P^k is not. ``"lumped"``: Q = B_D diag(K_GG) B_D^T, a cheaper
             diagonal. Cost: one M_D^{-1} application per floating body and
             active set (``"dirichlet"``), cached.
+        rtol_rule : {"max", "initial"}
+            ``"max"`` (default): stop at ||r_n|| <= rtol max(||r_0||, ||F_k||).
+            ``"initial"``: at ||r_n|| <= rtol ||r_0|| (Section 4.4 as printed, also
+            for a warm start: the thesis preset, :mod:`ddsolve.presets`). The two
+            agree for a zero initial guess (r_0 = F_k).
 
         Returns
         -------
@@ -492,6 +500,8 @@ class HybridSolver:
             raise ValueError(f"unknown norm {norm!r} (choose from {', '.join(NORMS)})")
         if projection not in PROJECTIONS:
             raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
+        if rtol_rule not in RTOL_RULES:
+            raise ValueError(f"unknown rtol_rule {rtol_rule!r} (choose from {', '.join(RTOL_RULES)})")
         t0 = time.perf_counter()
         a = self.active_set(active)
         n_act = a.n_active
@@ -519,7 +529,7 @@ class HybridSolver:
         n = n_g + n_act
         setup = time.perf_counter() - t0
         kr = self._pcr(linear_operator(n, A_op), b, xs, linear_operator(n, M_op), rtol, maxiter, restart,
-                       norm=norm)
+                       norm=norm, relative_to_rhs=rtol_rule == "max")
         u_g = kr.x[:n_g]
         mu = kr.x[n_g:]
         lam = lam0 + proj.apply(mu)
@@ -542,10 +552,60 @@ class HybridSolver:
                    "constraint_residual": jump,
                    "state": {"u_gamma": u_g.copy(), "lambda": lam_full, "active": a.active.copy()}})
 
+    def system(self, active: np.ndarray, *, x0: Any = None,
+               projection: str = "orthogonal") -> tuple[Any, Any, np.ndarray, np.ndarray | None]:
+        """The system PCR solves in :meth:`solve`: ``(A, M, b, x0)`` of (4.13)/(4.5) with (4.11).
+
+        For analysis (e.g. :func:`ddsolve.krylov.optimal.minimal_residual_counts`
+        or a tiny exact spectrum of ``M A``); :meth:`solve` builds the same
+        operators.
+
+        Parameters
+        ----------
+        active : ndarray of bool, shape (n_gl,)
+        x0 : dict or ndarray, optional
+            Warm start as in :meth:`solve`.
+        projection : {"orthogonal", "dirichlet", "lumped"}
+
+        Returns
+        -------
+        A : LinearOperator, shape (n, n)
+            The symmetric indefinite operator of (4.13), n = n_gamma + n_active.
+        M : LinearOperator, shape (n, n)
+            The SPD (on range(P_R) x V^k) preconditioner (4.11).
+        b : ndarray, shape (n,)
+            The right-hand side of (4.5) (lambda_0 eliminated).
+        x0 : ndarray, shape (n,), or None
+            The projected initial guess (None: zero).
+        """
+        if projection not in PROJECTIONS:
+            raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
+        a = self.active_set(active)
+        n_g, n_act = self.gamma_space.n, a.n_active
+        lam0 = a.projection.particular(self.kernel_load()) if self.floating.size else np.zeros(n_act)
+        proj = self.projection(a, projection)
+
+        def A_op(x: np.ndarray) -> np.ndarray:
+            u, mu = x[:n_g], x[n_g:]
+            return np.concatenate([self.S_hat(u) + a.jump.rmatvec(proj.apply(mu)),
+                                   proj.apply_transpose(a.jump.matvec(u))])
+
+        def M_op(r: np.ndarray) -> np.ndarray:
+            zu = self.P_R(self.M_bddc(self.P_R(r[:n_g])))
+            zl = proj.apply(self.M_D(a, proj.apply_transpose(r[n_g:])))
+            return np.concatenate([zu, zl])
+
+        b = np.concatenate([self.g_hat - a.jump.rmatvec(lam0), np.zeros(n_act)])
+        n = n_g + n_act
+        return (linear_operator(n, A_op), linear_operator(n, M_op), b,
+                self._initial_guess(a, x0, lam0, proj))
+
     @staticmethod
     def _pcr(A: Any, b: np.ndarray, x0: np.ndarray | None, M: Any, rtol: float, maxiter: int,
-             restart: int, norm: str = "l2") -> KrylovResult:
+             restart: int, norm: str = "l2", relative_to_rhs: bool = True) -> KrylovResult:
         """PCR on (4.14) with restarts; stop at ||r_n|| <= rtol max(||r_0||, ||F_k||).
+
+        ``relative_to_rhs=False``: at ||r_n|| <= rtol ||r_0|| (``rtol_rule="initial"``).
 
         All norms (the threshold, the recursive and the recomputed residuals)
         are ``norm``: ||.||_2, or ||r||_B = <r, B^{-1} r>^{1/2} with B^{-1} = ``M``
@@ -568,8 +628,8 @@ class HybridSolver:
             Iterations, matvecs, seconds and residual histories of all cycles;
             ``restarts`` the number of restarts.
         """
-        bnorm = PCR.rhs_norm(b, M, norm)
-        return PCR.restarted(A, b, x0, rtol=rtol, atol=rtol * bnorm, maxiter=maxiter, restart=restart,
+        atol = rtol * PCR.rhs_norm(b, M, norm) if relative_to_rhs else 0.0
+        return PCR.restarted(A, b, x0, rtol=rtol, atol=atol, maxiter=maxiter, restart=restart,
                              M=M, norm=norm)
 
     def _initial_guess(self, a: ActiveSet, x0: Any, lam0: np.ndarray,

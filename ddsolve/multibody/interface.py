@@ -74,6 +74,11 @@ class GlobalInterface:
             w = np.ones(sub.n_W)
         else:
             w = sub.rho[sub.sub_of_W] ** sub.gamma
+            if not np.all((w > 0.0) & np.isfinite(w)):   # rho^gamma over/underflows: same ratios, scaled
+                log_w = sub.gamma * np.log(sub.rho[sub.sub_of_W])   # to a largest weight of 1 per location
+                top = np.full(loc.max() + 1, -np.inf)
+                np.maximum.at(top, loc[sub.node_of_W], log_w)
+                w = np.exp(log_w - top[loc[sub.node_of_W]])
         node_w = np.bincount(sub.node_of_W, weights=w, minlength=scene.n_nodes)
         loc_w = np.bincount(loc, weights=node_w, minlength=loc.max() + 1)
         weight = np.zeros(sub.n_W)

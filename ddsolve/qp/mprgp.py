@@ -37,6 +37,13 @@ Each iteration is one of three steps (Figure 6.6):
   it releases variables from their bounds), and ``p = phi(x)``.
 
 Cost: one multiplication by ``A`` per CG or proportioning step, two per expansion step.
+
+Scale invariance: :func:`mprgp` solves the problem rescaled by powers of two
+(:mod:`ddsolve.qp.scaling`: ``||A'||`` and ``||b'||`` in ``[1, 2)``), which is exact in
+binary floating point: the iterates are the same numbers as those of the unscaled
+iteration (bit-identical results) wherever that one does not over- or underflow, and
+the curvatures ``p^T A p`` stay representable for ``A`` and ``b`` anywhere in the
+double range (e.g. multipliers of size 1e150 or 1e-150).
 """
 from __future__ import annotations
 
@@ -50,8 +57,10 @@ import numpy as np
 from scipy.sparse.linalg import LinearOperator, aslinearoperator
 
 from ..errors import InputError
+from ..krylov.convergence import norm2
 from .norm import estimate_norm
 from .result import QPResult
+from .scaling import QPScaling
 
 log = logging.getLogger(__name__)
 
@@ -160,9 +169,21 @@ class _CoreResult:
     gp_norms: list[float] = field(default_factory=list)
 
 
+def gradient_norm(phi: np.ndarray, beta: np.ndarray, phi2: float, beta2: float) -> float:
+    """``||g^P|| = sqrt(||phi||^2 + ||beta||^2)`` from the squares, safe against over/underflow.
+
+    The squares are used when their sum is finite and not tiny (the same number as before);
+    otherwise the scaled norms (:func:`~ddsolve.krylov.convergence.norm2`) are combined by ``hypot``.
+    """
+    total = phi2 + beta2
+    if 2.0 ** -880 <= total < math.inf:
+        return math.sqrt(total)
+    return math.hypot(norm2(phi), norm2(beta))
+
+
 def _mprgp_core(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, lb: np.ndarray,
                 x: np.ndarray, g: np.ndarray, *, alpha: float, Gamma: float, stop: StopRule,
-                maxiter: int, halfstep: bool = True) -> _CoreResult:
+                maxiter: int, halfstep: bool = True, g_exp: int = 0) -> _CoreResult:
     """Run the MPRGP iteration of Figure 6.6 from a feasible ``x`` with ``g = A x - b``.
 
     Parameters
@@ -183,6 +204,9 @@ def _mprgp_core(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, lb: n
         Maximum number of steps.
     halfstep : bool
         Precede each expansion step by the feasible half step (see module docstring).
+    g_exp : int
+        The gradients are ``2^g_exp`` times those of the caller's units (rescaled problem,
+        :mod:`ddsolve.qp.scaling`): used for the norms quoted in messages only.
     """
     debug = log.isEnabledFor(logging.DEBUG)
     x = x.copy()
@@ -197,14 +221,14 @@ def _mprgp_core(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, lb: n
         beta = np.where(free, 0.0, np.minimum(g, 0.0))
         phi2 = float(phi @ phi)
         beta2 = float(beta @ beta)
-        gp_norm = math.sqrt(phi2 + beta2)
+        gp_norm = gradient_norm(phi, beta, phi2, beta2)
         out.gp_norms.append(gp_norm)
         msg = stop(x, gp_norm)
         if msg is not None:
             out.converged, out.reason = True, msg
             break
         if out.steps >= maxiter:
-            out.reason = f"maxiter {maxiter} reached: ||g^P|| = {gp_norm:.3e}"
+            out.reason = f"maxiter {maxiter} reached: ||g^P|| = {QPScaling.up(gp_norm, g_exp):.3e}"
             break
 
         # proportioning test ||beta||^2 <= Gamma^2 phit^T phi  ([14, Section 5.8])
@@ -277,7 +301,8 @@ def _mprgp_core(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, lb: n
             kind = "proportioning"
         out.steps += 1
         if debug:
-            log.debug("MPRGP step %d (%s): ||g^P|| = %.3e before the step", out.steps, kind, gp_norm)
+            log.debug("MPRGP step %d (%s): ||g^P|| = %.3e before the step", out.steps, kind,
+                      QPScaling.up(gp_norm, g_exp))
     out.x, out.g = x, g
     return out
 
@@ -349,7 +374,6 @@ def mprgp(A: Any, b: Any, lb: Any, x0: Any = None, *, Gamma: float = 1.0, alpha:
     rtol = check_positive("rtol", rtol, strict=False)
     atol = check_positive("atol", atol, strict=False)
     maxiter = max(100, 10 * n) if maxiter is None else check_count("maxiter", maxiter)
-    stop = _make_stop(tol, rtol, atol, float(np.linalg.norm(b)))
     x = _start_vector(x0, lb, n)
 
     n_hessian = 0
@@ -367,17 +391,27 @@ def mprgp(A: Any, b: Any, lb: Any, x0: Any = None, *, Gamma: float = 1.0, alpha:
         if alpha > 2.0 / norm_A * (1.0 + 1e-12):
             raise InputError("alpha", f"must lie in (0, 2/||A||] = (0, {2.0 / norm_A:.6g}], got {alpha!r}")
 
-    def matvec(v: np.ndarray) -> np.ndarray:
-        return np.asarray(op.matvec(v), dtype=np.float64).ravel()
+    # the problem in the units of :mod:`ddsolve.qp.scaling` (exact powers of two)
+    sc = QPScaling.of(norm_A, b, x, lb)
+    up = QPScaling.up
+    stop = _make_stop(tol, rtol, atol, b, sc)
 
-    g = matvec(x) - b
+    def matvec(v: np.ndarray) -> np.ndarray:
+        """A' v = 2^-a A v."""
+        out = np.asarray(op.matvec(v), dtype=np.float64).ravel()
+        return up(out, -sc.a) if sc.a else out
+
+    b_s, lb_s, x_s = up(b, -sc.e), up(lb, -sc.x), up(x, -sc.x)
+    g_s = matvec(x_s) - b_s
     n_hessian += 1
-    core = _mprgp_core(matvec, b, lb, x, g, alpha=alpha, Gamma=Gamma, stop=stop,
-                       maxiter=maxiter, halfstep=halfstep)
+    core = _mprgp_core(matvec, b_s, lb_s, x_s, g_s, alpha=up(alpha, sc.a), Gamma=Gamma, stop=stop,
+                       maxiter=maxiter, halfstep=halfstep, g_exp=sc.e)
+    x = up(core.x, sc.x)
+    np.maximum(x, lb, out=x)                         # exact unless a bound was subnormal in scaled units
     res = QPResult(
-        x=core.x, converged=core.converged, reason=core.reason, iterations=core.steps,
+        x=x, converged=core.converged, reason=core.reason, iterations=core.steps,
         n_hessian=n_hessian + core.n_matvec, n_cg=core.n_cg, n_expansion=core.n_expansion,
-        n_proportioning=core.n_proportioning, gradient_norms=np.asarray(core.gp_norms),
+        n_proportioning=core.n_proportioning, gradient_norms=up(np.asarray(core.gp_norms), sc.e),
         seconds=time.perf_counter() - t0, alpha=alpha,
     )
     log.info("MPRGP n=%d: %s after %d steps (cg %d, expansion %d, proportioning %d, A-mults %d)",
@@ -385,18 +419,27 @@ def mprgp(A: Any, b: Any, lb: Any, x0: Any = None, *, Gamma: float = 1.0, alpha:
     return res
 
 
-def _make_stop(tol: float | StopRule | None, rtol: float, atol: float, norm_b: float) -> StopRule:
-    """Build the stopping rule ``||g^P|| <= threshold`` (or wrap a callable ``tol``)."""
+def _make_stop(tol: float | StopRule | None, rtol: float, atol: float, b: np.ndarray,
+               sc: QPScaling = QPScaling()) -> StopRule:
+    """The stopping rule ``||g^P|| <= threshold`` (or a callable ``tol``) in the scaled units ``sc``.
+
+    The rule gets the scaled iterate ``x'`` and ``||g'^P||``; a callable ``tol`` is called with
+    ``x = 2^(e-a) x'`` and ``||g^P|| = 2^e ||g'^P||`` (the caller's units), messages quote those.
+    """
+    up = QPScaling.up
     if callable(tol):
-        return tol
+        user = tol
+        if sc.a == 0 and sc.e == 0:
+            return user
+        return lambda x, gp_norm: user(up(x, sc.x), up(gp_norm, sc.e))
     if tol is not None:
-        threshold = check_positive("tol", tol, strict=False)
+        threshold = up(check_positive("tol", tol, strict=False), -sc.e)
     else:
-        threshold = max(rtol * norm_b, atol)
+        threshold = max(rtol * norm2(up(b, -sc.e)), up(atol, -sc.e))
 
     def stop(x: np.ndarray, gp_norm: float) -> str | None:
         if gp_norm <= threshold:
-            return f"converged: ||g^P|| = {gp_norm:.3e} <= {threshold:.3e}"
+            return f"converged: ||g^P|| = {up(gp_norm, sc.e):.3e} <= {up(threshold, sc.e):.3e}"
         return None
 
     return stop

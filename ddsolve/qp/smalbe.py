@@ -33,6 +33,17 @@ Outer iteration k (Figure 6.7):
 At convergence the returned multiplier is ``mu = mu^k + rho_k (B_E x^k - c)``, so that
 ``A x - b + B_E^T mu = g(x^k, mu^k, rho_k)`` has a small projected part (KKT conditions of
 (6.1) with the sign convention of (6.2)).
+
+Scale invariance: the iteration runs on the problem rescaled by powers of two
+(:mod:`ddsolve.qp.scaling`; ``rho`` and ``mu`` rescaled with ``A`` and ``b``), which
+is exact: the same numbers as the unscaled iteration wherever that one does not over-
+or underflow, and representable curvatures, norms and tolerances (``eps ||b||``) for
+data anywhere in the double range. The parameters are absolute: ``rho0`` in the units of
+``A / ||BE||^2``, ``M`` in those of ``A``, ``eta`` and ``atol`` in those of ``b``, ``feas_tol``
+in those of ``x`` (``BE x - c``); the default ``feas_tol = eps ||b||`` of Section 6.4
+compares ``||BE x - c||`` with a quantity in the units of ``b``. Scaling ``A`` by ``s`` and
+``b`` by ``t`` gives the same iterations (and ``x`` scaled by ``t/s``) when ``rho0`` and ``M``
+are scaled by ``s`` and ``feas_tol`` by ``t/s``; scaling ``b`` alone needs nothing.
 """
 from __future__ import annotations
 
@@ -45,10 +56,12 @@ import numpy as np
 from scipy.sparse.linalg import LinearOperator
 
 from ..errors import InputError
+from ..krylov.convergence import norm2
 from .mprgp import (ALPHA_FACTOR, _mprgp_core, _start_vector, as_operator, as_vector,
                     check_count, check_positive)
 from .norm import estimate_norm
 from .result import QPResult
+from .scaling import QPScaling
 
 log = logging.getLogger(__name__)
 
@@ -156,11 +169,11 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
     atol = check_positive("atol", atol, strict=False)
     max_outer = check_count("max_outer", max_outer, 1)
     maxiter = max(200, 20 * n) if maxiter is None else check_count("maxiter", maxiter)
-    norm_b = float(np.linalg.norm(b))
-    if eta is None:
-        eta = 0.1 * norm_b if norm_b > 0.0 else 1.0
-    else:
+    norm_b = norm2(b)
+    if eta is not None:
         eta = check_positive("eta", eta)
+    if feas_tol is not None:
+        feas_tol = check_positive("feas_tol", feas_tol)
     x = _start_vector(x0, lb, n)
 
     n_hessian = 0
@@ -178,6 +191,22 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
     if norm_A + norm_BE == 0.0:
         raise InputError("A", "A and BE are both zero")
 
+    # the problem in the units of :mod:`ddsolve.qp.scaling` (exact powers of two): A = 2^a A',
+    # b = 2^e b', x, lb, c, BE x - c = 2^(e-a) (.)', mu = 2^e mu', rho = 2^a rho'
+    sc = QPScaling.of(norm_A, b, x, lb, c)
+    up = QPScaling.up
+    lb_user = lb
+    b, lb, c, x, mu = up(b, -sc.e), up(lb, -sc.x), up(c, -sc.x), up(x, -sc.x), up(mu, -sc.e)
+    norm_b = norm2(b)
+    if eta is None:
+        eta = 0.1 * norm_b if norm_b > 0.0 else up(1.0, -sc.e)
+    else:
+        eta = up(eta, -sc.e)
+    atol = up(atol, -sc.e)
+    norm_A = up(norm_A, -sc.a)
+    rho = up(rho, -sc.a)
+    M = up(M, -sc.a)                                 # ||g^P|| <= M ||BE x - c||: M has the units of A
+
     def Bmul(v: np.ndarray) -> np.ndarray:
         return np.asarray(opB.matvec(v), dtype=np.float64).ravel()
 
@@ -185,7 +214,9 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         return np.asarray(opB.rmatvec(w), dtype=np.float64).ravel()
 
     def Amul(v: np.ndarray) -> np.ndarray:
-        return np.asarray(opA.matvec(v), dtype=np.float64).ravel()
+        """A' v = 2^-a A v."""
+        out = np.asarray(opA.matvec(v), dtype=np.float64).ravel()
+        return up(out, -sc.a) if sc.a else out
 
     penalty = [rho]                                  # mutable, read by H at call time
 
@@ -194,7 +225,17 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         return Amul(v) + penalty[0] * BTmul(Bmul(v))
 
     tol_outer = max(eps * norm_b, atol)
-    tol_feas = tol_outer if feas_tol is None else check_positive("feas_tol", feas_tol)
+    # ||BE x - c|| <= tol_feas (in the units of x: the user's tol_outer is 2^e tol_outer' = 2^(e-a) tol_feas')
+    tol_feas = up(tol_outer, sc.a) if feas_tol is None else up(feas_tol, -sc.x)
+
+    def gu(value: float) -> float:
+        """A gradient norm in the caller's units (messages, histories)."""
+        return up(value, sc.e)
+
+    def xu(value: float) -> float:
+        """A norm of BE x - c in the caller's units."""
+        return up(value, sc.x)
+
     BTc = BTmul(c)
 
     # gradient of L(x, mu, rho) (6.3): A x - b + BE^T (mu + rho (BE x - c))
@@ -203,12 +244,12 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
     n_hessian += 1
 
     def inner_stop(xk: np.ndarray, gp_norm: float) -> str | None:
-        feas = float(np.linalg.norm(Bmul(xk) - c))
+        feas = norm2(Bmul(xk) - c)
         if gp_norm <= tol_outer and feas <= tol_feas:
-            return f"outer rule met: ||g^P|| = {gp_norm:.3e}, ||BE x - c|| = {feas:.3e}"
+            return f"outer rule met: ||g^P|| = {gu(gp_norm):.3e}, ||BE x - c|| = {xu(feas):.3e}"
         bound = min(M * feas, eta)
         if gp_norm <= bound:
-            return f"||g^P|| = {gp_norm:.3e} <= min(M ||BE x - c||, eta) = {bound:.3e}"
+            return f"||g^P|| = {gu(gp_norm):.3e} <= min(M ||BE x - c||, eta) = {gu(bound):.3e}"
         return None
 
     inner: list[int] = []
@@ -227,7 +268,7 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         bt = b - BTmul(mu) + rho * BTc
         remaining = maxiter - total
         core = _mprgp_core(Hmul, bt, lb, x, g, alpha=alpha, Gamma=Gamma, stop=inner_stop,
-                           maxiter=remaining, halfstep=halfstep)
+                           maxiter=remaining, halfstep=halfstep, g_exp=sc.e)
         x, g = core.x, core.g
         total += core.steps
         inner.append(core.steps)
@@ -236,16 +277,16 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         counts["exp"] += core.n_expansion
         counts["prop"] += core.n_proportioning
         r = Bmul(x) - c
-        feas = float(np.linalg.norm(r))
+        feas = norm2(r)
         gp_norm = core.gp_norms[-1]
-        gp_hist.append(gp_norm)
-        feas_hist.append(feas)
+        gp_hist.append(gu(gp_norm))
+        feas_hist.append(xu(feas))
         log.debug("SMALBE outer %d: rho = %.3g, %d MPRGP steps, ||g^P|| = %.3e, ||BE x - c|| = %.3e",
-                  k, rho, core.steps, gp_norm, feas)
+                  k, up(rho, sc.a), core.steps, gu(gp_norm), xu(feas))
         if not core.converged:
             if core.steps >= remaining:
                 reason = (f"maxiter {maxiter} (total MPRGP steps) reached in outer iteration {k}: "
-                          f"||g^P|| = {gp_norm:.3e}, ||BE x - c|| = {feas:.3e}")
+                          f"||g^P|| = {gu(gp_norm):.3e}, ||BE x - c|| = {xu(feas):.3e}")
             else:
                 reason = f"inner MPRGP failed in outer iteration {k}: {core.reason}"
             mu = mu + rho * r
@@ -256,12 +297,12 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         mu = mu + rho * r
         if gp_norm <= tol_outer and feas <= tol_feas:
             converged = True
-            if tol_feas == tol_outer:
-                reason = (f"converged: ||g^P|| = {gp_norm:.3e} and ||BE x - c|| = {feas:.3e} "
-                          f"<= eps ||b|| = {tol_outer:.3e}")
+            if xu(tol_feas) == gu(tol_outer):
+                reason = (f"converged: ||g^P|| = {gu(gp_norm):.3e} and ||BE x - c|| = {xu(feas):.3e} "
+                          f"<= eps ||b|| = {gu(tol_outer):.3e}")
             else:
-                reason = (f"converged: ||g^P|| = {gp_norm:.3e} <= eps ||b|| = {tol_outer:.3e} and "
-                          f"||BE x - c|| = {feas:.3e} <= {tol_feas:.3e}")
+                reason = (f"converged: ||g^P|| = {gu(gp_norm):.3e} <= eps ||b|| = {gu(tol_outer):.3e} and "
+                          f"||BE x - c|| = {xu(feas):.3e} <= {xu(tol_feas):.3e}")
             break
         # penalty update (step 4)
         rho_new = rho
@@ -271,12 +312,17 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         # gradient for (mu^{k+1}, rho_{k+1}) without an A multiplication:
         # g_new = g + BE^T (mu^{k+1} - mu^k) + (rho_{k+1} - rho_k) BE^T r = g + rho_{k+1} BE^T r
         if rho_new != rho:
-            log.debug("SMALBE outer %d: penalty increased %.3g -> %.3g", k, rho, rho_new)
+            log.debug("SMALBE outer %d: penalty increased %.3g -> %.3g", k, up(rho, sc.a), up(rho_new, sc.a))
         rho = rho_new
         penalty[0] = rho
         g = g + rho * BTmul(r)
     else:
-        reason = f"max_outer {max_outer} reached: ||g^P|| = {gp_norm:.3e}, ||BE x - c|| = {feas:.3e}"
+        reason = (f"max_outer {max_outer} reached: ||g^P|| = {gu(gp_norm):.3e}, "
+                  f"||BE x - c|| = {xu(feas):.3e}")
+    # back to the caller's units
+    x = up(x, sc.x)
+    np.maximum(x, lb_user, out=x)                    # exact unless a bound was subnormal in scaled units
+    mu, rho, alpha = up(mu, sc.e), up(rho, sc.a), up(alpha, -sc.a)
     res = QPResult(
         x=x, converged=converged, reason=reason, iterations=total, outer_iterations=len(inner),
         inner_iterations=inner, n_hessian=n_hessian, n_cg=counts["cg"], n_expansion=counts["exp"],

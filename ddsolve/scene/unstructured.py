@@ -37,14 +37,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..options import GEOMETRIES  # geometries of each problem (the first is the default)
 from .contact import DOSTAL_LOADS, NET_LOAD_FLOOR, dostal_loads
 from .partition import partition_elements
 from .scene import RightHandSide, Scene, sorted_unique
 
 log = logging.getLogger(__name__)
-
-#: Geometries of each problem (the first is the default).
-GEOMETRIES = {"poisson": ("square", "lshape", "hole"), "multibody": ("square",), "contact": ("membranes",)}
 
 #: Timings (seconds) of the last :func:`unstructured_scene` / :func:`scene_from_mesh` call:
 #: ``"mesh"`` (netgen meshing and refinement), ``"split"`` and ``"partition"``.

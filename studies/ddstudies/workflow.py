@@ -17,14 +17,15 @@ import yaml
 
 from ddsolve import options
 
-__all__ = ["KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate", "unique_labels", "bench_tol_label",
-           "bench_rtols", "check_finite", "check_cases", "case_mem_mb", "case_runtime", "machine_memory", "check_results",
-           "quarantine", "remove_stale_tmp", "release_complete", "record_lock_owner",
-           "release_stale_lock", "sha256", "write_manifest", "read_manifest"]
+__all__ = ["rule_sets", "contact_precision_grids", "KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate",
+           "unique_labels", "bench_tol_label", "bench_rtols", "check_finite", "check_cases", "case_mem_mb",
+           "case_runtime", "machine_memory", "check_results", "quarantine", "remove_stale_tmp", "release_complete",
+           "record_lock_owner", "release_stale_lock", "sha256", "write_manifest", "read_manifest"]
 
 #: Study kinds (config key ``kind``) and the schema each is validated against.
 SCHEMAS: dict[str, str] = {"grid": "config", "table_4": "config", "contact": "config", "bench": "bench",
-                           "scaling": "scaling", "stress": "stress"}
+                           "scaling": "scaling", "stress": "stress", "mpi": "mpi",
+                           "ngsolve": "ngsolve"}
 #: The study kinds.
 KINDS: tuple[str, ...] = tuple(SCHEMAS)
 
@@ -511,3 +512,20 @@ def remove_stale_tmp(root: str | os.PathLike = "results") -> list[str]:
                 except FileNotFoundError:
                     pass
     return removed
+
+
+def rule_sets() -> list[str]:
+    """The rule sets the fidelity reports sweep: ``"default"``, then every other preset of ddsolve.
+
+    ``ddsolve.options.PRESETS`` (branch ``preset``: ``("default", "thesis")``) when it
+    exists; until then only ``["default"]``.
+    """
+    from ddsolve import options
+
+    presets = [str(p) for p in getattr(options, "PRESETS", ()) if p != "default"]
+    return ["default", *presets]
+
+
+def contact_precision_grids(subdomains: Iterable[int], elements: Iterable[int], limit: int = 32) -> list[str]:
+    """``"N,H/h"`` of the study's grids with N * H/h <= ``limit`` (the work-precision comparison's grids)."""
+    return [f"{n},{m}" for n in subdomains for m in elements if int(n) * int(m) <= limit]

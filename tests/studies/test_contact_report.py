@@ -151,4 +151,4 @@ def test_dry_run_plans_the_contact_study(tmp_path):
     text = proc.stdout + proc.stderr
     counts = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)\s*$", text, flags=re.MULTILINE)}
     assert counts == {"solve_case": 50, "aggregate": 1, "contact_table": 2, "contact_comparison": 1,
-                      "figure_5_2": 1, "all": 1, "total": 56}
+                      "figure_5_2": 1, "contact_work_precision": 1, "all": 1, "total": 57}

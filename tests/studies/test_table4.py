@@ -304,6 +304,7 @@ def test_dry_run_table_4(workdir):
     assert "results/table_4/hybrid/middle/Nb2_Ns48_m2.h5" in text  # beyond the thesis's table
     assert "reports/table_4/table_4_2.md" in text and "reports/table_4/figure_hybrid_iterations.png" in text
     assert "reports/table_4/table_4_growth.md" in text and "figure_iterations_vs_HbHs.png" in text
+    assert "reports/table_4/table_4_2_optimal.md" in text and "reports/table_4/table_4_1_readings.md" in text
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "thesis.yaml",
                      "--config", "methods=[feti-feti]")
     text = proc.stdout + proc.stderr
@@ -311,6 +312,7 @@ def test_dry_run_table_4(workdir):
     assert "table_4_1.md" in text and "figure_4_3.png" in text
     assert "table_4_2" not in text and "figure_hybrid_iterations" not in text
     assert "table_4_growth" not in text and "figure_iterations_vs_HbHs" not in text
+    assert "table_4_1_readings.md" in text   # FETI-FETI's exact spectra under the thesis's readings
 
 
 @pytest.mark.slow
@@ -329,6 +331,8 @@ def test_tiny_multibody_study_end_to_end(workdir):
     assert "2.5536" in table and "1.9940" in table and "(II) cond dev." in table
     assert "2.5536" in (reports / "table_4_1.tex").read_text()
     assert not (reports / "table_4_2.md").exists()  # no hybrid runs: no table 4.2
+    readings = (reports / "table_4_1_readings.md").read_text()
+    assert "| 2 | 2 | 2 | I | weighted | all | full |" in readings and "thesis 2.5536" in readings
     for figure in ("figure_4_2", "figure_4_3"):
         assert (reports / f"{figure}.png").read_bytes()[:4] == b"\x89PNG"
 

@@ -24,7 +24,7 @@ CONTACT = KIND == "contact"
 #: Config keys shared by every case, passed unchanged to ddsolve.spec.ProblemSpec
 #: (a multibody case overrides `bodies` with its own value and adds `contact`).
 SHARED_SPEC_KEYS = ("problem", "bodies", "rho", "f", "scaling", "gamma", "norm", "projection", "rtol", "maxiter",
-                    "cond", "check")
+                    "cond", "check", "preset")
 
 
 def _as_list(value):
@@ -125,9 +125,14 @@ def grid_report_files():
     if MULTIBODY:
         files += [f"reports/{STUDY}/{name}.png" for name, fig in config["figures"].items()
                   if fig["method"] in methods]
+        if "hybrid" in methods:   # Table 4.2 evidence (multibody.smk, rule table_4_2_optimal)
+            files.append(f"reports/{STUDY}/table_4_2_optimal.md")
+        if "feti-feti" in methods:   # Table 4.1 readings (multibody.smk, rule table_4_1_readings)
+            files.append(f"reports/{STUDY}/table_4_1_readings.md")
         return files
     if {"active-set", "smalbe"} <= methods:
         files += [f"reports/{STUDY}/comparison.{ext}" for ext in ("md", "tex", "png")]
+        files += [f"reports/{STUDY}/work_precision.{ext}" for ext in ("md", "png")]   # contact.smk
     files += [f"reports/{STUDY}/figure_5_2_{part}" for part in ("surface.png", "contact.png", "contact.csv")]
     return files
 
@@ -241,6 +246,14 @@ if KIND == "scaling":
                                                                [SCALING_PROFILE["elements"]])).items()}
 
 
+# --- kind ngsolve (ngsolve.smk) -------------------------------------------------------------
+# One job for the whole study (ddstudies.ngsolve_bench); its settings travel as JSON in params.
+import json
+
+#: Config keys handed to ddstudies.ngsolve_bench.
+NGSOLVE_KEYS = ("orders", "solvers", "dofs_per_part", "rtol", "maxiter", "parts_sweep")
+
+
 # --- kind stress (stress.smk) ---------------------------------------------------------------
 # The cases are the catalog of ddstudies.stress (tier `tier`); each series job gets its
 # cases in `params`, so a changed case reruns its series. Case names are unique.
@@ -277,14 +290,31 @@ if KIND == "stress":
     STRESS_SERIES = list(dict.fromkeys(_stress_job(case) for case in STRESS_CASES))
 
 
+# --- kind mpi (mpi.smk) ---------------------------------------------------------------------
+# One job per number of ranks P, each launched with mpiexec -n P (resources tasks=P, mpi).
+
+
+def mpi_spec(wildcards=None):
+    """The ddsolve solve flags of the case (a plain dict: a params value)."""
+    return {key: config[key] for key in ("method", "subdomains", "elements", "rtol", "maxiter")}
+
+
+def mpi_case_files(wildcards=None):
+    return [f"results/{STUDY}/{config['method']}/P{P}.json" for P in config["ranks"]]
+
+
 def targets():
     """The reports of the study (the input of rule all)."""
+    if KIND == "mpi":
+        return [f"reports/{STUDY}/mpi.csv", f"reports/{STUDY}/mpi.md"]
     if KIND in GRID_KINDS:
         return grid_report_files()
     if KIND == "bench":
         return [f"reports/{STUDY}/work_precision.png", f"reports/{STUDY}/work_precision.csv"]
     if KIND == "scaling":
         return [f"reports/{STUDY}/{name}" for name in ("scaling.png", "scaling.csv", "scaling.md", "profile.txt")]
+    if KIND == "ngsolve":
+        return [f"reports/{STUDY}/ngsolve.md", f"reports/{STUDY}/ngsolve.png", f"results/{STUDY}/ngsolve.csv"]
     return [f"reports/{STUDY}/stress.md", f"results/{STUDY}/stress.csv"]
 
 

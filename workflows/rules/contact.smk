@@ -68,3 +68,30 @@ rule figure_5_2:
         "../envs/ddsolve.yaml"
     script:
         "../scripts/plot_figure_5_2.py"
+
+
+# Active set method against SMALBE at matched accuracy (ddstudies.contact_precision): the
+# study's small grids (N * H/h <= 32) solved by both methods at rtol = eps 1e-4 .. 1e-8 under
+# every rule set (default and, where ddsolve has it, the thesis preset): total iterations and
+# time against the KKT residual reached; the verdict per rule set is computed.
+rule contact_work_precision:
+    output:
+        md=report("reports/{study}/work_precision.md", caption="../report/contact_work_precision.rst",
+                  category="Chapters 5 and 6: contact"),
+        csv="reports/{study}/work_precision.csv",
+        png=report("reports/{study}/work_precision.png", caption="../report/contact_work_precision.rst",
+                   category="Chapters 5 and 6: contact"),
+    params:
+        grids=" ".join(f"--grid {g}" for g in studies_workflow.contact_precision_grids(
+            _as_list(config["subdomains"]), _as_list(config["elements"]))),
+        presets=" ".join(studies_workflow.rule_sets()),
+        f=config["f"],
+        maxiter=config["maxiter"],
+    log:
+        "logs/{study}/work_precision.log",
+    threads: 1
+    conda:
+        "../envs/ddsolve.yaml"
+    shell:
+        "python -m ddstudies.contact_precision {params.grids} --rtols 1e-4 1e-5 1e-6 1e-7 1e-8 "
+        "--presets {params.presets} --f '{params.f}' --maxiter {params.maxiter} --out {output.md} > {log} 2>&1"

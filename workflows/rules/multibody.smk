@@ -53,3 +53,60 @@ rule figure_4:
         "../envs/ddsolve.yaml"
     script:
         "../scripts/plot_figure_4.py"
+
+
+# Table 4.2 evidence (ddstudies.optimal): per case small enough (system size <= max_n), PCR's
+# iterations, the fewest iterations ANY Krylov method with the preconditioner (4.11) can need
+# for the same load (exact minimal residual over the preconditioned Krylov space), the
+# extreme eigenvalues of the preconditioned operator and the thesis's count; the finding
+# below the table is computed from these rows.
+rule table_4_2_optimal:
+    input:
+        thesis=thesis_table("table_4_2"),
+    output:
+        md=report("reports/{study}/table_4_2_optimal.md", caption="../report/table_4_2_optimal.rst",
+                  category="Chapter 4: multibody"),
+        json="reports/{study}/table_4_2_optimal.json",
+    params:
+        cases=" ".join(f"--case {b},{s},{e}" for b, s, e in CASES),
+        contacts=" ".join(CONTACTS),
+        f=config["f"],
+        rtol=config["rtol"],
+        presets=" ".join(studies_workflow.rule_sets()),
+        max_n=4000,
+    log:
+        "logs/{study}/table_4_2_optimal.log",
+    threads: 1
+    conda:
+        "../envs/ddsolve.yaml"
+    shell:
+        "python -m ddstudies.optimal {params.cases} --contacts {params.contacts} "
+        "--thesis {input.thesis} --f '{params.f}' --rtol {params.rtol} --presets {params.presets} "
+        "--max-n {params.max_n} "
+        "--out {output.md} > {log} 2>&1"
+
+
+# Table 4.1 readings (ddstudies.fetifeti_readings): exact FETI-FETI condition numbers of the
+# small cases under the readings of the thesis's open points (projection, scaling of B_gl at
+# body cross points, redundancy of the global multipliers); the closing paragraph compares
+# the closest reading with the thesis (computed). docs/findings.md cites this file.
+rule table_4_1_readings:
+    input:
+        thesis=thesis_table("table_4_1"),
+    output:
+        md=report("reports/{study}/table_4_1_readings.md", caption="../report/table_4_1_readings.rst",
+                  category="Chapter 4: multibody"),
+        json="reports/{study}/table_4_1_readings.json",
+    params:
+        cases=" ".join(f"--case {b},{s},{e}" for b, s, e in CASES),
+        contacts=" ".join(CONTACTS),
+        f=config["f"],
+        max_n=1100,
+    log:
+        "logs/{study}/table_4_1_readings.log",
+    threads: 1
+    conda:
+        "../envs/ddsolve.yaml"
+    shell:
+        "python -m ddstudies.fetifeti_readings {params.cases} --contacts {params.contacts} "
+        "--thesis {input.thesis} --f '{params.f}' --max-n {params.max_n} --out {output.md} > {log} 2>&1"

@@ -5,6 +5,8 @@
 #   bench    the work-precision benchmark (config/bench.yaml)
 #   scaling  the scaling study of the contact solvers (config/scaling.yaml)
 #   stress   the numerical stability stress study (config/stress.yaml)
+#   mpi      distributed solves with P MPI ranks (config/mpi.yaml; not in the reproduction)
+#   ngsolve  DDInverse against NGSolve's solvers (config/ngsolve.yaml)
 # Its targets (rule all) are `targets()` of common.smk.
 KIND = validate_study(config)
 
@@ -36,6 +38,13 @@ elif KIND == "bench":
 elif KIND == "scaling":
 
     include: "scaling.smk"
+
+elif KIND == "mpi":
+
+    include: "mpi.smk"
+elif KIND == "ngsolve":
+
+    include: "ngsolve.smk"
 
 else:
 

@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from ..aggregate import parse_list
+from .rule_sets import RULE_SET_COLUMN, by_rule_set
 from .tables import NOT_CONVERGED_MARK, NOT_CONVERGED_NOTE, describe_constants, to_latex, to_markdown
 
 #: Our key columns -> the key columns of the thesis transcriptions (table_5_1.csv, table_6_1.csv).
@@ -129,6 +130,8 @@ def contact_table(df: pd.DataFrame, thesis: pd.DataFrame | None = None, *,
         Int64, deviations as floats, lists as space-separated strings. A run
         that did not converge has its total marked ``*`` (``attrs["marks"]``,
         ``attrs["notes"]``, as in :func:`ddstudies.report.tables.condition_table`).
+        With a column ``preset`` in ``df`` (several rule sets), the rows are
+        paired per rule set (:func:`ddstudies.report.rule_sets.by_rule_set`).
 
     Raises
     ------
@@ -137,6 +140,8 @@ def contact_table(df: pd.DataFrame, thesis: pd.DataFrame | None = None, *,
     ValueError
         If a grid has two runs of ``method``.
     """
+    if RULE_SET_COLUMN in df.columns:    # several rule sets (the spec's preset): paired rows
+        return by_rule_set(df, lambda runs: contact_table(runs, thesis, method=method, columns=columns))
     data = _grid_frame(df, method)
     missing = [c[0] for c in columns if c[0] not in data.columns]
     if missing:

@@ -28,11 +28,14 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from .rule_sets import RULE_SET_COLUMN, by_rule_set
+
 #: Display names of key columns (1/H = subdomains per side, H/h = elements per subdomain side).
 ROW_LABELS: dict[str, str] = {
     "bodies": "1/H_b",
     "subdomains": "1/H",
     "elements": "H/h",
+    "rules": "rule set",     # ddstudies.report.rule_sets.RULE_SET_LEVEL: paired rows per preset
 }
 #: LaTeX versions of labels that need math mode.
 LATEX_LABELS: dict[str, str] = {
@@ -269,6 +272,9 @@ def multibody_table(df: pd.DataFrame, thesis: pd.DataFrame | None = None, *, met
     ValueError
         If two runs share method, contact and keys.
     """
+    if RULE_SET_COLUMN in df.columns:    # several rule sets (the spec's preset): paired rows
+        return by_rule_set(df, lambda runs: multibody_table(runs, thesis, method=method, quantities=quantities,
+                                                            contacts=contacts, order=order))
     keys = list(THESIS_KEYS)
     quantities = list(quantities)
     unknown = [c for c in contacts if c not in CONTACT_CASES]

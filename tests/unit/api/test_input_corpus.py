@@ -390,7 +390,10 @@ def test_valid_input_unchanged():
     assert spec.to_dict() == {"problem": "poisson", "method": "fetidp", "bodies": 1, "subdomains": 2, "elements": 4,
                               "rho": 1.0, "f": 1.0, "contact": "full", "scaling": "rho", "gamma": 1.0, "norm": "l2",
                               "projection": "orthogonal", "rtol": 1e-6, "maxiter": 1000, "cond": False,
-                              "check": False}
+                              "check": False, "preset": "default", "mesh": "structured", "geometry": "square", "maxh": 0.1,
+                              "refine": 0, "parts": 4, "mesh_file": "", "dirichlet": "boundary",
+                              "contact_boundary": "contact", "bodies_materials": "", "primal": "vertices",
+                              "output": ""}
     contact = ProblemSpec.from_mapping({"problem": "Contact", "method": "SMALBE", "subdomains": "3"})
     assert (contact.problem, contact.method, contact.bodies, contact.subdomains, contact.f, contact.rtol) == \
         ("contact", "smalbe", 2, 3, "dostal", 1e-5)

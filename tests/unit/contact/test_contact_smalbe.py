@@ -188,11 +188,34 @@ def test_iteration_counters(N, m):
     assert x["constraint_norms"][-1] <= 1e-5 * x["norm_b"]
 
 
-def test_thesis_parameters_and_iteration_counts():
-    """N = m = 4 with M = 1, rho0 = 30, Gamma = 1, eps = 1e-5: Table 6.1 reports 4 outer / 41 total."""
-    _, s, _ = run(4, 4, 1e-5)
-    assert s.outer_iterations <= 8
-    assert s.total_iterations <= 41
+#: Recorded baseline of OUR code at N = m = 4, eps = 1e-5, M = 1, rho0 = 30, Gamma = 1, no polish
+#: (outer iterations, MPRGP steps): default rules [10, 6, 6, 2]; the thesis preset's rules
+#: (rho_bar = ||P F P||, ||G lambda|| <= eps ||b||) [14, 4, 3, 4, 3]. Table 6.1 reports 4 / 41.
+BASELINE_4_4 = {"default": (4, 24), "thesis": (5, 28)}
+
+
+@pytest.mark.parametrize("preset", ["default", "thesis"])
+def test_stopping_rule_reached_and_counts_near_baseline(preset):
+    """SMALBE's own properties at N = m = 4: its stopping rule holds at the returned iterate, the
+    KKT conditions hold to the accuracy the rule implies, and the counts stay within 25 % (outer:
+    +-1) of the recorded baseline of this code (a regression band, not a comparison with the thesis)."""
+    from ddsolve.presets import solver_options
+
+    eps = 1e-5
+    options = {**solver_options(preset, "contact", "smalbe"), "polish": False}
+    p, s, ref = run(4, 4, eps, **options)
+    x = s.extra
+    assert s.converged, s.reason
+    assert x["gradient_norms"][-1] <= eps * x["norm_b"]
+    tol_eq = x["tol_equality"] if x["tol_equality"] is not None else eps * x["norm_b"]
+    assert abs(x["equality_defect"]) <= tol_eq and x["constraint_norms"][-1] <= tol_eq
+    k = p.kkt(s.u, s.lam)
+    assert k.dual_feasibility == 0.0 and k.feasibility < eps and k.complementarity < 0.1 * eps
+    assert k.stationarity < (20 if preset == "default" else 10) * eps      # measured 4e-6 / 6.4e-5
+    assert np.array_equal(s.active, ref.active)
+    outer, total = BASELINE_4_4[preset]
+    assert abs(s.outer_iterations - outer) <= 1
+    assert 0.75 * total <= s.total_iterations <= 1.25 * total
     assert s.inner_iterations[0] == max(s.inner_iterations)     # the first outer iteration is the costliest
 
 

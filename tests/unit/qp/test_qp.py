@@ -418,3 +418,42 @@ def test_smalbe_bad_arguments(kwargs, name):
     args.update(kwargs)
     with pytest.raises(ValueError, match=name):
         smalbe(**args)
+
+
+# --------------------------------------------------------------------------- scale invariance
+@pytest.mark.parametrize("ka, kb", [(0, 0), (-500, 480), (480, -500), (-330, -330), (330, 330), (7, -3)])
+def test_mprgp_power_of_two_scaling_gives_the_same_iterates(ka: int, kb: int) -> None:
+    """A -> 2^ka A, b -> 2^kb b (lb with x): the same steps and x scaled by 2^(kb-ka) exactly, across the
+    double range (p^T A p ~ 2^(2kb-ka) overflowed or underflowed before the rescaling). ||A|| is given:
+    LAPACK's eigensolver scales by non-powers of two outside its safe range."""
+    A, b, lb = bound_problem(3, 30)
+    norm_A = estimate_norm(A)[0]
+    ref = mprgp(A, b, lb, rtol=1e-10, norm_A=norm_A)
+    sA, sb = 2.0 ** ka, 2.0 ** kb
+    res = mprgp(A * sA, b * sb, lb * (sb / sA), rtol=1e-10, norm_A=norm_A * sA)
+    assert ref.converged and res.converged, res.reason
+    assert (res.iterations, res.n_cg, res.n_expansion, res.n_proportioning) == \
+        (ref.iterations, ref.n_cg, ref.n_expansion, ref.n_proportioning)
+    np.testing.assert_array_equal(res.x, ref.x * (sb / sA))
+
+
+@pytest.mark.parametrize("es, et", [(-150, 150), (150, -150), (100, 100), (-200, -100)])
+def test_mprgp_and_smalbe_powers_of_ten_scaling(es: int, et: int) -> None:
+    """A -> s A, b -> t b (s, t powers of ten, t/s up to 1e300): the same iteration counts and x -> (t/s) x to
+    round-off; SMALBE with rho0 and M scaled like A (units of A / ||BE||^2 and A) and feas_tol like x (the
+    default eps ||b|| of Section 6.4 compares ||BE x - c|| with a quantity in the units of b)."""
+    s, t = 10.0 ** es, 10.0 ** et
+    A, b, lb = bound_problem(5, 40)
+    ref = mprgp(A, b, lb, rtol=1e-10)
+    res = mprgp(A * s, b * t, lb * (t / s), rtol=1e-10)
+    assert res.converged and abs(res.iterations - ref.iterations) <= 1, (res.iterations, ref.iterations)
+    assert np.linalg.norm(res.x * (s / t) - ref.x) <= 1e-10 * np.linalg.norm(ref.x)
+    A, b, lb, B, c = be_problem(5, 40, 3)
+    feas_tol = 1e-8 * np.linalg.norm(b)
+    ref = smalbe(A, b, lb, B, c, eps=1e-8, feas_tol=feas_tol)
+    res = smalbe(A * s, b * t, lb * (t / s), B, c * (t / s), eps=1e-8, rho0=30.0 * s, M=s,
+                 feas_tol=feas_tol * (t / s))
+    assert ref.converged and res.converged, res.reason
+    assert abs(res.iterations - ref.iterations) <= 1 and res.outer_iterations == ref.outer_iterations
+    assert np.linalg.norm(res.x * (s / t) - ref.x) <= 1e-8 * np.linalg.norm(ref.x)
+    assert np.linalg.norm(res.mu / t - ref.mu) <= 1e-6 * np.linalg.norm(ref.mu)

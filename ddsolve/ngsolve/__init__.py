@@ -1,0 +1,8 @@
+"""ddsolve for NGSolve users: substructuring inverses and preconditioners of a BilinearForm.
+
+Inside this subpackage ``import ngsolve`` is the real NGSolve. Importing
+``ddsolve.ngsolve`` imports NGSolve.
+"""
+from .inverse import DDInverse, DDPreconditioner
+
+__all__ = ["DDInverse", "DDPreconditioner"]

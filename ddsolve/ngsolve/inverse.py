@@ -1,0 +1,332 @@
+"""DDInverse: BDDC / FETI-DP / FETI as an inverse or preconditioner of an NGSolve BilinearForm."""
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import ngsolve
+import numpy as np
+
+from ..dd import Substructures, solve_feti
+from ..dd.dual import dual_operators
+from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
+from ..errors import InputError
+from ..krylov import KrylovResult, pcg
+from .dofs import (
+    check_space,
+    element_dofs,
+    element_matrices,
+    is_symmetric,
+    vertex_table,
+)
+from .local import boundary_vertex_dofs, condense, element_parts, part_matrices
+
+log = logging.getLogger(__name__)
+
+METHODS = ("bddc", "fetidp", "feti")
+SCALINGS = ("diagonal", "rho", "multiplicity")
+
+
+def _free_mask(fes: Any, freedofs: Any) -> np.ndarray:
+    if freedofs is None:
+        freedofs = fes.FreeDofs()
+    try:
+        free = np.array(freedofs, dtype=bool)
+    except (TypeError, ValueError) as exc:
+        raise InputError("freedofs", f"expected a BitArray or boolean array ({exc})") from None
+    if free.shape != (fes.ndof,):
+        raise InputError("freedofs", f"expected {fes.ndof} entries, got shape {free.shape}")
+    return free
+
+
+def _no_interface() -> KrylovResult:
+    return KrylovResult(x=np.zeros(0), converged=True, reason="no interface: solved directly", iterations=0,
+                        residuals=np.zeros(1))
+
+
+class _BDDC:
+    """Persistent BDDC operators on the interface (Section 2.7), as in :func:`ddsolve.dd.solve_bddc`."""
+
+    def __init__(self, sub: Substructures) -> None:
+        cache: dict = {}
+        self.sub = sub
+        self.schur = DirichletSchur(sub, sub.interface, cache)
+        self.primal = PrimalConstrainedSolver(sub, sub.vertex, cache)
+        ge = np.flatnonzero(sub.interface)
+        dofs = np.unique(sub.l2g[ge])
+        self.n_g = dofs.size
+        self.ge, self.gpos, self.delta_g = ge, np.searchsorted(dofs, sub.l2g[ge]), sub.delta[ge]
+        self.S_hat = linear_operator(self.n_g, lambda u: self.gather(self.schur.matvec(self.scatter(u))))
+        self.M = linear_operator(self.n_g, self._M)
+
+    def scatter(self, u: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+        w = np.zeros(self.sub.n_W)
+        w[self.ge] = u[self.gpos] if weights is None else weights * u[self.gpos]
+        return w
+
+    def gather(self, w: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+        v = w[self.ge] if weights is None else weights * w[self.ge]
+        return np.bincount(self.gpos, weights=v, minlength=self.n_g)
+
+    def _M(self, r: np.ndarray) -> np.ndarray:
+        return self.gather(self.primal.solve(self.scatter(r, self.delta_g)), self.delta_g)
+
+    def solve(self, f_W: np.ndarray, rtol: float, maxiter: int, cond: bool):
+        if self.n_g == 0:           # one subdomain: no interface, the interior solve is the answer
+            return self.schur.interior_solution(f_W, np.zeros(self.sub.n_W)), _no_interface()
+        g = self.gather(self.schur.harmonic_extension_rhs(f_W))
+        kr = pcg(self.S_hat, g, None, rtol=rtol, maxiter=maxiter, M=self.M, cond=cond)
+        return self.schur.interior_solution(f_W, self.scatter(kr.x)), kr
+
+    def precondition(self, f_W: np.ndarray) -> np.ndarray:
+        """One BDDC application in the full space: H M H^T + blockdiag(A_II^{-1})."""
+        if self.n_g == 0:
+            return self.schur.interior_solution(f_W, np.zeros(self.sub.n_W))
+        g = self.gather(self.schur.harmonic_extension_rhs(f_W))
+        return self.schur.interior_solution(f_W, self.scatter(self._M(g)))
+
+
+class _FETIDP:
+    """Persistent FETI-DP operators (Section 2.6), as in :func:`ddsolve.dd.solve_fetidp`."""
+
+    def __init__(self, sub: Substructures, bddc: _BDDC) -> None:
+        self.B, B_D = sub.jump_operators(sub.interface & ~sub.vertex)
+        self.primal = bddc.primal
+        self.BT = self.B.T.tocsr()
+        F, M = dual_operators(self.B, B_D, self.primal.solve, bddc.schur.matvec)
+        n = self.B.shape[0]
+        self.F, self.M = linear_operator(n, F), linear_operator(n, M)
+
+    def solve(self, f_W: np.ndarray, rtol: float, maxiter: int, cond: bool):
+        if self.B.shape[0] == 0:    # no dual interface: A~ is the assembled matrix
+            return self.primal.solve(f_W), _no_interface()
+        d = self.B @ self.primal.solve(f_W)
+        kr = pcg(self.F, d, None, rtol=rtol, maxiter=maxiter, M=self.M, cond=cond)
+        return self.primal.solve(f_W - self.BT @ kr.x), kr
+
+
+class DDInverse(ngsolve.BaseMatrix):
+    """Substructuring inverse of an NGSolve BilinearForm on a scalar H1 space (any order).
+
+    ``gfu.vec.data = DDInverse(a) * f.vec`` solves A u = f on the free dofs
+    (zero on the others), like ``a.mat.Inverse(fes.FreeDofs())``.
+
+    Parameters
+    ----------
+    a : ngsolve.BilinearForm
+        Assembled or not (only its volume integrators are used: one assembly of
+        ``a.integrators`` on ``Discontinuous(fes)``; ``ds`` terms are not supported).
+    fes : ngsolve.H1, optional
+        Defaults to ``a.space``.
+    method : {"bddc", "fetidp", "feti"}
+    parts : int
+        METIS parts (ignored when ``partition`` is given).
+    partition : None, "materials" or array of int, shape (n_elements,)
+    primal : {"vertices"}
+    rtol, maxiter : float, int
+        Krylov stopping rule ||r_k|| <= rtol ||r_0|| on the interface / dual problem.
+    freedofs : BitArray or array of bool, optional
+        Defaults to ``fes.FreeDofs()``.
+    cond : bool
+        Lanczos condition-number estimate of the preconditioned operator.
+    scaling : {"diagonal", "rho", "multiplicity"}
+        delta-dagger weights: per dof proportional to the diagonal of each
+        subdomain matrix (default, robust for coefficient jumps), per part by
+        the part's mean diagonal (rho-scaling of Section 2.3), or 1/multiplicity.
+    seed : int
+        METIS seed.
+
+    Attributes
+    ----------
+    iterations, residuals, cond, converged, reason : last solve's Krylov data.
+    timings : dict
+        Seconds per phase (partition, assembly, condense, substructures, setup, solve).
+    """
+
+    def __init__(self, a: Any, fes: Any = None, *, method: str = "bddc", parts: int = 16, partition: Any = None,
+                 primal: str = "vertices", rtol: float = 1e-8, maxiter: int = 1000, freedofs: Any = None,
+                 cond: bool = False, scaling: str = "diagonal", seed: int = 0) -> None:
+        super().__init__()
+        if not isinstance(a, ngsolve.BilinearForm):
+            raise InputError("a", f"expected an ngsolve.BilinearForm, got {type(a).__name__}")
+        fes = a.space if fes is None else fes
+        check_space(fes)
+        if method not in METHODS:
+            raise InputError("method", f"expected one of {METHODS}, got {method!r}")
+        if scaling not in SCALINGS:
+            raise InputError("scaling", f"expected one of {SCALINGS}, got {scaling!r}")
+        if primal != "vertices":
+            raise InputError("primal", f"only 'vertices' is implemented, got {primal!r}")
+        if not (isinstance(rtol, (int, float)) and 0 < rtol < 1):
+            raise InputError("rtol", f"must be in (0, 1), got {rtol!r}")
+        if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
+            raise InputError("maxiter", f"must be a positive integer, got {maxiter!r}")
+        self.fes, self.method, self.rtol, self.maxiter, self.want_cond = fes, method, rtol, int(maxiter), cond
+        self.timings: dict[str, float] = {}
+        self.iterations = 0
+        self.residuals = np.zeros(0)
+        self.cond: float | None = None
+        self.converged: bool | None = None
+        self.reason = ""
+        self.free = _free_mask(fes, freedofs)
+        ndof = fes.ndof
+
+        t = time.perf_counter()
+        V = vertex_table(fes.mesh)
+        T = element_dofs(fes)
+        self.timings["dof_table"] = time.perf_counter() - t
+        t = time.perf_counter()
+        Ke = element_matrices(a, fes, T.shape[1])
+        self.timings["assembly"] = time.perf_counter() - t
+        if not is_symmetric(Ke):
+            raise InputError("a", f"the form is not symmetric; method {method!r} needs a symmetric form")
+        t = time.perf_counter()
+        part = element_parts(fes.mesh, V, parts, partition, seed=seed)
+        self.timings["partition"] = time.perf_counter() - t
+        t = time.perf_counter()
+        self.cond_data = condense(Ke, T, self.free)
+        del Ke
+        c = self.cond_data
+        self.T_w, self.T_b = T[:, c.w], T[:, c.b]
+        self.timings["condense"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        pm = part_matrices(c.S, self.T_w, part, self.free, ndof, boundary_vertex_dofs(V, ndof))
+        self.n_parts = pm.n_parts
+        sub = Substructures(pm.local, scaling="multiplicity" if scaling == "multiplicity" else "rho",
+                            templates=False, primal=primal)
+        if scaling == "diagonal":
+            d = sub.K_W.diagonal()
+            total = np.bincount(sub.node_of_W, weights=d, minlength=sub.scene.n_nodes)
+            sub.delta = d / total[sub.node_of_W]
+        self.sub = sub
+        # global dof (of ddsolve: free nodes) -> H1 dof
+        free_nodes = np.flatnonzero(~pm.local.scene.dirichlet)
+        self.h1_of_gdof = pm.node_dof[free_nodes]
+        self.timings["substructures"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        self._bddc = _BDDC(sub)
+        self._fetidp = _FETIDP(sub, self._bddc) if method == "fetidp" else None
+        if method == "feti":
+            R1 = sub.K_W @ np.ones(sub.n_W)
+            res = np.bincount(sub.sub_of_W, weights=np.abs(R1), minlength=sub.n_sub)
+            scale = np.bincount(sub.sub_of_W, weights=np.abs(sub.K_W.diagonal()), minlength=sub.n_sub)
+            sub.floating_sub = sub.floating_sub & (res <= 1e-10 * scale)
+        self.timings["setup"] = time.perf_counter() - t
+        log.info("DDInverse: %d parts, %d dofs, %d primal, timings %s", self.n_parts, ndof, sub.n_primal,
+                 self.timings)
+
+    # ----------------------------------------------------------- BaseMatrix
+    def Height(self) -> int:
+        return self.fes.ndof
+
+    def Width(self) -> int:
+        return self.fes.ndof
+
+    def IsComplex(self) -> bool:
+        return False
+
+    def CreateColVector(self):
+        return ngsolve.BaseVector(self.fes.ndof, False)
+
+    def CreateRowVector(self):
+        return ngsolve.BaseVector(self.fes.ndof, False)
+
+    def CreateVector(self, colvector: bool = False):
+        return ngsolve.BaseVector(self.fes.ndof, False)
+
+    def Mult(self, x: Any, y: Any) -> None:
+        y.FV().NumPy()[:] = self.solve(np.asarray(x.FV().NumPy()))
+
+    def MultAdd(self, s: float, x: Any, y: Any) -> None:
+        y.FV().NumPy()[:] += s * self.solve(np.asarray(x.FV().NumPy()))
+
+    def MultTrans(self, x: Any, y: Any) -> None:
+        """The inverse of a symmetric form is symmetric."""
+        self.Mult(x, y)
+
+    # ------------------------------------------------------------- solves
+    def _condense_rhs(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Free rhs -> W load (bubbles condensed) and the bubble loads (n_elements, n_b)."""
+        f = np.where(self.free, f, 0.0)
+        c = self.cond_data
+        fb = None
+        if c.b.size:
+            fb = f[self.T_b]
+            g = np.einsum("ebw,eb->ew", c.E, fb)
+            f = f - np.bincount(self.T_w.ravel(), weights=g.ravel(), minlength=f.size)
+        sub = self.sub
+        return sub.delta * f[self.h1_of_gdof][sub.l2g], fb
+
+    def _expand(self, u_W: np.ndarray, fb: np.ndarray | None) -> np.ndarray:
+        u = np.zeros(self.fes.ndof)
+        u[self.h1_of_gdof] = self.sub.average(u_W)
+        c = self.cond_data
+        if c.b.size:
+            uw = u[self.T_w]
+            ub = np.einsum("ebc,ec->eb", c.Kbb_inv, fb) - np.einsum("ebw,ew->eb", c.E, uw)
+            u[self.T_b] = ub
+        return np.where(self.free, u, 0.0)
+
+    def solve(self, f: np.ndarray) -> np.ndarray:
+        """u with A u = f on the free dofs, zero elsewhere; f, u of shape (ndof,)."""
+        t = time.perf_counter()
+        f_W, fb = self._condense_rhs(f)
+        if self.method == "bddc" or self._bddc.n_g == 0:
+            u_W, kr = self._bddc.solve(f_W, self.rtol, self.maxiter, self.want_cond)
+        elif self.method == "fetidp":
+            u_W, kr = self._fetidp.solve(f_W, self.rtol, self.maxiter, self.want_cond)
+        else:
+            self.sub.f_W = f_W
+            out = solve_feti(self.sub, rtol=self.rtol, maxiter=self.maxiter, cond=self.want_cond)
+            kr = out.krylov
+            u_W = self.sub.restrict(out.u)
+        self.iterations, self.residuals, self.cond = kr.iterations, kr.residuals, kr.cond
+        self.converged, self.reason = kr.converged, kr.reason
+        if not kr.converged:
+            log.warning("DDInverse: %s", kr.reason)
+        u = self._expand(u_W, fb)
+        self.timings["solve"] = time.perf_counter() - t
+        return u
+
+    @property
+    def preconditioner(self) -> DDPreconditioner:
+        """One BDDC application (full space, bubbles exact) as a BaseMatrix for NGSolve's Krylov solvers."""
+        return DDPreconditioner(self)
+
+
+class DDPreconditioner(ngsolve.BaseMatrix):
+    """P = H M_BDDC H^T + blockdiag(A_II^{-1}) (with exact element-bubble condensation), symmetric."""
+
+    def __init__(self, inv: DDInverse) -> None:
+        super().__init__()
+        self.inv = inv
+
+    def Height(self) -> int:
+        return self.inv.fes.ndof
+
+    def Width(self) -> int:
+        return self.inv.fes.ndof
+
+    def IsComplex(self) -> bool:
+        return False
+
+    def CreateColVector(self):
+        return ngsolve.BaseVector(self.inv.fes.ndof, False)
+
+    def CreateRowVector(self):
+        return ngsolve.BaseVector(self.inv.fes.ndof, False)
+
+    def CreateVector(self, colvector: bool = False):
+        return ngsolve.BaseVector(self.inv.fes.ndof, False)
+
+    def Mult(self, x: Any, y: Any) -> None:
+        inv = self.inv
+        f_W, fb = inv._condense_rhs(np.asarray(x.FV().NumPy()))
+        y.FV().NumPy()[:] = inv._expand(inv._bddc.precondition(f_W), fb)
+
+    def MultTrans(self, x: Any, y: Any) -> None:
+        """P is symmetric."""
+        self.Mult(x, y)

@@ -1,0 +1,277 @@
+"""Subdomains, element condensation and the LocalProblems adapter for NGSolve spaces.
+
+The dofs of an H1 space of any order play the role of the nodes of
+:class:`ddsolve.dd.Substructures`: vertex dofs shared by three or more
+subdomains (or by two on the boundary of the domain) become primal, edge dofs
+have multiplicity at most two. Element bubbles (dofs of a single element) are
+condensed element by element before the subdomain matrices are formed:
+with b the bubble and w the other positions of element e,
+
+    S_e = K_ww - K_wb K_bb^{-1} K_bw,     u_b = K_bb^{-1} (f_b - K_bw u_w),
+
+batched over all elements (one ``numpy.linalg.solve`` on (n_elements, n_b, n_b)).
+The condensed element matrices are scattered to the parts by the element-to-dof
+map (one sparse COO assembly of the block-diagonal matrix diag(A^(i))).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from ..errors import InputError
+from ..scene.assembly import LocalProblems
+from ..scene.partition import element_graph, partition_elements
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class DofScene:
+    """The part of :class:`ddsolve.scene.Scene` that :class:`~ddsolve.dd.Substructures` reads.
+
+    Nodes are the non-bubble dofs of the H1 space (compact numbering).
+
+    Attributes
+    ----------
+    n_subdomains, n_nodes : int
+    rho : ndarray, shape (n_subdomains,)
+        Coefficient estimate per part (mean diagonal of its matrix).
+    dirichlet : ndarray of bool, shape (n_nodes,)
+        Nodes that are not free dofs.
+    boundary : ndarray of bool, shape (n_nodes,)
+        Vertex dofs on the boundary of the domain.
+    """
+
+    n_subdomains: int
+    n_nodes: int
+    rho: np.ndarray
+    dirichlet: np.ndarray
+    boundary: np.ndarray
+    n_bodies: int = 1
+    subdomain_body: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def boundary_nodes(self, body: int) -> np.ndarray:
+        return self.boundary
+
+
+def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: int = 0) -> np.ndarray:
+    """Part label of every element, shape (n_elements,), labels 0..n_parts-1, every part connected.
+
+    ``partition``: None (METIS on the element graph into ``parts``), ``"coarse"``
+    (METIS into ``parts`` on the coarsest mesh of a ``mesh.Refine()`` hierarchy,
+    inherited by the children), ``"materials"`` (the mesh's materials), or an
+    array of length n_elements. Parts that are
+    not connected through element edges are split into their connected pieces.
+    """
+    ne = V.shape[0]
+    if partition is None:
+        if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
+            raise InputError("parts", f"must be a positive integer, got {parts!r}")
+        if parts > ne:
+            raise InputError("parts", f"{parts} parts requested but the mesh has only {ne} elements")
+        return partition_elements(V, int(parts), seed=seed, field="parts")
+    if isinstance(partition, str) and partition == "coarse":
+        return coarse_partition(mesh, V, parts, seed=seed)
+    if isinstance(partition, str):
+        if partition != "materials":
+            raise InputError("partition", f"expected None, 'materials', 'coarse' or an array, got {partition!r}")
+        index = np.asarray(mesh.ngmesh.Elements2D().NumPy()["index"], dtype=np.int64)
+        _, label = np.unique(index, return_inverse=True)
+    else:
+        label = np.asarray(partition)
+        if label.ndim != 1 or label.shape[0] != ne:
+            raise InputError("partition", f"expected {ne} element labels, got shape {label.shape}")
+        if not np.issubdtype(label.dtype, np.integer) or (label.size and label.min() < 0):
+            raise InputError("partition", "labels must be non-negative integers")
+        counts = np.bincount(label)
+        if (counts == 0).any():
+            raise InputError("partition", f"{int((counts == 0).sum())} empty parts (labels must be 0..P-1, "
+                                          f"each used)")
+    return split_disconnected(V, label.astype(np.int64))
+
+
+def refinement_roots(mesh: Any) -> np.ndarray:
+    """Coarsest ancestor of every element of a mesh refined by ``mesh.Refine()``, shape (n_elements,).
+
+    netgen keeps the parent of each element (``parentsurfaceelements``, -1 for
+    the elements that replaced their parent in place), so the ancestors are
+    found by pointer jumping, one vectorised step per refinement level.
+    """
+    parent = np.asarray(mesh.ngmesh.parentsurfaceelements, dtype=np.int64).reshape(-1)
+    ne = mesh.ne
+    if parent.size != ne:
+        return np.arange(ne)
+    root = np.arange(ne)
+    nxt = np.where(parent >= 0, parent, root)
+    while True:
+        jumped = nxt[nxt]
+        if np.array_equal(jumped, nxt):
+            return nxt
+        nxt = jumped
+
+
+def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0) -> np.ndarray:
+    """METIS on the coarsest mesh of the refinement hierarchy; children inherit the part.
+
+    The coarse element graph is the fine element graph contracted by the
+    coarsest ancestor (no coarse mesh is rebuilt). METIS then works on the
+    coarse elements only, which is much cheaper than on the refined mesh.
+    """
+    import pymetis
+
+    root = refinement_roots(mesh)
+    roots, coarse = np.unique(root, return_inverse=True)
+    n_c = roots.size
+    if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
+        raise InputError("parts", f"must be a positive integer, got {parts!r}")
+    if parts > n_c:
+        raise InputError("parts", f"{parts} parts requested but the coarse mesh has only {n_c} elements")
+    if parts == 1:
+        return np.zeros(V.shape[0], dtype=np.int64)
+    first, second = element_graph(V)
+    a, b = coarse[first], coarse[second]
+    keep = a != b
+    G = sp.coo_matrix((np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(n_c, n_c)).tocsr()
+    G = ((G + G.T) > 0).astype(np.int64).tocsr()
+    adjacency = pymetis.CSRAdjacency(G.indptr.astype(np.int64), G.indices.astype(np.int64))
+    _, membership = pymetis.part_graph(int(parts), adjacency, options=pymetis.Options(seed=int(seed), contig=1))
+    label = np.asarray(membership, dtype=np.int64)[coarse]
+    counts = np.bincount(label, minlength=parts)
+    if (counts == 0).any():
+        raise InputError("parts", f"METIS left {int((counts == 0).sum())} of {parts} parts empty on the coarse mesh")
+    return split_disconnected(V, label)
+
+
+def split_disconnected(V: np.ndarray, label: np.ndarray) -> np.ndarray:
+    """Relabel so that every part is one connected piece (element-edge adjacency)."""
+    ne = V.shape[0]
+    first, second = element_graph(V)
+    same = label[first] == label[second]
+    G = sp.coo_matrix((np.ones(int(same.sum())), (first[same], second[same])), shape=(ne, ne))
+    n, comp = connected_components(G, directed=False)
+    if n != label.max() + 1:
+        log.info("partition: %d parts split into %d connected pieces", label.max() + 1, n)
+    return comp.astype(np.int64)
+
+
+@dataclass
+class Condensed:
+    """Element matrices with bubbles condensed.
+
+    Attributes
+    ----------
+    S : ndarray, shape (n_elements, n_w, n_w)
+        Condensed element matrices on the non-bubble positions ``w``.
+    w, b : ndarray of int
+        Non-bubble and bubble element-local positions.
+    Kbb_inv : ndarray, shape (n_elements, n_b, n_b)
+    E : ndarray, shape (n_elements, n_b, n_w)
+        K_bb^{-1} K_bw.
+    """
+
+    S: np.ndarray
+    w: np.ndarray
+    b: np.ndarray
+    Kbb_inv: np.ndarray | None
+    E: np.ndarray | None
+
+
+def condense(Ke: np.ndarray, T: np.ndarray, free: np.ndarray) -> Condensed:
+    """Condense the element bubbles: positions whose dof belongs to one element only and is free."""
+    n_local = T.shape[1]
+    count = np.bincount(T.ravel(), minlength=free.size)
+    bubble = np.array([bool(np.all(count[T[:, k]] == 1) and np.all(free[T[:, k]])) for k in range(n_local)])
+    if T.shape[0] <= 1:
+        bubble[:] = False
+    b, w = np.flatnonzero(bubble), np.flatnonzero(~bubble)
+    if b.size == 0:
+        return Condensed(S=Ke, w=w, b=b, Kbb_inv=None, E=None)
+    Kbb = Ke[:, b][:, :, b]
+    Kbw = Ke[:, b][:, :, w]
+    Kwb = Ke[:, w][:, :, b]
+    Kbb_inv = np.linalg.inv(Kbb)
+    E = Kbb_inv @ Kbw
+    S = Ke[:, w][:, :, w] - Kwb @ E
+    return Condensed(S=S, w=w, b=b, Kbb_inv=Kbb_inv, E=E)
+
+
+@dataclass
+class PartMatrices:
+    """Subdomain data over the skeleton (non-bubble) dofs."""
+
+    local: LocalProblems
+    node_dof: np.ndarray        # (n_nodes,) H1 dof of each node
+    n_parts: int
+
+
+def part_matrices(S: np.ndarray, Tw: np.ndarray, part: np.ndarray, free: np.ndarray, ndof: int,
+                  boundary_dofs: np.ndarray) -> PartMatrices:
+    """Scatter condensed element matrices to the parts: LocalProblems over skeleton dofs.
+
+    Parameters
+    ----------
+    S : ndarray, shape (n_elements, n_w, n_w)
+    Tw : ndarray of int, shape (n_elements, n_w)
+        H1 dofs of the non-bubble positions.
+    part : ndarray of int, shape (n_elements,)
+    free : ndarray of bool, shape (ndof,)
+    ndof : int
+    boundary_dofs : ndarray of bool, shape (ndof,)
+        Vertex dofs on the domain boundary.
+    """
+    n_parts = int(part.max()) + 1
+    node_dof = np.unique(Tw)
+    node_of_dof = np.full(ndof, -1, dtype=np.int64)
+    node_of_dof[node_dof] = np.arange(node_dof.size)
+    n_nodes = node_dof.size
+    Tn = node_of_dof[Tw]
+    key = (part[:, None] * n_nodes + Tn).ravel()
+    uniq, broken = np.unique(key, return_inverse=True)
+    broken = broken.reshape(Tn.shape)
+    sub_of_broken = uniq // n_nodes
+    node_of_broken = uniq % n_nodes
+    sizes = np.bincount(sub_of_broken, minlength=n_parts)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    nw = Tw.shape[1]
+    rows = np.broadcast_to(broken[:, :, None], S.shape).ravel()
+    cols = np.broadcast_to(broken[:, None, :], S.shape).ravel()
+    n_b = uniq.size
+    A = sp.csr_matrix((S.ravel(), (rows, cols)), shape=(n_b, n_b))
+    A.sum_duplicates()
+    diag = A.diagonal()
+    rho = np.bincount(sub_of_broken, weights=diag, minlength=n_parts) / np.maximum(sizes, 1)
+    rho = np.where(rho > 0, rho, 1.0)
+    blocks = [_diagonal_block(A, offsets[s], offsets[s + 1]) / rho[s] for s in range(n_parts)]
+    nodes = [node_of_broken[offsets[s]:offsets[s + 1]] for s in range(n_parts)]
+    scene = DofScene(n_subdomains=n_parts, n_nodes=n_nodes, rho=rho, dirichlet=~free[node_dof],
+                     boundary=boundary_dofs[node_dof], subdomain_body=np.zeros(n_parts, dtype=np.int64))
+    local = LocalProblems(scene=scene, nodes=nodes, template=np.arange(n_parts), stiffness=blocks,
+                          loads=[np.zeros(len(nd)) for nd in nodes])
+    del nw
+    return PartMatrices(local=local, node_dof=node_dof, n_parts=n_parts)
+
+
+def _diagonal_block(A: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
+    """Rows and columns lo:hi of a block-diagonal CSR matrix."""
+    start, stop = A.indptr[lo], A.indptr[hi]
+    return sp.csr_matrix((A.data[start:stop], A.indices[start:stop] - lo, A.indptr[lo:hi + 1] - start),
+                         shape=(hi - lo, hi - lo))
+
+
+def boundary_vertex_dofs(V: np.ndarray, ndof: int) -> np.ndarray:
+    """Vertex dofs (= vertex numbers) on edges that belong to one element only, shape (ndof,) bool."""
+    k = V.shape[1]
+    e = np.stack([np.sort(np.stack([V[:, i], V[:, (i + 1) % k]], axis=1), axis=1) for i in range(k)], axis=1)
+    e = e.reshape(-1, 2)
+    uniq, count = np.unique(e[:, 0] * (V.max() + 1) + e[:, 1], return_counts=True)
+    bnd = uniq[count == 1]
+    out = np.zeros(ndof, dtype=bool)
+    n = V.max() + 1
+    out[bnd // n] = True
+    out[bnd % n] = True
+    return out

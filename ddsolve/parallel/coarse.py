@@ -1,0 +1,86 @@
+"""The primal-constrained solve A~^{-1} of (2.17) over ranks, coarse problem redundant.
+
+Coarse problem. Every rank computes the local coarse matrices
+A_PiPi^(i) - A_Pir^(i) Psi^(i) of its subdomains (as in serial), the
+contributions are allgathered once at setup (COO triplets, in rank order) and
+every rank assembles and factors the whole S_PiPi (one sparse LU). Per
+application of A~^{-1} the primal right-hand side is summed with one
+Allreduce of n_primal doubles and solved redundantly on every rank. Why
+redundant: the coarse space is small (one dof per cross point), its solve
+costs less than a gather to one rank plus a scatter back (two latency-bound
+messages per application on the critical path), and every rank needs the
+whole u_Pi anyway. The limit of this choice (the allgather and the redundant
+factorization grow with P) is what the performance model of
+:mod:`ddsolve.parallel.model` projects.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..dd.operators import PrimalConstrainedSolver
+from .comm import CountingComm
+
+__all__ = ["DistributedPrimalSolver"]
+
+
+class DistributedPrimalSolver(PrimalConstrainedSolver):
+    """:class:`PrimalConstrainedSolver` on a :class:`~ddsolve.parallel.distribute.RankSubstructures`.
+
+    Parameters
+    ----------
+    sub : RankSubstructures
+    primal_mask : ndarray of bool, shape (sub.n_W,)
+    cache : dict
+    comm : CountingComm
+    primal_dofs : ndarray of int
+        Sorted global dofs of all primal unknowns (from the topology).
+
+    Attributes
+    ----------
+    coarse_seconds : float
+        Time in the coarse problem on this rank: the setup reduction and every
+        coarse right-hand side reduction and solve.
+    """
+
+    def __init__(self, sub, primal_mask: np.ndarray, cache: dict, comm: CountingComm,
+                 primal_dofs: np.ndarray) -> None:
+        self.comm = comm
+        self._all_primal = np.asarray(primal_dofs, dtype=np.int64)
+        self.coarse_seconds = 0.0
+        t0 = time.perf_counter()
+        super().__init__(sub, primal_mask, cache)
+        self.coarse_setup_seconds = time.perf_counter() - t0
+
+    def _primal_dofs(self, sub, primal_mask: np.ndarray) -> np.ndarray:
+        return self._all_primal
+
+    def _assemble_coarse(self, S_PiPi: sp.csr_matrix) -> sp.csr_matrix:
+        t0 = time.perf_counter()
+        coo = S_PiPi.tocoo()
+        parts = self.comm.allgather((coo.row.astype(np.int64), coo.col.astype(np.int64), coo.data))
+        rows = np.concatenate([p[0] for p in parts])
+        cols = np.concatenate([p[1] for p in parts])
+        vals = np.concatenate([p[2] for p in parts])
+        S = sp.csr_matrix((vals, (rows, cols)), shape=S_PiPi.shape)
+        self.coarse_seconds += time.perf_counter() - t0
+        return S
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """x = A~^{-1} b on this rank's W entries (the primal rhs summed over ranks, one Allreduce)."""
+        br = np.where(self.r, b, 0.0)
+        x = self.rr.solve(br)
+        if self.n_primal == 0:
+            return x
+        b_pi = np.bincount(self.coarse_of_W[self.primal], weights=b[self.primal], minlength=self.n_primal)
+        b_pi -= self.Psi_global_T @ br
+        t0 = time.perf_counter()
+        b_pi = self.comm.allreduce_sum(b_pi)
+        b_pi[self.pinned] = 0.0
+        u_pi = self.coarse.solve(b_pi)
+        self.coarse_seconds += time.perf_counter() - t0
+        x -= self.Psi_global @ u_pi
+        x[self.primal] = u_pi[self.coarse_of_W[self.primal]]
+        return x

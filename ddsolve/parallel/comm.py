@@ -1,0 +1,180 @@
+"""A counting wrapper of an mpi4py communicator and the neighbour exchange of shared values.
+
+:class:`CountingComm` forwards the few MPI calls the distributed solvers use
+and counts point-to-point messages, their bytes and the global reductions, so
+that the JSON of a parallel solve can report them per iteration (the input of
+the alpha-beta model of :mod:`ddsolve.parallel.model`).
+
+:class:`NeighbourSum` is the one communication pattern of the distributed
+operators: every rank holds, for each *shared index* (a Lagrange multiplier
+of FETI-DP, an interface dof of BDDC), its own partial value; after
+:meth:`NeighbourSum.sum` every rank holding the index has the total, summed
+in increasing rank order, so that all copies are bitwise identical.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["CommCounters", "CountingComm", "NeighbourSum", "SharedIndex"]
+
+
+@dataclass
+class CommCounters:
+    """Messages and bytes sent by this rank, and reductions it took part in."""
+
+    messages: int = 0
+    bytes: int = 0
+    allreduces: int = 0
+
+    def snapshot(self) -> tuple[int, int, int]:
+        return self.messages, self.bytes, self.allreduces
+
+
+class CountingComm:
+    """An mpi4py communicator with message, byte and reduction counters.
+
+    Parameters
+    ----------
+    comm : mpi4py.MPI.Comm
+    """
+
+    def __init__(self, comm: Any) -> None:
+        from mpi4py import MPI
+
+        self.MPI = MPI
+        self.comm = comm
+        self.rank = comm.Get_rank()
+        self.size = comm.Get_size()
+        self.counters = CommCounters()
+
+    # ------------------------------------------------------------ reductions
+    def allreduce_sum(self, x: np.ndarray) -> np.ndarray:
+        """Elementwise sum over ranks of a float64 array (one Allreduce)."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        out = np.empty_like(x)
+        self.comm.Allreduce(x, out, op=self.MPI.SUM)
+        self.counters.allreduces += 1
+        return out
+
+    def allreduce_scalar(self, value: float, op: str = "sum") -> float:
+        """Sum (or max) of one float over ranks."""
+        x = np.array([value], dtype=np.float64)
+        out = np.empty(1)
+        self.comm.Allreduce(x, out, op=self.MPI.SUM if op == "sum" else self.MPI.MAX)
+        self.counters.allreduces += 1
+        return float(out[0])
+
+    def allgather(self, obj: Any) -> list:
+        """Python-object allgather (setup only; counted as one reduction)."""
+        self.counters.allreduces += 1
+        return self.comm.allgather(obj)
+
+    def gather(self, obj: Any, root: int = 0) -> list | None:
+        return self.comm.gather(obj, root=root)
+
+    def barrier(self) -> None:
+        self.comm.Barrier()
+
+    # ---------------------------------------------------------- point to point
+    def exchange(self, sends: dict[int, np.ndarray], recv_sizes: dict[int, int], tag: int = 7) -> dict[int, np.ndarray]:
+        """Send ``sends[q]`` to every neighbour q and receive ``recv_sizes[q]`` doubles from it (Isend/Irecv)."""
+        requests, received = [], {}
+        for q, n in recv_sizes.items():
+            buf = np.empty(n)
+            received[q] = buf
+            requests.append(self.comm.Irecv(buf, source=q, tag=tag))
+        for q, data in sends.items():
+            data = np.ascontiguousarray(data, dtype=np.float64)
+            requests.append(self.comm.Isend(data, dest=q, tag=tag))
+            self.counters.messages += 1
+            self.counters.bytes += data.nbytes
+            sends[q] = data                         # keep the buffer alive until Waitall
+        self.MPI.Request.Waitall(requests)
+        return received
+
+    def abort(self, code: int = 1) -> None:
+        self.comm.Abort(code)
+
+
+@dataclass
+class SharedIndex:
+    """Local indices of a distributed index set and how they are shared.
+
+    Attributes
+    ----------
+    n : int
+        Local length (every index touched by this rank's subdomains).
+    owned : ndarray of bool, shape (n,)
+        True where this rank is the lowest rank holding the index (counted in inner products).
+    neighbours : dict
+        Neighbour rank -> local positions of the indices shared with it, in increasing global order
+        (the same order on both sides).
+    n_global : int
+        Length of the global index set.
+    """
+
+    n: int
+    owned: np.ndarray
+    neighbours: dict[int, np.ndarray] = field(default_factory=dict)
+    n_global: int = 0
+
+    @classmethod
+    def build(cls, rank: int, local_gid: np.ndarray, pair_gid: np.ndarray, pair_rank: np.ndarray,
+              n_global: int) -> "SharedIndex":
+        """From the (global index, rank) incidences of all ranks.
+
+        Parameters
+        ----------
+        rank : int
+        local_gid : ndarray of int, shape (n,)
+            Sorted global ids of this rank's indices.
+        pair_gid, pair_rank : ndarray of int
+            Every (global id, rank touching it) incidence (duplicates allowed).
+        n_global : int
+        """
+        base = int(pair_rank.max(initial=0)) + 1
+        key = np.unique(pair_gid.astype(np.int64) * base + pair_rank)
+        gid, rk = np.divmod(key, base)
+        lowest = np.full(n_global, np.iinfo(np.int64).max)
+        np.minimum.at(lowest, gid, rk)
+        owned = lowest[local_gid] == rank
+        neighbours: dict[int, np.ndarray] = {}
+        mine = np.isin(gid, local_gid)
+        g_m, r_m = gid[mine], rk[mine]
+        for q in np.unique(r_m):
+            if q == rank:
+                continue
+            shared = np.sort(g_m[r_m == q])
+            neighbours[int(q)] = np.searchsorted(local_gid, shared)
+        return cls(n=int(local_gid.size), owned=owned, neighbours=neighbours, n_global=int(n_global))
+
+
+class NeighbourSum:
+    """Sum the partial values of shared indices over the ranks holding them.
+
+    One message to and from each neighbour per call; the total of an index is
+    accumulated in increasing rank order (bitwise identical copies).
+    """
+
+    def __init__(self, comm: CountingComm, shared: SharedIndex) -> None:
+        self.comm = comm
+        self.shared = shared
+        self.order = sorted(list(shared.neighbours) + [comm.rank])
+        self.recv_sizes = {q: int(idx.size) for q, idx in shared.neighbours.items()}
+
+    def sum(self, partial: np.ndarray) -> np.ndarray:
+        """Total of ``partial`` (shape (n,)) over all ranks sharing each index."""
+        if not self.shared.neighbours:
+            return partial
+        sends = {q: partial[idx] for q, idx in self.shared.neighbours.items()}
+        received = self.comm.exchange(sends, self.recv_sizes)
+        total = np.zeros_like(partial)
+        for q in self.order:
+            if q == self.comm.rank:
+                total += partial
+            else:
+                total[self.shared.neighbours[q]] += received[q]
+        return total

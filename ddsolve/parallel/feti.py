@@ -1,0 +1,177 @@
+"""Distributed one-level FETI (Section 2.5): projected PCG with the natural coarse space over ranks.
+
+The multipliers are distributed as in :mod:`ddsolve.parallel.fetidp` (all
+interface nodes instead of the dual ones). The natural coarse space G = B R
+(R: constants on the floating subdomains, one column each, numbered
+globally) is known row by row on every rank that holds the row (its two
+entries come from the subdomains of the row's two copies: no communication).
+The projection (Q-weighted with rho-scaling, as in :func:`ddsolve.dd.dual.solve_dual`)
+
+    P v = v - G_s (G_s^T G_s)^{-1} G_s^T v,   G_s = Q^{1/2} G,
+
+needs G_s^T v: a sum over all multipliers, i.e. the owned rows of every rank
+and one Allreduce of k doubles (k floating subdomains); G_s^T G_s is
+assembled once (allgather of COO triplets) and factored redundantly on every
+rank, like the FETI-DP coarse problem. Per iteration: 2 neighbour exchanges
+(F, M), 5 Allreduces (3 of PCG, 2 projections).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..dd.common import MethodOutput
+from ..dd.dual import dual_operators
+from ..dd.local import BatchedSolver
+from ..dd.operators import DirichletSchur, linear_operator
+from .comm import CountingComm, NeighbourSum
+from .fetidp import local_jump
+from .krylov import distributed_pcg
+from .setup import RankProblem, gather_solution
+
+__all__ = ["DistributedProjection", "solve_feti_mpi"]
+
+
+class DistributedProjection:
+    """P = I - G (G^T G)^{-1} G^T for G given by the local rows of every rank (see the module docstring).
+
+    Parameters
+    ----------
+    G : scipy.sparse matrix, shape (n_local, k)
+        Full rows of this rank's multipliers (k global columns).
+    owned : ndarray of bool, shape (n_local,)
+    comm : CountingComm
+    """
+
+    def __init__(self, G: sp.spmatrix, owned: np.ndarray, comm: CountingComm) -> None:
+        self.G = G.tocsr()
+        self.GT_owned = sp.csr_matrix(G[owned]).T.tocsr()
+        self.owned = owned
+        self.comm = comm
+        self.coarse_seconds = 0.0
+        t0 = time.perf_counter()
+        Go = sp.csr_matrix(G[owned])
+        GtG = (Go.T @ Go).tocoo()
+        parts = comm.allgather((GtG.row.astype(np.int64), GtG.col.astype(np.int64), GtG.data))
+        k = G.shape[1]
+        GtG = sp.csc_matrix((np.concatenate([p[2] for p in parts]),
+                             (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))),
+                            shape=(k, k))
+        self.factor = spla.splu(GtG)
+        self.coarse_seconds += time.perf_counter() - t0
+
+    def coarse_solve(self, x: np.ndarray) -> np.ndarray:
+        return self.factor.solve(x)
+
+    def reduce(self, v: np.ndarray) -> np.ndarray:
+        """G^T v over all ranks (owned rows only, one Allreduce)."""
+        t0 = time.perf_counter()
+        out = self.comm.allreduce_sum(self.GT_owned @ v[self.owned])
+        self.coarse_seconds += time.perf_counter() - t0
+        return out
+
+    def apply(self, v: np.ndarray) -> np.ndarray:
+        t0 = time.perf_counter()
+        y = self.coarse_solve(self.reduce(v))
+        self.coarse_seconds += time.perf_counter() - t0
+        return v - self.G @ y
+
+    def particular(self, e: np.ndarray) -> np.ndarray:
+        return self.G @ self.coarse_solve(e)
+
+    def coefficients(self, r: np.ndarray) -> np.ndarray:
+        return self.coarse_solve(self.reduce(r))
+
+
+def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
+                   gather: bool = True, projection: str = "weighted") -> tuple[MethodOutput, dict]:
+    """One-level FETI on the ranks of ``prob.comm``; the serial :func:`ddsolve.dd.solve_feti`, distributed.
+
+    ``projection``: ``"weighted"`` (Q-weighted under rho-scaling) or ``"orthogonal"`` (Q = I, the
+    thesis preset), as in the serial solver.
+
+    Returns ``(output, info)`` as :func:`ddsolve.parallel.fetidp.solve_fetidp_mpi`.
+    """
+    comm, sub, topo = prob.comm, prob.sub, prob.topo
+    t0 = time.perf_counter()
+    cache: dict = {}
+    B, B_D, shared, n_lam, (pa, pb) = local_jump(prob, np.ones(topo.n_W, dtype=bool), with_pairs=True)
+    fixed = np.zeros(sub.n_W, dtype=bool)
+    for s in np.flatnonzero(sub.floating_sub):
+        lo, hi = sub.offsets[s], sub.offsets[s + 1]
+        fixed[lo + (hi - lo) // 2] = True
+    Kplus = BatchedSolver(sub, ~fixed, cache)
+    schur = DirichletSchur(sub, sub.interface, cache)
+    exchange = NeighbourSum(comm, shared)
+    F_loc, M_loc = dual_operators(B, B_D, Kplus.solve, schur.matvec)
+
+    def F(lam: np.ndarray) -> np.ndarray:
+        return exchange.sum(F_loc(lam))
+
+    def M(lam: np.ndarray) -> np.ndarray:
+        return exchange.sum(M_loc(lam))
+
+    d = F_d = exchange.sum(B @ Kplus.solve(sub.f_W))
+    n_fact = Kplus.n_new_factorizations + schur.II.n_new_factorizations
+    # global numbering of the floating subdomains; G = B R row by row from the two copies of each multiplier
+    floating = topo.floating_sub
+    col_of_sub = np.full(topo.n_sub, -1)
+    col_of_sub[floating] = np.arange(int(floating.sum()))
+    k = int(floating.sum())
+    size = np.diff(topo.offsets).astype(float)
+    sa, sb = topo.sub_of_W[pa], topo.sub_of_W[pb]
+    n_loc = shared.n
+    rows = np.arange(n_loc)
+    fa, fb = floating[sa], floating[sb]
+    G = sp.csr_matrix((np.r_[1.0 / np.sqrt(size[sa[fa]]), -1.0 / np.sqrt(size[sb[fb]])],
+                       (np.r_[rows[fa], rows[fb]], np.r_[col_of_sub[sa[fa]], col_of_sub[sb[fb]]])),
+                      shape=(n_loc, k))
+    R_loc = None
+    e = None
+    if k:
+        ent = np.flatnonzero(sub.floating_sub[sub.sub_of_W])
+        R_loc = sp.csr_matrix((1.0 / np.sqrt(np.diff(sub.offsets)[sub.sub_of_W[ent]]),
+                               (ent, col_of_sub[sub.lo + sub.sub_of_W[ent]])), shape=(sub.n_W, k))
+        e = comm.allreduce_sum(R_loc.T @ sub.f_W)
+        n_fact += 1
+    q = None
+    if topo.scaling != "multiplicity" and projection != "orthogonal":
+        delta, rho = topo.delta, topo.rho
+        q = delta[pb] ** 2 * rho[sa] + delta[pa] ** 2 * rho[sb]
+    setup = time.perf_counter() - t0
+
+    # solve_dual of ddsolve.dd.dual, distributed: the system in mu = Q^{-1/2} lambda
+    sq = np.ones(n_loc) if q is None else np.sqrt(q)
+
+    def F_scaled(mu: np.ndarray) -> np.ndarray:
+        return sq * F(sq * mu)
+
+    def M_scaled(mu: np.ndarray) -> np.ndarray:
+        return M(mu / sq) / sq
+
+    d_scaled = sq * F_d
+    mu0 = np.zeros(n_loc)
+    proj = None
+    if k:
+        proj = DistributedProjection((sp.diags(sq) @ G).tocsr(), shared.owned, comm)
+        mu0 = proj.apply(mu0) + proj.particular(e)
+    t1 = time.perf_counter()
+    kr, per_iteration = distributed_pcg(
+        linear_operator(n_loc, F_scaled), d_scaled, mu0, comm=comm, owned=shared.owned, rtol=rtol,
+        maxiter=maxiter, M=linear_operator(n_loc, M_scaled),
+        P=None if proj is None else linear_operator(n_loc, proj.apply), cond=cond)
+    krylov_seconds = time.perf_counter() - t1
+    alpha = proj.coefficients(F_scaled(kr.x) - d_scaled) if proj is not None else None
+    lam = sq * kr.x
+    u_W = Kplus.solve(sub.f_W - B.T @ lam)
+    if alpha is not None:
+        u_W = u_W + R_loc @ alpha
+    u = gather_solution(prob, u_W) if gather else None
+    out = MethodOutput(u=u, krylov=kr, nlambda=n_lam, n_factorizations=n_fact, setup_seconds=setup,
+                       extra={"n_floating": k})
+    info = {"coarse_seconds": 0.0 if proj is None else proj.coarse_seconds,
+            "krylov_seconds": krylov_seconds, "per_iteration": per_iteration}
+    return out, info

@@ -1,0 +1,169 @@
+"""An alpha-beta model of the time per iteration of distributed FETI-DP (a model, not a measurement).
+
+    t_iter(P) = t_comp(P) + alpha * m(P) + beta * b(P) + t_coarse(P) + n_ar * log2(P) * alpha
+
+* t_comp(P): measured compute time per iteration of one subdomain (from a run
+  with P = 1), times the subdomains per rank (weak: fixed; strong: N / P);
+* m(P), b(P): messages and bytes one rank sends per iteration: 2 neighbour
+  exchanges (F and the preconditioner) with up to 8 neighbours in a 2-D box
+  partition of the subdomains, one double per multiplier on the shared side of
+  the rank's box (sqrt(n_loc) subdomain sides of H/h - 1 dual nodes);
+* t_coarse(P): the redundant coarse solve (forward and backward substitution
+  with a nested-dissection factor of the 2-D coarse grid, nnz(L) ~
+  c_fill n_c log2 n_c, at ``flops`` per second) plus the bandwidth of the
+  Allreduce of its right-hand side (2 n_c doubles); n_c = one primal dof per
+  interior cross point ~ N;
+* n_ar Allreduces of latency log2(P) alpha (3 of PCG, 1 coarse).
+
+Parallel efficiency: weak E = t_iter(1) / t_iter(P); strong E = t_iter(1) / (P t_iter(P)).
+Run ``python -m ddsolve.parallel.model P1.json P2.json`` with the JSON of
+``mpiexec -n 1`` and ``mpiexec -n 2`` solves to calibrate on P = 1, compare
+with P = 2 and print the projections (docs/parallel.md; the study of
+config/mpi.yaml does the same).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import dataclass
+
+__all__ = ["Machine", "Calibration", "calibrate", "t_iter", "projection", "mpi_report", "main"]
+
+
+@dataclass(frozen=True)
+class Machine:
+    """Assumed network and coarse-solve rates."""
+
+    alpha: float = 1e-6            # latency per message, s
+    beta: float = 1.0 / 10e9       # s per byte (10 GB/s)
+    flops: float = 1e9             # sparse triangular solves (memory bound), flop/s
+    c_fill: float = 8.0            # nnz(L) ~ c_fill n log2 n for nested dissection in 2-D
+    allreduces: int = 4            # per iteration: 3 of PCG, 1 coarse right-hand side
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Measured inputs: the per-subdomain compute time per iteration and the subdomain size."""
+
+    t_sub: float                   # s per iteration per subdomain (compute only)
+    elements: int                  # H/h
+
+
+def _box_side(n_loc: float) -> float:
+    return math.sqrt(max(n_loc, 1.0))
+
+
+def messages_bytes(P: int, n_loc: float, elements: int) -> tuple[float, float]:
+    """Messages and bytes one rank sends per iteration (2-D box partition; strips for P = 2)."""
+    if P == 1:
+        return 0.0, 0.0
+    if P == 2:                                   # two strips: one neighbour, one shared side of sqrt(2 n_loc)
+        side = math.sqrt(2 * n_loc) * (elements - 1)
+        return 2.0, 2 * 8.0 * side
+    side = _box_side(n_loc) * (elements - 1)     # dual nodes on one side of the rank's box
+    return 2 * 8.0, 2 * (4 * 8.0 * side + 4 * 8.0)
+
+
+def coarse_seconds(n_c: float, P: int, m: Machine) -> float:
+    """Redundant coarse solve plus the Allreduce bandwidth of its right-hand side, per iteration."""
+    if n_c <= 1:
+        return 0.0
+    nnz = m.c_fill * n_c * math.log2(n_c)
+    solve = 4.0 * nnz / m.flops                  # forward + backward, 2 flops per nonzero
+    reduce = 0.0 if P == 1 else 2.0 * 8.0 * n_c * m.beta
+    return solve + reduce
+
+
+def t_iter(P: int, n_total: float, cal: Calibration, m: Machine) -> dict:
+    """Modelled seconds per iteration with P ranks and n_total subdomains (and its parts)."""
+    n_loc = n_total / P
+    comp = cal.t_sub * n_loc
+    msgs, nbytes = messages_bytes(P, n_loc, cal.elements)
+    comm = m.alpha * msgs + m.beta * nbytes
+    coarse = coarse_seconds(n_total, P, m)
+    reduce = m.allreduces * math.log2(P) * m.alpha if P > 1 else 0.0
+    return {"P": P, "subdomains": n_total, "t_comp": comp, "t_p2p": comm, "t_coarse": coarse,
+            "t_allreduce": reduce, "t_iter": comp + comm + coarse + reduce}
+
+
+def projection(cal: Calibration, m: Machine, n_per_rank: float, n_strong: float,
+               ranks=(1, 2, 16, 128, 1000, 10000)) -> list[dict]:
+    """Weak (n_per_rank subdomains per rank) and strong (n_strong subdomains) rows with efficiencies."""
+    rows = []
+    weak1 = t_iter(1, n_per_rank, cal, m)["t_iter"]
+    strong1 = t_iter(1, n_strong, cal, m)["t_iter"]
+    for P in ranks:
+        w = t_iter(P, n_per_rank * P, cal, m)
+        rows.append({"scaling": "weak", **w, "efficiency": weak1 / w["t_iter"]})
+    for P in ranks:
+        if n_strong < P:
+            continue
+        s = t_iter(P, n_strong, cal, m)
+        rows.append({"scaling": "strong", **s, "efficiency": strong1 / (P * s["t_iter"])})
+    return rows
+
+
+def calibrate(run: dict, m: Machine) -> Calibration:
+    """The per-subdomain compute time per iteration of a P = 1 run's JSON (its modelled coarse solve removed)."""
+    n_sub = run["bodies"] ** 2 * run["subdomains"] ** 2
+    t1 = run["comm"]["krylov_seconds"] / max(run["iterations"], 1)
+    return Calibration(t_sub=max(t1 - coarse_seconds(n_sub, 1, m), 0.0) / n_sub, elements=run["elements"])
+
+
+def mpi_report(runs: list[dict], m: Machine = Machine(), strong_subdomains: float = 40000.0) -> tuple[list[dict], str]:
+    """Rows (one per run: measured and modelled) and a markdown report; the first run (P = 1) calibrates."""
+    first = runs[0]
+    cal = calibrate(first, m)
+    n_sub = first["bodies"] ** 2 * first["subdomains"] ** 2
+    rows = []
+    for run in runs:
+        P = run["n_ranks"]
+        comm = run["comm"]
+        t_meas = comm["krylov_seconds"] / max(run["iterations"], 1)
+        rows.append({"ranks": P, "ndof": run["ndof"], "iterations": run["iterations"],
+                     "solve_seconds": run["solve_seconds"], "krylov_seconds": comm["krylov_seconds"],
+                     "speedup_solve": first["solve_seconds"] / run["solve_seconds"],
+                     "t_iter_measured": t_meas, "t_iter_model": t_iter(P, n_sub, cal, m)["t_iter"],
+                     "messages_per_iteration": comm["messages_per_iteration"],
+                     "bytes_per_iteration": comm["bytes_per_iteration"],
+                     "allreduces_per_iteration": comm["allreduces_per_iteration"],
+                     "coarse_seconds": comm["coarse_seconds"],
+                     "load_average": "/".join(f"{x:.2f}" for x in run.get("load_average", []))})
+    lines = ["# Distributed solve (ddsolve.parallel)", "",
+             f"{first['method']}, {first['ndof']} dofs, {n_sub} subdomains, H/h = {first['elements']}.", "",
+             "| P | iterations | solve s | speed-up | s/iteration (measured) | s/iteration (model) "
+             "| messages/it | bytes/it | allreduces/it | load average (before/after) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['ranks']} | {r['iterations']} | {r['solve_seconds']:.3f} | {r['speedup_solve']:.2f} "
+                     f"| {r['t_iter_measured']:.4f} | {r['t_iter_model']:.4f} | {r['messages_per_iteration']:g} "
+                     f"| {r['bytes_per_iteration']:g} | {r['allreduces_per_iteration']:g} | {r['load_average']} |")
+    lines += ["", "## Alpha-beta model (a model, not a measurement)", "",
+              f"alpha = {m.alpha:g} s, beta = {m.beta:g} s/byte, coarse solve at {m.flops:g} flop/s; "
+              f"t_sub = {cal.t_sub:.3e} s per subdomain and iteration (measured, P = 1). "
+              f"Weak: {n_sub} subdomains per rank; strong: {strong_subdomains:g} subdomains.", "",
+              "| scaling | P | t_comp | t_p2p | t_coarse | t_allreduce | t_iter | efficiency |",
+              "|---|---|---|---|---|---|---|---|"]
+    for p in projection(cal, m, n_per_rank=n_sub, n_strong=strong_subdomains):
+        lines.append(f"| {p['scaling']} | {p['P']} | {p['t_comp']:.3e} | {p['t_p2p']:.3e} | {p['t_coarse']:.3e} "
+                     f"| {p['t_allreduce']:.3e} | {p['t_iter']:.3e} | {p['efficiency']:.3f} |")
+    return rows, "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    """``python -m ddsolve.parallel.model P1.json [P2.json ...]``: print the report of :func:`mpi_report`."""
+    parser = argparse.ArgumentParser(prog="python -m ddsolve.parallel.model",
+                                     description="alpha-beta model of distributed FETI-DP (docs/parallel.md)")
+    parser.add_argument("runs", nargs="+", help="JSON of mpiexec -n P ddsolve solve --json; the first with P = 1")
+    parser.add_argument("--strong-subdomains", type=float, default=40000.0)
+    args = parser.parse_args(argv)
+    runs = [json.load(open(path)) for path in args.runs]
+    _, text = mpi_report(runs, strong_subdomains=args.strong_subdomains)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

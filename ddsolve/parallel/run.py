@@ -1,0 +1,204 @@
+"""Entry points of a distributed solve: :func:`solve` (library) and :func:`main` (command line).
+
+Under ``mpiexec`` the command line (:func:`ddsolve.cli.main`) validates the
+input on every rank (identically, before any MPI call) and then calls
+:func:`main` here. Rank 0 alone prints the result and writes files. An
+exception on any rank prints one line ``ddsolve: error: <rank r>: <message>``
+on that rank and aborts the whole job (``MPI_Abort``): no rank hangs.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..result import SolveResult
+from ..spec import ProblemSpec
+from .comm import CountingComm
+
+log = logging.getLogger(__name__)
+
+__all__ = ["METHODS", "MPI_ENV", "check_supported", "mpi_world_size", "solve", "main"]
+
+#: Methods with a distributed implementation (problem poisson).
+METHODS = ("fetidp", "bddc", "feti")
+#: Environment variables that mark a process started by mpiexec (MPICH/Hydra, Open MPI, PMIx).
+MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")
+#: Test hook: a rank number; that rank raises once its setup is done (tests of the abort path only).
+FAIL_ENV = "DDSOLVE_TEST_FAIL_RANK"
+
+
+def mpi_world_size(environ: dict | None = None) -> int | None:
+    """The job size announced by the launcher's environment, or None outside mpiexec (no mpi4py import)."""
+    env = os.environ if environ is None else environ
+    for name in MPI_ENV:
+        value = env.get(name)
+        if value is not None:
+            try:
+                return int(value)
+            except ValueError:
+                return None
+    return None
+
+
+def check_supported(spec: ProblemSpec, size: int) -> None:
+    """Reject what the distributed solvers do not do, identically on every rank (before any MPI call).
+
+    Raises
+    ------
+    InputError
+        ``method`` outside :data:`METHODS` or a problem other than poisson; ``subdomains``
+        (``parts``) when there are fewer subdomains than ranks; ``output`` (not written under mpiexec).
+    """
+    if spec.problem != "poisson" or spec.method not in METHODS:
+        raise InputError("method", f"{spec.problem}/{spec.method} has no distributed (mpiexec) implementation; "
+                                   f"distributed methods: poisson with {', '.join(METHODS)} "
+                                   f"(run without mpiexec for the others)")
+    if spec.output:
+        raise InputError("output", "writing a .vtu file is not available under mpiexec yet (run without mpiexec)")
+    n_sub = spec.parts if spec.mesh == "unstructured" else spec.bodies ** 2 * spec.subdomains ** 2
+    if spec.mesh_file and spec.mesh == "unstructured":
+        return                          # the parts of a mesh file are counted once it is read (in solve)
+    if n_sub < size:
+        raise InputError("parts" if spec.mesh == "unstructured" else "subdomains",
+                         f"{n_sub} subdomains for {size} ranks: need at least one subdomain per rank")
+
+
+def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solve_seconds: float,
+            comm: CountingComm) -> SolveResult | None:
+    """The :class:`SolveResult` on rank 0 (None elsewhere), with ``n_ranks`` and ``comm`` in ``extra``."""
+    from ..krylov import attained
+
+    msgs, nbytes, allreduces = info["per_iteration"]
+    totals = comm.comm.allreduce(np.array([msgs, nbytes], dtype=float))
+    coarse = comm.comm.allreduce(info["coarse_seconds"], op=comm.MPI.MAX)
+    setup_seconds = comm.comm.allreduce(setup_seconds, op=comm.MPI.MAX)
+    solve_seconds = comm.comm.allreduce(solve_seconds, op=comm.MPI.MAX)
+    krylov_seconds = comm.comm.allreduce(info["krylov_seconds"], op=comm.MPI.MAX)
+    n_fact = comm.comm.allreduce(int(out.n_factorizations))
+    rank_timings = {k: comm.comm.allreduce(float(v), op=comm.MPI.MAX) for k, v in sorted(prob.timings.items())}
+    from ..api import peak_rss_mb
+    peak = comm.comm.allreduce(peak_rss_mb(), op=comm.MPI.MAX)
+    if comm.rank != 0:
+        return None
+    kr = out.krylov
+    converged, reason = attained(kr, spec.rtol)
+    extra: dict[str, Any] = {k: v for k, v in out.extra.items()}
+    extra["restarts"] = int(getattr(kr, "restarts", 0))
+    extra["preset"] = spec.preset
+    extra["n_ranks"] = comm.size
+    extra["comm"] = {"messages_per_iteration": float(totals[0]),
+                     "bytes_per_iteration": float(totals[1]),
+                     "allreduces_per_iteration": float(allreduces),
+                     "coarse_seconds": float(coarse),
+                     "krylov_seconds": float(krylov_seconds)}
+    fields: dict[str, Any] = dict(u=out.u, nlambda=out.nlambda, n_factorizations=n_fact,
+                                  setup_seconds=setup_seconds, solve_seconds=solve_seconds,
+                                  converged=converged, reason=reason, iterations=kr.iterations,
+                                  residuals=np.asarray(kr.residuals, dtype=float), true_residual=kr.true_residual)
+    if spec.cond and kr.cond is not None:
+        fields.update(cond=kr.cond, lambda_min=kr.lambda_min, lambda_max=kr.lambda_max)
+    if fields["converged"] and out.u is not None and not np.all(np.isfinite(out.u)):
+        fields.update(converged=False, reason=f"non-finite solution after {reason}")
+    if spec.check and out.u is not None:       # the direct reference, on rank 0 only (serial assembly)
+        from ..api import checked_error
+        from ..dd import solve_direct
+        from ..prepared import prepare
+        ref_sub = prepare(spec).sub
+        error, why = checked_error(ref_sub.global_matrix(), out.u, solve_direct(ref_sub))
+        fields["error_vs_direct"] = error
+        if why:
+            extra["check_reason"] = why
+    from ..api import _sizes
+    n_sub = prob.topo.n_sub
+    extra["timings"] = {"mesh": rank_timings.get("scene", 0.0), "partition": 0.0,
+                        "assembly": rank_timings.get("assembly", 0.0),
+                        "setup": max(setup_seconds - rank_timings.get("scene", 0.0) - rank_timings.get("assembly", 0.0),
+                                     0.0),
+                        "solve": solve_seconds}
+    extra["peak_rss_mb"] = peak                                   # the largest over ranks
+    extra["mesh"] = spec.mesh
+    extra["parts"] = spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2
+    sizes = _sizes(spec) if spec.mesh == "unstructured" else {"subdomains": spec.subdomains,
+                                                               "elements": spec.elements}
+    if spec.mesh == "unstructured" and spec.mesh_file:
+        sizes["subdomains"] = n_sub
+    return SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
+                       ndof=prob.topo.ndof, **fields, extra=extra)
+
+
+def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: bool = True) -> SolveResult | None:
+    """Distributed solve of ``spec`` (poisson: fetidp, bddc or feti) over the ranks of ``comm``.
+
+    Parameters
+    ----------
+    spec : ProblemSpec or dict
+    scene : Scene, optional
+        Instead of the spec's structured scene (e.g. :func:`ddsolve.scene.unstructured_scene`);
+        every rank must pass the same scene.
+    comm : mpi4py communicator or CountingComm, optional
+        ``MPI.COMM_WORLD`` by default.
+    gather : bool
+        Assemble the global solution ``u`` on rank 0.
+
+    Returns
+    -------
+    SolveResult on rank 0 (``extra`` holds ``n_ranks`` and ``comm``), None on the other ranks.
+    """
+    from threadpoolctl import threadpool_limits
+
+    from .bddc import solve_bddc_mpi
+    from .feti import solve_feti_mpi
+    from .fetidp import solve_fetidp_mpi
+    from .setup import prepare_rank
+
+    if not isinstance(spec, ProblemSpec):
+        spec = ProblemSpec.from_mapping(spec)
+    if comm is None:
+        from mpi4py import MPI
+        comm = MPI.COMM_WORLD
+    if not isinstance(comm, CountingComm):
+        comm = CountingComm(comm)
+    with threadpool_limits(limits=1, user_api="blas"):
+        t0 = time.perf_counter()
+        prob = prepare_rank(spec, comm, scene)
+        prep_seconds = time.perf_counter() - t0
+        fail = os.environ.get(FAIL_ENV)
+        if fail is not None and fail == str(comm.rank):
+            raise RuntimeError(f"injected failure ({FAIL_ENV}={fail})")
+        method = {"fetidp": solve_fetidp_mpi, "bddc": solve_bddc_mpi, "feti": solve_feti_mpi}[spec.method]
+        t1 = time.perf_counter()
+        from ..presets import solver_options
+        if prob.topo.n_sub < comm.size:
+            raise InputError("parts", f"{prob.topo.n_sub} subdomains for {comm.size} ranks")
+        out, info = method(prob, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
+                           gather=gather or spec.check, **solver_options(spec.preset, spec.problem, spec.method))
+        total = time.perf_counter() - t1
+        return _result(spec, prob, out, info, prep_seconds + out.setup_seconds, total - out.setup_seconds, comm)
+
+
+def main(spec: ProblemSpec, as_json: bool, human) -> int:
+    """Command-line solve under mpiexec; the input is already validated. Returns 0 (or aborts the job)."""
+    try:
+        from mpi4py import MPI
+    except ImportError as exc:
+        print(f"ddsolve: error: mpi: running under mpiexec with {mpi_world_size()} ranks needs mpi4py "
+              f"({exc})", file=sys.stderr)
+        return 2
+    comm = MPI.COMM_WORLD
+    try:
+        result = solve(spec, comm=comm, gather=spec.check)
+        if comm.Get_rank() == 0:
+            summary = result.to_dict()
+            print(json.dumps(summary) if as_json else human(summary), flush=True)
+    except Exception as exc:     # noqa: BLE001 - any failure on any rank ends the whole job
+        sys.stderr.write(f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n")   # one write
+        sys.stderr.flush()
+        comm.Abort(1)
+    return 0

@@ -1,0 +1,286 @@
+"""Benchmark of DDInverse against NGSolve's own solvers (study kind ``ngsolve``).
+
+Problem: -div((1 + x) grad u) = 1 on the unit square, u = 0 on the boundary,
+scalar H1 of order p. For each order and size, every solver starts from the
+same *unassembled* BilinearForm and the timings are those a user pays:
+
+* ``ddinverse-bddc`` / ``ddinverse-fetidp``: ``DDInverse(a)`` (broken assembly,
+  partition, factorizations) + one solve;
+* ``ngs-bddc-cg``: ``Preconditioner(a, "bddc")`` + ``a.Assemble()`` + CGSolver;
+* ``ngs-h1amg-cg``: ``Preconditioner(a, "h1amg")`` (order 1) or ``"bddc"`` with
+  ``coarsetype="h1amg"`` (order >= 2) + assembly + CGSolver;
+* ``sparsecholesky``, ``pardiso``: assembly + ``a.mat.Inverse(freedofs, inverse=...)`` + solve.
+
+All run in one process (one Snakemake job), one after another, with one
+thread each; the load average is recorded with every row. Errors of the
+reference solution (``sparsecholesky`` where run) are reported per row.
+
+Run: ``python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png``.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+SOLVERS = ("ddinverse-bddc", "ddinverse-fetidp", "ngs-bddc-cg", "ngs-h1amg-cg", "sparsecholesky", "pardiso")
+
+
+@dataclass
+class Row:
+    solver: str
+    order: int
+    ndof: int
+    parts: int
+    setup_s: float
+    solve_s: float
+    total_s: float
+    iterations: int
+    relerr: float
+    load: float
+    error: str = ""
+
+
+def make_mesh(order: int, ndof: int):
+    """Unit-square mesh with about ``ndof`` H1 dofs of order ``order`` (netgen mesh + uniform refinements)."""
+    import ngsolve as ngs
+    from netgen.geom2d import unit_square
+
+    nv = ndof / order ** 2
+    refine = max(0, math.floor(math.log(max(nv / 4000.0, 1.0), 4)))
+    h = math.sqrt(1.17 / (nv / 4 ** refine))
+    ngmesh = unit_square.GenerateMesh(maxh=h)
+    for _ in range(refine):
+        ngmesh.Refine()
+    return ngs.Mesh(ngmesh)
+
+
+def _forms(mesh, order):
+    import ngsolve as ngs
+
+    fes = ngs.H1(mesh, order=order, dirichlet=".*")
+    u, v = fes.TnT()
+    a = ngs.BilinearForm(fes)
+    a += (1 + ngs.x) * ngs.grad(u) * ngs.grad(v) * ngs.dx
+    f = ngs.LinearForm(fes)
+    f += v * ngs.dx
+    f.Assemble()
+    return fes, a, f
+
+
+def run_solver(name: str, mesh, order: int, parts: int, rtol: float, maxiter: int):
+    """(setup seconds, solve seconds, iterations, solution array) of one solver."""
+    import ngsolve as ngs
+    from ngsolve.krylovspace import CGSolver
+
+    fes, a, f = _forms(mesh, order)
+    gfu = ngs.GridFunction(fes)
+    t0 = time.perf_counter()
+    its = 0
+    if name.startswith("ddinverse-"):
+        from ddsolve.ngsolve import DDInverse
+
+        inv = DDInverse(a, method=name.split("-", 1)[1], parts=parts, rtol=rtol, maxiter=maxiter)
+        t1 = time.perf_counter()
+        gfu.vec.data = inv * f.vec
+        its = inv.iterations
+    elif name in ("ngs-bddc-cg", "ngs-h1amg-cg"):
+        if name == "ngs-bddc-cg":
+            pre = ngs.Preconditioner(a, "bddc")
+        elif order == 1:
+            pre = ngs.Preconditioner(a, "h1amg")
+        else:
+            pre = ngs.Preconditioner(a, "bddc", coarsetype="h1amg")
+        a.Assemble()
+        t1 = time.perf_counter()
+        solver = CGSolver(a.mat, pre.mat, tol=rtol, maxiter=maxiter)
+        gfu.vec.data = solver * f.vec
+        its = solver.iterations
+    else:
+        a.Assemble()
+        inv = a.mat.Inverse(fes.FreeDofs(), inverse=name)
+        t1 = time.perf_counter()
+        gfu.vec.data = inv * f.vec
+    t2 = time.perf_counter()
+    return t1 - t0, t2 - t1, its, gfu.vec.FV().NumPy().copy()
+
+
+def run_study(cfg: dict) -> list[Row]:
+    rows: list[Row] = []
+    solvers = cfg.get("solvers", list(SOLVERS))
+    for order_cfg in cfg["orders"]:
+        order = int(order_cfg["order"])
+        for ndof in order_cfg["ndofs"]:
+            mesh = make_mesh(order, int(ndof))
+            parts = max(2, round(int(ndof) / int(cfg["dofs_per_part"])))
+            ref = None
+            results = []
+            for name in solvers:
+                try:
+                    s, t, its, x = run_solver(name, mesh, order, parts, float(cfg["rtol"]), int(cfg["maxiter"]))
+                    if name == "sparsecholesky":
+                        ref = x
+                    results.append((name, s, t, its, x, ""))
+                except Exception as exc:  # noqa: BLE001  (a missing backend, e.g. pardiso, is reported, not fatal)
+                    results.append((name, math.nan, math.nan, 0, None, f"{type(exc).__name__}: {exc}"[:120]))
+                log.info("order %d ndof %s %s done", order, ndof, name)
+            n = int(np.asarray(results[0][4]).size) if results[0][4] is not None else int(ndof)
+            for name, s, t, its, x, err in results:
+                rel = (float(np.linalg.norm(x - ref) / np.linalg.norm(ref))
+                       if (x is not None and ref is not None) else math.nan)
+                rows.append(Row(name, order, n, parts if name.startswith("ddinverse") else 0, s, t, s + t, its,
+                                rel, os.getloadavg()[0], err))
+    for sweep in cfg.get("parts_sweep", []) or []:
+        mesh = make_mesh(int(sweep["order"]), int(sweep["ndof"]))
+        for parts in sweep["parts"]:
+            s, t, its, _ = run_solver("ddinverse-bddc", mesh, int(sweep["order"]), int(parts),
+                                      float(cfg["rtol"]), int(cfg["maxiter"]))
+            rows.append(Row("ddinverse-bddc-sweep", int(sweep["order"]), int(sweep["ndof"]), int(parts), s, t,
+                            s + t, its, math.nan, os.getloadavg()[0]))
+    return rows
+
+
+def summary(rows: list[Row]) -> str:
+    """Markdown table and the target checks of the issue (reported, not tuned for)."""
+    lines = ["| solver | order | ndof | parts | setup s | solve s | total s | its | rel. error | load |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r.solver} | {r.order} | {r.ndof} | {r.parts} | {r.setup_s:.2f} | {r.solve_s:.2f} | "
+                     f"{r.total_s:.2f} | {r.iterations} | {r.relerr:.1e} | {r.load:.1f} |"
+                     + (f" {r.error}" if r.error else ""))
+    lines += ["", "Targets:"]
+    by = {(r.solver, r.order, r.ndof): r for r in rows}
+    for order in sorted({r.order for r in rows}):
+        n = max(r.ndof for r in rows if r.order == order and not r.solver.endswith("sweep"))
+        dd = by.get(("ddinverse-bddc", order, n))
+        if dd is None:
+            continue
+        if order == 1:
+            direct = [by[(s, 1, n)].total_s for s in ("sparsecholesky", "pardiso")
+                      if (s, 1, n) in by and math.isfinite(by[(s, 1, n)].total_s)]
+            if direct:
+                ratio = dd.total_s / min(direct)
+                lines.append(f"- order 1, {n} dofs: DDInverse / (assembly + fastest direct) = {ratio:.2f} "
+                             f"(target <= 0.5: {'met' if ratio <= 0.5 else 'NOT met'})")
+        elif ("ngs-bddc-cg", order, n) in by:
+            ratio = dd.total_s / by[("ngs-bddc-cg", order, n)].total_s
+            lines.append(f"- order {order}, {n} dofs: DDInverse / NGSolve bddc+CG = {ratio:.2f} "
+                         f"(target <= 1.0: {'met' if ratio <= 1.0 else 'NOT met'})")
+    sweep = [r for r in rows if r.solver == "ddinverse-bddc-sweep"]
+    if len(sweep) >= 2:
+        growth = sweep[-1].iterations / max(sweep[0].iterations, 1)
+        lines.append(f"- iterations {sweep[0].parts} -> {sweep[-1].parts} parts: {sweep[0].iterations} -> "
+                     f"{sweep[-1].iterations} ({growth:.2f}x; target <= 1.3x: {'met' if growth <= 1.3 else 'NOT met'})")
+    return "\n".join(lines) + "\n"
+
+
+def plot(rows: list[Row], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    orders = sorted({r.order for r in rows if not r.solver.endswith("sweep")})
+    fig, axes = plt.subplots(1, len(orders), figsize=(4 * len(orders), 3.5), squeeze=False)
+    for ax, order in zip(axes[0], orders):
+        for name in SOLVERS:
+            pts = sorted((r.ndof, r.total_s) for r in rows if r.solver == name and r.order == order
+                         and math.isfinite(r.total_s))
+            if pts:
+                ax.loglog(*zip(*pts), "o-", label=name)
+        ax.set_title(f"order {order}")
+        ax.set_xlabel("dofs")
+        ax.set_ylabel("setup + solve [s]")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp, dpi=120)
+    os.replace(tmp, path)
+
+
+def _write_atomic(path: str, text: str) -> None:
+    tmp = path + ".tmp"
+    Path(tmp).write_text(text)
+    os.replace(tmp, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 4:
+        print("usage: python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png", file=sys.stderr)
+        return 2
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    cfg = json.loads(Path(argv[0]).read_text()) if argv[0].endswith(".json") else json.loads(argv[0])
+    rows = run_study(cfg)
+    tmp = argv[1] + ".tmp"
+    with open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(asdict(rows[0])))
+        writer.writeheader()
+        writer.writerows(asdict(r) for r in rows)
+    os.replace(tmp, argv[1])
+    _write_atomic(argv[2], summary(rows))
+    plot(rows, argv[3])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
+
+
+def hh_study(order: int = 1, parts: int = 16, refinements: tuple[int, ...] = (0, 1, 2), maxh: float = 0.05,
+             method: str = "bddc") -> dict:
+    """Condition numbers at a fixed METIS partition of the coarse mesh while h halves (H/h doubles).
+
+    The partition is computed once on the coarse mesh; a refined element gets
+    the part of the coarse element containing its centroid (a point search
+    per element: a study, not a timed path). Fits
+    cond = c0 + c1 (1 + log(H/h))^2, with H/h = 4 * 2^r as a nominal value,
+    and returns the sizes, iterations, condition numbers and the fit.
+    """
+    import ngsolve as ngs
+    from netgen.geom2d import unit_square
+
+    from ddsolve.ngsolve import DDInverse
+    from ddsolve.ngsolve.dofs import vertex_table
+    from ddsolve.scene.partition import partition_elements
+
+    coarse = ngs.Mesh(unit_square.GenerateMesh(maxh=maxh))
+    label = partition_elements(vertex_table(coarse), parts)
+    out = {"ndof": [], "iterations": [], "cond": [], "h_ratio": []}
+    for r in refinements:
+        ngmesh = unit_square.GenerateMesh(maxh=maxh)
+        for _ in range(r):
+            ngmesh.Refine()
+        mesh = ngs.Mesh(ngmesh)
+        centroids = _centroids(mesh)
+        coarse_el = np.array([coarse(float(x), float(y)).nr for x, y in centroids])
+        fes, a, f = _forms(mesh, order)
+        inv = DDInverse(a, method=method, partition=label[coarse_el], rtol=1e-10, cond=True)
+        gfu = ngs.GridFunction(fes)
+        gfu.vec.data = inv * f.vec
+        out["ndof"].append(fes.ndof)
+        out["iterations"].append(inv.iterations)
+        out["cond"].append(inv.cond)
+        out["h_ratio"].append(2 ** r)
+    logs = (1 + np.log(np.asarray(out["h_ratio"], dtype=float) * 4)) ** 2
+    c1, c0 = np.polyfit(logs, np.asarray(out["cond"]), 1)
+    out["fit"] = {"c0": float(c0), "c1": float(c1)}
+    return out
+
+
+def _centroids(mesh) -> np.ndarray:
+    from ddsolve.ngsolve.dofs import vertex_table
+
+    pts = np.asarray(mesh.ngmesh.Coordinates())[:, :2]
+    return pts[vertex_table(mesh)].mean(axis=1)

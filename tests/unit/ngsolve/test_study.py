@@ -1,0 +1,61 @@
+"""The ngsolve study kind: schema, config, the benchmark module and a tiny Snakemake run."""
+from __future__ import annotations
+
+import csv
+
+import pytest
+import yaml
+
+pytest.importorskip("ngsolve")
+
+from conftest import ROOT, copy_workflow, run_snakemake
+from ddstudies.ngsolve_bench import Row, run_study, summary
+from ddstudies.workflow import SCHEMAS, ConfigError, validate
+
+SCHEMA = ROOT / "workflows" / "schemas" / "ngsolve.schema.yaml"
+
+
+def test_config_validates_and_schema_is_closed():
+    config = yaml.safe_load((ROOT / "config" / "ngsolve.yaml").read_text())
+    assert SCHEMAS[config["kind"]] == "ngsolve"
+    validate(config, SCHEMA)
+    assert [o["order"] for o in config["orders"]] == [1, 2, 3, 4]
+    assert all(len(o["ndofs"]) == 3 and max(o["ndofs"]) == 1_000_000 for o in config["orders"])
+    with pytest.raises(ConfigError, match="extra"):
+        validate({**config, "extra": 1}, SCHEMA)
+    with pytest.raises(ConfigError, match="solvers/0"):
+        validate({**config, "solvers": ["umfpack"]}, SCHEMA)
+
+
+def test_small_study_agrees_with_the_direct_solution():
+    rows = run_study({"orders": [{"order": 2, "ndofs": [3000]}], "dofs_per_part": 500, "rtol": 1e-10,
+                      "maxiter": 200, "solvers": ["ddinverse-bddc", "ddinverse-fetidp", "ngs-bddc-cg",
+                                                  "sparsecholesky"]})
+    by = {r.solver: r for r in rows}
+    assert set(by) == {"ddinverse-bddc", "ddinverse-fetidp", "ngs-bddc-cg", "sparsecholesky"}
+    for name in ("ddinverse-bddc", "ddinverse-fetidp"):
+        assert by[name].relerr < 1e-8 and by[name].iterations > 0 and by[name].parts >= 5
+    assert "order 2" in summary(rows) and "NGSolve bddc+CG" in summary(rows)
+
+
+def test_summary_targets():
+    rows = [Row("ddinverse-bddc", 1, 100, 4, 1.0, 1.0, 2.0, 10, 0.0, 0.5),
+            Row("sparsecholesky", 1, 100, 0, 3.0, 2.0, 5.0, 0, 0.0, 0.5),
+            Row("ddinverse-bddc-sweep", 1, 100, 64, 1, 1, 2, 20, float("nan"), 0.5),
+            Row("ddinverse-bddc-sweep", 1, 100, 1024, 1, 1, 2, 27, float("nan"), 0.5)]
+    text = summary(rows)
+    assert "= 0.40 (target <= 0.5: met)" in text
+    assert "20 -> 27 (1.35x; target <= 1.3x: NOT met)" in text
+
+
+def test_workflow_runs_the_study(tmp_path):
+    copy_workflow(tmp_path)
+    cfg = {"kind": "ngsolve", "study": "ngs_tiny", "orders": [{"order": 1, "ndofs": [1500]}],
+           "solvers": ["ddinverse-bddc", "sparsecholesky"], "dofs_per_part": 300}
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(cfg))
+    run_snakemake(tmp_path, "--cores", "1", "--configfile", "tiny.yaml", timeout=600)
+    with open(tmp_path / "results" / "ngs_tiny" / "ngsolve.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["solver"] for r in rows] == ["ddinverse-bddc", "sparsecholesky"]
+    assert float(rows[0]["relerr"]) < 1e-6
+    assert (tmp_path / "reports" / "ngs_tiny" / "ngsolve.png").stat().st_size > 1000

@@ -1,0 +1,27 @@
+"""Run under mpiexec by test_mpi.py: one distributed solve, rank 0 writes an npz.
+
+Usage: mpi_case.py METHOD {structured,unstructured} OUT.npz
+"""
+import sys
+
+import numpy as np
+
+from ddsolve.parallel import solve
+
+
+def case(method: str, kind: str):
+    """The spec and scene (None: the spec's structured scene) of a test case; shared with the serial side."""
+    if kind == "structured":
+        return dict(method=method, subdomains=4, elements=5, rho="checkerboard:100", f="random:1", cond=True), None
+    from ddsolve.scene import unstructured_scene
+    scene = unstructured_scene("poisson", maxh=0.06, parts=7, rho=np.geomspace(1.0, 1e3, 7), seed=0)
+    return dict(method=method, cond=True), scene
+
+
+if __name__ == "__main__":
+    method, kind, out = sys.argv[1:4]
+    spec, scene = case(method, kind)
+    result = solve(spec, scene=scene)
+    if result is not None:
+        np.savez(out, u=result.u, iterations=result.iterations, cond=result.cond,
+                 n_ranks=result.extra["n_ranks"], messages=result.extra["comm"]["messages_per_iteration"])

@@ -1,0 +1,35 @@
+"""The alpha-beta model of ddsolve.parallel.model (no MPI needed)."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from ddsolve.parallel.model import Calibration, Machine, messages_bytes, projection, t_iter
+
+
+def test_single_rank_has_no_communication():
+    cal, m = Calibration(t_sub=1e-4, elements=64), Machine()
+    row = t_iter(1, 256, cal, m)
+    assert row["t_p2p"] == 0.0 and row["t_allreduce"] == 0.0
+    assert row["t_comp"] == pytest.approx(256 * 1e-4)
+
+
+def test_counts_and_terms():
+    # P = 2 strips of 128 subdomains of H/h = 64: one cut of 16 sides x 63 dual nodes, 2 exchanges
+    assert messages_bytes(2, 128, 64) == (2.0, 2 * 8.0 * 16 * 63)
+    m = Machine()
+    row = t_iter(2, 256, Calibration(t_sub=1e-4, elements=64), m)
+    assert row["t_p2p"] == pytest.approx(2 * m.alpha + 2 * 8 * 16 * 63 * m.beta)
+    assert row["t_allreduce"] == pytest.approx(4 * m.alpha)
+
+
+def test_projection_efficiencies_fall_with_the_coarse_problem():
+    rows = projection(Calibration(t_sub=1e-4, elements=64), Machine(), n_per_rank=256, n_strong=40000)
+    weak = [r for r in rows if r["scaling"] == "weak"]
+    strong = [r for r in rows if r["scaling"] == "strong"]
+    assert weak[0]["efficiency"] == 1.0 and strong[0]["efficiency"] == 1.0
+    assert all(a["efficiency"] >= b["efficiency"] for a, b in zip(weak, weak[1:]))
+    big = weak[-1]
+    assert big["P"] == 10000 and big["t_coarse"] > big["t_comp"]       # the coarse problem is the limit
+    assert all(math.isfinite(r["t_iter"]) for r in rows)

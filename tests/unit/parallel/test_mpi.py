@@ -1,0 +1,133 @@
+"""Distributed FETI-DP / BDDC / FETI under mpiexec agree with the serial solvers; errors end every rank.
+
+Each test launches ``mpiexec -n P`` through subprocess (marker ``mpi``); skipped only when
+``mpiexec`` or mpi4py is missing.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ddsolve.api import SOLVERS
+from ddsolve.parallel.model import messages_bytes
+from ddsolve.prepared import prepare
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[2]
+sys.path.insert(0, str(HERE))
+from mpi_case import case  # noqa: E402
+
+MPIEXEC = shutil.which("mpiexec")
+try:
+    import mpi4py  # noqa: F401
+    HAVE_MPI4PY = True
+except ImportError:         # pragma: no cover
+    HAVE_MPI4PY = False
+
+pytestmark = [pytest.mark.mpi,
+              pytest.mark.skipif(MPIEXEC is None or not HAVE_MPI4PY,
+                                 reason="mpiexec or mpi4py not installed: distributed solves cannot be launched")]
+TIMEOUT = 120
+
+
+def _env(**extra: str) -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(ROOT / "studies"), env.get("PYTHONPATH", "")])
+    env["OMP_NUM_THREADS"] = "1"
+    env.update(extra)
+    return env
+
+
+def _mpiexec(n: int, args: list[str], **env: str) -> subprocess.CompletedProcess:
+    return subprocess.run([MPIEXEC, "-n", str(n), sys.executable, *args], capture_output=True, text=True,
+                          timeout=TIMEOUT, env=_env(**env), cwd=ROOT)
+
+
+def _serial(method: str, kind: str):
+    spec, scene = case(method, kind)
+    out = SOLVERS["poisson"][method](prepare(spec, scene)).output
+    return out
+
+
+@pytest.mark.parametrize("method,kind,n", [("fetidp", "structured", 2), ("bddc", "structured", 2),
+                                           ("fetidp", "unstructured", 2), ("bddc", "unstructured", 3),
+                                           ("feti", "structured", 3)])
+def test_distributed_equals_serial(tmp_path, method, kind, n):
+    out_file = tmp_path / "u.npz"
+    proc = _mpiexec(n, [str(HERE / "mpi_case.py"), method, kind, str(out_file)])
+    assert proc.returncode == 0, proc.stderr
+    par = np.load(out_file)
+    ser = _serial(method, kind)
+    assert int(par["n_ranks"]) == n
+    assert int(par["iterations"]) == ser.krylov.iterations
+    assert np.linalg.norm(par["u"] - ser.u) <= 1e-10 * np.linalg.norm(ser.u)
+    assert abs(float(par["cond"]) - ser.krylov.cond) <= 1e-8 * ser.krylov.cond
+    assert float(par["messages"]) > 0           # interface values did travel between the ranks
+
+
+def test_cli_json_contract():
+    proc = _mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "4", "--elements", "4", "--cond", "--json"])
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert len(lines) == 1                      # rank 0 alone prints
+    import json
+    summary = json.loads(lines[0])
+    serial = subprocess.run([sys.executable, "-m", "ddsolve", "solve", "--subdomains", "4", "--elements", "4",
+                             "--cond", "--json"], capture_output=True, text=True, timeout=TIMEOUT, env=_env(),
+                            cwd=ROOT)
+    ref = json.loads(serial.stdout)
+    assert "n_ranks" not in ref and "comm" not in ref
+    assert summary["n_ranks"] == 2 and summary["iterations"] == ref["iterations"]
+    assert abs(summary["cond"] - ref["cond"]) <= 1e-8 * ref["cond"]
+    assert set(summary["comm"]) >= {"messages_per_iteration", "bytes_per_iteration", "allreduces_per_iteration",
+                                    "coarse_seconds"}
+    assert summary["comm"]["allreduces_per_iteration"] == 4.0      # 3 PCG reductions + 1 coarse rhs
+    # two strips of 2 x 4 subdomains: 2 exchanges of the 4 x 3 dual multipliers on the cut, each way
+    assert summary["comm"]["messages_per_iteration"] == 4.0
+    assert summary["comm"]["bytes_per_iteration"] == 2 * 2 * 12 * 8
+    assert 2 * messages_bytes(2, 8, 4)[1] == summary["comm"]["bytes_per_iteration"]      # the model's count
+
+
+def test_failure_on_one_rank_aborts_all():
+    proc = _mpiexec(3, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4", "--json"],
+                    DDSOLVE_TEST_FAIL_RANK="1")
+    assert proc.returncode != 0
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("ddsolve: error:")]
+    assert errors == ["ddsolve: error: rank 1: RuntimeError: injected failure (DDSOLVE_TEST_FAIL_RANK=1)"]
+    assert proc.stdout.strip() == ""
+
+
+@pytest.mark.parametrize("args,field", [(["--subdomains", "0"], "subdomains"),
+                                        (["--method", "direct"], "method")])
+def test_bad_input_exits_2_on_every_rank(args, field):
+    proc = _mpiexec(2, ["-m", "ddsolve", "solve", *args])
+    assert proc.returncode == 2, proc.stderr
+    # one line per rank (the launcher may join two ranks' lines: count the messages, not the lines)
+    assert proc.stderr.count("ddsolve: error: ") == 2, proc.stderr
+    assert proc.stderr.count(f"ddsolve: error: {field}: ") == 2, proc.stderr
+
+
+def test_without_mpi4py_is_a_clear_error(tmp_path):
+    broken = tmp_path / "mpi4py"
+    broken.mkdir()
+    (broken / "__init__.py").write_text('raise ImportError("mpi4py broken (test)")\n')
+    proc = _mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4"],
+                    PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT), str(ROOT / "studies")]))
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("ddsolve: error: mpi: running under mpiexec with 2 ranks needs mpi4py") == 2
+
+
+def test_serial_run_never_imports_mpi4py():
+    code = ("import sys; from ddsolve.cli import main; main(['solve', '--subdomains', '2', '--elements', '2']); "
+            "print('mpi4py' in sys.modules, 'ddsolve.parallel' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=TIMEOUT,
+                          env={k: v for k, v in _env().items() if k not in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE",
+                                                                             "PMIX_SIZE")}, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == "False False"

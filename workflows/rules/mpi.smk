@@ -1,0 +1,45 @@
+# Distributed-solve benchmark (kind mpi, config/mpi.yaml): one case, P = ranks.
+#   snakemake --cores 2 --configfile config/mpi.yaml
+# Not part of the default reproduction (config/default.yaml does not list it).
+#   results/<study>/<method>/P<P>.json    the JSON of `mpiexec -n P ddsolve solve --json` (+ load average)
+#   reports/<study>/mpi.csv, mpi.md       speed-up of the solve phase, comm counts, the alpha-beta model
+
+
+rule mpi:
+    input:
+        targets(),
+
+
+rule mpi_case:
+    output:
+        f"results/{STUDY}/{{method}}/P{{P}}.json",
+    wildcard_constraints:
+        method=re.escape(config["method"]),
+        P=r"[1-9]\d*",
+    params:
+        spec=mpi_spec,
+        repeats=int(config["repeats"]),
+    resources:
+        tasks=lambda wildcards: int(wildcards.P),
+        mpi=config["mpiexec"],
+    threads: lambda wildcards: int(wildcards.P)
+    log:
+        f"logs/{STUDY}/{{method}}/P{{P}}.log",
+    conda:
+        "../envs/ddsolve.yaml"
+    script:
+        "../scripts/mpi_case.py"
+
+
+rule mpi_summary:
+    input:
+        mpi_case_files(),
+    output:
+        table=f"reports/{STUDY}/mpi.csv",
+        markdown=report(f"reports/{STUDY}/mpi.md", caption="../report/mpi.rst", category="MPI"),
+    log:
+        f"logs/{STUDY}/summary.log",
+    conda:
+        "../envs/ddsolve.yaml"
+    script:
+        "../scripts/mpi_summary.py"

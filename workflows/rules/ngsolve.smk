@@ -1,0 +1,29 @@
+# DDInverse against NGSolve's solvers (kind ngsolve, config/ngsolve.yaml):
+#   snakemake --cores 2 --configfile config/ngsolve.yaml
+# One job runs every case and solver one after another (ddstudies.ngsolve_bench), so that
+# the timings are taken under the same conditions; it takes all the cores given to Snakemake.
+#   results/<study>/ngsolve.csv      one row per (solver, order, dofs), load average included
+#   reports/<study>/ngsolve.md       table and the targets
+#   reports/<study>/ngsolve.png      setup + solve time against dofs, one panel per order
+
+
+rule ngsolve:
+    input:
+        targets(),
+
+
+rule ngsolve_bench:
+    output:
+        csv=f"results/{STUDY}/ngsolve.csv",
+        markdown=f"reports/{STUDY}/ngsolve.md",
+        plot=f"reports/{STUDY}/ngsolve.png",
+    params:
+        config=lambda wc: json.dumps({key: config[key] for key in NGSOLVE_KEYS if key in config}),
+    log:
+        f"logs/{STUDY}/ngsolve.log",
+    threads: scaling_threads
+    conda:
+        "../envs/ddsolve.yaml"
+    shell:
+        "OMP_NUM_THREADS=1 python -m ddstudies.ngsolve_bench '{params.config}' {output.csv} {output.markdown} "
+        "{output.plot} > {log} 2>&1"
