@@ -13,6 +13,13 @@ report: "workflows/report/workflow.rst"
 include: "workflows/rules/validate.smk"
 
 
+# Integrity of results (docs/studies.md, "Integrity of results"): the lock of a killed run is
+# released; result files are checked before planning (a corrupt one is moved aside and
+# recomputed) and validated when aggregated.
+if MAIN_PROCESS:
+    studies_workflow.release_stale_lock(log=lambda line: print(line, file=sys.stderr))
+
+
 if "kind" in config or "study" in config:  # one study (workflows/rules/study.smk)
     config.pop("studies", None)  # inherited from config/default.yaml by --configfile
 
@@ -23,7 +30,15 @@ else:  # the `studies` list (workflows/rules/reproduce.smk)
     include: "workflows/rules/reproduce.smk"
 
 
+onstart:
+    # the working directory is locked now: record by whom, remove the temporary files of killed writers
+    studies_workflow.record_lock_owner()
+    for path in studies_workflow.remove_stale_tmp("results"):
+        print(f"removed stale temporary file {path}", file=sys.stderr)
+
+
 rule all:
     input:
         targets(),
     default_target: True
+    localrule: True

@@ -14,9 +14,25 @@ list-valued entry.
 ``.<name>.<pid>.<random>.tmp`` in the target's directory, flushes and fsyncs
 it, then renames it onto the target with :func:`os.replace` (atomic on POSIX);
 on any error the temporary file is removed and the target is left untouched.
+A full disk (``ENOSPC``, ``EDQUOT``) is reported as one line,
+:class:`NoSpaceError` ``no space left on device writing <path>``.
+
+Every reader checks the file it opens: a missing, truncated or corrupt file
+raises :class:`ResultFileError` naming the path (never a bare h5py error).
+:func:`validate_result` reads a whole file and returns the same error;
+:func:`quick_check` is the cheap, numpy-free test (HDF5 signature and the
+superblock's end-of-file address against the file size) that the workflow runs
+on every existing result before it plans the jobs (``docs/studies.md``,
+"Integrity of results").
+
+Fault injection (tests only): with the environment variable
+``DDSOLVE_FAULT_ENOSPC`` set to a substring of a target path, :func:`atomic_target`
+raises ``OSError(ENOSPC)`` for that target after the temporary file was created,
+as a full disk would.
 """
 from __future__ import annotations
 
+import errno
 import math
 import os
 import uuid
@@ -26,6 +42,12 @@ from typing import Any, Iterator, Mapping
 
 import h5py
 import numpy as np
+
+from .check import quick_check
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "ResultFileError", "NoSpaceError", "write_result", "atomic_target",
+           "read_params", "read_result", "read_residuals", "read_solution", "validate_result", "quick_check",
+           "is_missing", "FAULT_ENOSPC_ENV", "TMP_SUFFIX"]
 
 FORMAT = "ddsolve-result"
 FORMAT_VERSION = 1
@@ -43,6 +65,36 @@ FLATTENED: tuple[str, ...] = ("timings",)
 
 #: Datasets of ``/result`` that are not list-valued result entries.
 RESERVED_DATASETS: tuple[str, ...] = ("residuals", "u")
+
+#: Environment variable of the ENOSPC fault injection (a substring of the target paths to fail).
+FAULT_ENOSPC_ENV = "DDSOLVE_FAULT_ENOSPC"
+#: Suffix of the temporary files of :func:`atomic_target` (``.<name>.<pid>.<random>.tmp``).
+TMP_SUFFIX = ".tmp"
+#: Errors of a full disk or an exhausted quota.
+NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+class ResultFileError(ValueError):
+    """A result file that cannot be read: missing, truncated, corrupt or of another format.
+
+    The message is one line that starts with the path: ``<path>: <what is wrong>``.
+    """
+
+    def __init__(self, path: str | os.PathLike, what: str):
+        self.path = os.fspath(path)
+        self.what = " ".join(str(what).split())
+        super().__init__(f"{self.path}: {self.what}")
+
+
+class NoSpaceError(OSError):
+    """A write that failed for a full disk (or quota): ``no space left on device writing <path>``."""
+
+    def __init__(self, path: str | os.PathLike, errnum: int = errno.ENOSPC):
+        self.path = os.fspath(path)
+        super().__init__(errnum, f"no space left on device writing {self.path}")
+
+    def __str__(self) -> str:  # one line, without OSError's "[Errno 28]" prefix
+        return self.strerror
 
 
 def ddsolve_version() -> str:
@@ -218,23 +270,61 @@ def write_result(path: str | os.PathLike, spec: Any, result: Any, *, store_solut
     return path
 
 
+def _no_space(exc: BaseException) -> bool:
+    """True for an error caused by a full disk (also when h5py wraps the OSError)."""
+    seen = 0
+    while exc is not None and seen < 8:
+        if isinstance(exc, OSError) and exc.errno in NO_SPACE_ERRNOS:
+            return True
+        if "No space left on device" in str(exc) or "Disk quota exceeded" in str(exc):
+            return True
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return False
+
+
+def _inject_enospc(path: Path) -> None:
+    """The test hook: fail like a full disk when ``$DDSOLVE_FAULT_ENOSPC`` is a substring of ``path``."""
+    marker = os.environ.get(FAULT_ENOSPC_ENV)
+    if marker and marker in os.fspath(path):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), os.fspath(path))
+
+
 @contextmanager
-def atomic_target(path: Path) -> Iterator[Path]:
+def atomic_target(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success, delete it on error.
 
-    An interrupted writer therefore never leaves a partial file under the final name.
+    An interrupted writer therefore never leaves a partial file under the final
+    name, and a failed one no temporary file (a killed one may: the workflow
+    removes those when it starts, ``ddstudies.workflow.remove_stale_tmp``).
+
+    Raises
+    ------
+    NoSpaceError
+        For a full disk: ``no space left on device writing <path>`` (the
+        original error is its ``__cause__``).
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        if exc.errno in NO_SPACE_ERRNOS:
+            raise NoSpaceError(path, exc.errno) from exc
+        raise
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}{TMP_SUFFIX}")
     try:
         yield tmp
+        _inject_enospc(path)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
+        if isinstance(exc, Exception) and not isinstance(exc, NoSpaceError) and _no_space(exc):
+            raise NoSpaceError(path) from exc
+        raise
+    finally:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
-        raise
 
 
 def _fsync(path: Path) -> None:
@@ -250,22 +340,64 @@ def _fsync(path: Path) -> None:
 # ----------------------------------------------------------------------------
 
 def _open_checked(path: str | os.PathLike) -> h5py.File:
-    h5 = h5py.File(path, "r")
-    fmt = _from_attr(h5.attrs.get("format"))
+    """Open a result file for reading; :class:`ResultFileError` naming the path if that fails."""
+    if not os.path.isfile(path):
+        raise ResultFileError(path, "no such result file" if not os.path.exists(path) else "not a regular file")
+    problem = quick_check(path)
+    if problem:
+        raise ResultFileError(path, problem)
+    try:
+        h5 = h5py.File(path, "r")
+    except (OSError, ValueError, RuntimeError, KeyError) as exc:
+        raise ResultFileError(path, f"cannot open as HDF5 ({_short(exc)})") from exc
+    try:
+        fmt = _from_attr(h5.attrs.get("format"))
+    except (OSError, ValueError, RuntimeError, KeyError) as exc:
+        h5.close()
+        raise ResultFileError(path, f"corrupt HDF5 file ({_short(exc)})") from exc
     version = _from_attr(h5.attrs.get("format_version"))
     if fmt != FORMAT:
         h5.close()
-        raise ValueError(f"{os.fspath(path)}: not a ddsolve result file (format={fmt!r})")
+        raise ResultFileError(path, f"not a ddsolve result file (format={fmt!r})")
     if not isinstance(version, int) or version > FORMAT_VERSION:
         h5.close()
-        raise ValueError(f"{os.fspath(path)}: unsupported format_version {version!r} "
-                         f"(this ddsolve reads <= {FORMAT_VERSION})")
+        raise ResultFileError(path, f"unsupported format_version {version!r} "
+                                    f"(this ddsolve reads <= {FORMAT_VERSION})")
     return h5
 
 
+_READ_ERRORS = (OSError, ValueError, RuntimeError, KeyError, TypeError)
+
+
+def _short(exc: BaseException) -> str:
+    """One line of an h5py error (h5py's messages can span lines)."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+@contextmanager
+def _opened(path: str | os.PathLike) -> Iterator[h5py.File]:
+    """An open, format-checked result file; any read error becomes :class:`ResultFileError` naming ``path``."""
+    h5 = _open_checked(path)
+    try:
+        yield h5
+    except ResultFileError:
+        raise
+    except _READ_ERRORS as exc:
+        raise ResultFileError(path, f"corrupt result file ({_short(exc)})") from exc
+    finally:
+        h5.close()
+
+
 def read_params(path: str | os.PathLike) -> dict[str, Any]:
-    """The ``/params`` group as a dictionary (spec field -> value)."""
-    with _open_checked(path) as h5:
+    """The ``/params`` group as a dictionary (spec field -> value).
+
+    Raises
+    ------
+    ResultFileError
+        ``<path>: <what is wrong>`` for a missing, truncated or corrupt file.
+    """
+    with _opened(path) as h5:
         return {key: _from_attr(val) for key, val in h5["params"].attrs.items()}
 
 
@@ -282,8 +414,13 @@ def read_result(path: str | os.PathLike) -> dict[str, Any]:
         result; unless it is one of :data:`IDENTITY_KEYS` it is kept as
         ``param_<name>`` (e.g. ``param_cond``, the flag, beside ``cond``, the
         estimate).
+
+    Raises
+    ------
+    ResultFileError
+        ``<path>: <what is wrong>`` for a missing, truncated or corrupt file.
     """
-    with _open_checked(path) as h5:
+    with _opened(path) as h5:
         params = {key: _from_attr(val) for key, val in h5["params"].attrs.items()}
         gresult = h5["result"]
         results = {key: _from_attr(val) for key, val in gresult.attrs.items()}
@@ -303,16 +440,44 @@ def read_result(path: str | os.PathLike) -> dict[str, Any]:
 
 def read_residuals(path: str | os.PathLike) -> np.ndarray:
     """The residual history ``/result/residuals`` (float64, shape (iterations + 1,))."""
-    with _open_checked(path) as h5:
+    with _opened(path) as h5:
         return np.asarray(h5["result/residuals"][()], dtype=np.float64)
 
 
 def read_solution(path: str | os.PathLike) -> np.ndarray | None:
     """The solution ``/result/u`` if it was stored (``store_solution=True``), else None."""
-    with _open_checked(path) as h5:
+    with _opened(path) as h5:
         if "u" not in h5["result"]:
             return None
         return np.asarray(h5["result/u"][()])
+
+
+def validate_result(path: str | os.PathLike) -> dict[str, Any]:
+    """Check that ``path`` is a complete, readable result file: read every attribute and dataset.
+
+    Returns
+    -------
+    dict
+        :func:`read_result` of the file.
+
+    Raises
+    ------
+    ResultFileError
+        ``<path>: <what is wrong>``: missing, truncated (:func:`quick_check`),
+        not HDF5, another format, a missing ``/params`` or ``/result`` group, or
+        a dataset that cannot be read.
+    """
+    flat = read_result(path)
+    with _opened(path) as h5:
+        for name in ("params", "result"):
+            if not isinstance(h5.get(name), h5py.Group):
+                raise ResultFileError(path, f"no /{name} group")
+        if "residuals" not in h5["result"]:
+            raise ResultFileError(path, "no /result/residuals dataset")
+        for obj in h5["result"].values():
+            if isinstance(obj, h5py.Dataset):
+                obj[()]
+    return flat
 
 
 def is_missing(value: Any) -> bool:

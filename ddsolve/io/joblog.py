@@ -7,7 +7,9 @@ job as failed (and prints the traceback once more on its own output).
 """
 from __future__ import annotations
 
+import errno
 import os
+import sys
 import traceback
 from collections.abc import Iterator
 from contextlib import contextmanager, redirect_stderr, redirect_stdout
@@ -31,10 +33,37 @@ def job_log(path: str | os.PathLike) -> Iterator[TextIO]:
     TextIO
         The open log file (for ``logging.basicConfig(stream=...)``).
     """
+    line = None
     with open(path, "w") as log, redirect_stdout(log), redirect_stderr(log):
         try:
             yield log
+        except Exception as exc:
+            line = one_line_error(exc)
+            if line is None:
+                traceback.print_exc(file=log)
+                log.flush()
+                raise
+            print(line, file=log, flush=True)
         except BaseException:
             traceback.print_exc(file=log)
             log.flush()
             raise
+    if line is not None:
+        print(line, file=sys.stderr, flush=True)
+        raise SystemExit(1)
+
+
+#: Errors of a full disk or an exhausted quota.
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+
+
+def one_line_error(exc: BaseException) -> str | None:
+    """``ddsolve: error: <what>`` for an error that needs no traceback (full disk, bad input file), else None."""
+    from .hdf5 import NoSpaceError, ResultFileError
+
+    if isinstance(exc, (NoSpaceError, ResultFileError)):
+        return f"ddsolve: error: {exc}"
+    if isinstance(exc, OSError) and exc.errno in _NO_SPACE:
+        where = f" writing {exc.filename}" if exc.filename else ""
+        return f"ddsolve: error: no space left on device{where}"
+    return None

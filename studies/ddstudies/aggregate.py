@@ -18,16 +18,58 @@ from typing import Any, Iterable
 import numpy as np
 import pandas as pd
 
-from ddsolve.io.hdf5 import atomic_target, read_result
+from ddsolve.io.hdf5 import ResultFileError, atomic_target, validate_result
 
 
-def collect(paths: Iterable[str | os.PathLike]) -> pd.DataFrame:
-    """Read result files into a DataFrame, one row per file, in the given order."""
+class CorruptResultsError(ResultFileError):
+    """Result files that failed validation while collecting; ``paths`` lists them all."""
+
+    def __init__(self, errors: list[ResultFileError], moved: bool):
+        self.paths = [err.path for err in errors]
+        self.errors = errors
+        first = errors[0]
+        more = f" (and {len(errors) - 1} more: {', '.join(self.paths[1:4])}{' ...' if len(errors) > 4 else ''})" \
+            if len(errors) > 1 else ""
+        after = "; moved aside to <file>.corrupt, the next run recomputes them" if moved else ""
+        super().__init__(first.path, f"corrupt result file: {first.what}{more}{after}")
+
+
+def collect(paths: Iterable[str | os.PathLike], *, quarantine: bool = False) -> pd.DataFrame:
+    """Read result files into a DataFrame, one row per file, in the given order.
+
+    Every file is validated (:func:`ddsolve.io.hdf5.validate_result`) as it is read.
+
+    Parameters
+    ----------
+    paths : iterable of path-like
+        Result files (:func:`ddsolve.io.hdf5.write_result`).
+    quarantine : bool
+        Move every corrupt file to ``<file>.corrupt`` before raising, so that the
+        next workflow run recomputes it (the workflow's aggregate rules set it).
+
+    Raises
+    ------
+    CorruptResultsError
+        Naming the first corrupt file (after checking all of them).
+    """
     rows = []
+    errors: list[ResultFileError] = []
     for path in paths:
-        row = read_result(path)
+        try:
+            row = validate_result(path)
+        except ResultFileError as err:
+            errors.append(err)
+            continue
         row["file"] = os.fspath(path)
         rows.append(row)
+    if errors:
+        if quarantine:
+            from ddstudies.workflow import quarantine as move_aside
+
+            for err in errors:
+                if os.path.exists(err.path):
+                    move_aside(err.path, err.what)
+        raise CorruptResultsError(errors, moved=quarantine)
     if not rows:
         return pd.DataFrame(columns=_column_order([]))
     seen: list[str] = []

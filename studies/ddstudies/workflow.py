@@ -17,8 +17,10 @@ import yaml
 
 from ddsolve import options
 
-__all__ = ["rule_sets", "contact_precision_grids", "KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate", "unique_labels", "bench_tol_label",
-           "bench_rtols"]
+__all__ = ["rule_sets", "contact_precision_grids", "KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate",
+           "unique_labels", "bench_tol_label", "bench_rtols", "check_finite", "check_cases", "case_mem_mb",
+           "case_runtime", "machine_memory", "check_results", "quarantine", "remove_stale_tmp", "release_complete",
+           "record_lock_owner", "release_stale_lock", "sha256", "write_manifest", "read_manifest"]
 
 #: Study kinds (config key ``kind``) and the schema each is validated against.
 SCHEMAS: dict[str, str] = {"grid": "config", "table_4": "config", "contact": "config", "bench": "bench",
@@ -33,6 +35,10 @@ class ConfigError(ValueError):
 
 
 def _option(name: str) -> list[Any]:
+    if name == "SPEC_FIELDS":  # the fields of ddsolve.spec.ProblemSpec
+        from ddsolve.spec import ProblemSpec
+
+        return list(ProblemSpec.fields())
     attr, _, key = name.partition(".")
     value = getattr(options, attr)
     if key:
@@ -126,6 +132,386 @@ def bench_rtols(rtols: Iterable[float]) -> dict[str, float]:
     {'rtol1e-02': 0.01, 'rtol1e-06': 1e-06}
     """
     return unique_labels(((bench_tol_label(r), float(r)) for r in rtols), "rtols")
+
+
+# --- values the JSON schema cannot express ---------------------------------------------------
+
+
+def check_finite(data: Any, where: str = "") -> None:
+    """Refuse NaN and infinite numbers anywhere in a config (YAML ``.nan``, ``.inf``).
+
+    Raises
+    ------
+    ConfigError
+        ``invalid config: <key path>: must be a finite number, got nan``.
+    """
+    import math
+
+    if isinstance(data, float) and not math.isfinite(data):
+        raise ConfigError(f"invalid config: {where or '(top level)'}: must be a finite number, got {data}")
+    if isinstance(data, Mapping):
+        for key, value in data.items():
+            check_finite(value, f"{where}/{key}" if where else str(key))
+    elif isinstance(data, (list, tuple)):
+        for index, value in enumerate(data):
+            check_finite(value, f"{where}/{index}" if where else str(index))
+
+
+def machine_memory() -> int:
+    """Physical memory of this machine (bytes; ``MemTotal``, capped by a cgroup v2 limit)."""
+    total = None
+    try:
+        with open("/proc/meminfo") as stream:
+            for line in stream:
+                if line.startswith("MemTotal:"):
+                    total = int(line.split()[1]) * 1024
+                    break
+    except OSError:
+        pass
+    if total is None:
+        try:
+            total = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (ValueError, OSError, AttributeError):
+            total = 1 << 62
+    try:
+        with open("/sys/fs/cgroup/memory.max") as stream:
+            text = stream.read().strip()
+        if text.isdigit():
+            total = min(total, int(text))
+    except OSError:
+        pass
+    return int(total)
+
+
+def _contact_load(spec) -> None:
+    """Problem (3.1) has a solution only for loads pressing the membranes together (F <= 0)."""
+    from ddsolve.errors import InputError
+    from ddsolve.spec import parse_dostal
+
+    if spec.problem != "contact":
+        return
+    f = spec.f
+    if isinstance(f, str) and f.strip().startswith("dostal"):
+        loads = parse_dostal(f.strip()[len("dostal"):].lstrip(":"))
+    elif isinstance(f, (int, float)):
+        loads = (float(f),)
+    else:
+        return
+    if any(v > 0 for v in loads):
+        raise InputError("f", f"contact loads must be <= 0 (a positive load pulls the floating membrane "
+                              f"off the contact zone: no solution), got {f!r}")
+
+
+def check_cases(cases: Iterable[tuple[str, Mapping[str, Any]]], max_memory: float | None = None) -> dict:
+    """Build every case's :class:`ddsolve.spec.ProblemSpec` and estimate its size, before any job runs.
+
+    Parameters
+    ----------
+    cases : iterable of (label, mapping)
+        The job label of each case (its output path or config key) and its ProblemSpec mapping.
+    max_memory : float, optional
+        Largest estimated memory of one case (bytes; default :func:`machine_memory`).
+
+    Returns
+    -------
+    dict
+        ``{label: ddsolve.limits.Estimate}``.
+
+    Raises
+    ------
+    ConfigError
+        ``invalid config: case <label>: <field>: <what>`` (the first bad case), or
+        ``invalid config: case <label>: needs about <X> of memory, more than <Y> ...``.
+    """
+    from ddsolve.errors import InputError
+    from ddsolve.limits import _human, estimate, parse_size
+    from ddsolve.spec import ProblemSpec
+
+    try:
+        limit = parse_size(max_memory) if max_memory else float(machine_memory())
+    except InputError as err:
+        raise ConfigError(f"invalid config: {err}") from None
+    out = {}
+    for label, mapping in cases:
+        try:
+            spec = ProblemSpec.from_mapping(dict(mapping))
+            _contact_load(spec)
+        except InputError as err:
+            raise ConfigError(f"invalid config: case {label}: {err}") from None
+        size = estimate(spec)
+        if size.memory_bytes > limit:
+            raise ConfigError(f"invalid config: case {label}: needs about {_human(size.memory_bytes)} of memory, "
+                              f"more than the {_human(limit)} of this machine (reduce subdomains/elements, or "
+                              f"set max_memory)")
+        out[label] = size
+    return out
+
+
+def case_mem_mb(size, factor: float = 1.0, floor: int = 500) -> int:
+    """The ``mem_mb`` resource of a solve job: ``factor`` x its estimated memory
+    (:class:`ddsolve.limits.Estimate`) + 50 %, at least ``floor``."""
+    return max(floor, int(1.5 * factor * size.memory_bytes / 2**20) + 1)
+
+
+def case_runtime(size, factor: float = 1.0, floor: int = 15) -> int:
+    """The ``runtime`` resource (minutes) of a solve job: 20 x its estimated set-up time, at least ``floor``."""
+    import math
+
+    return max(floor, math.ceil(20.0 * factor * size.setup_seconds / 60.0))
+
+
+# --- result files: validated before planning, stale temporary files removed ------------------
+
+
+def quarantine(path: str | os.PathLike, why: str) -> str:
+    """Move a corrupt result aside to ``<path>.corrupt`` (so that the next run recomputes it); the new path."""
+    target = f"{os.fspath(path)}.corrupt"
+    os.replace(path, target)
+    return target
+
+
+def sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file (hex)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def write_manifest(paths: Iterable[str | os.PathLike], manifest: str | os.PathLike) -> None:
+    """Write ``<sha256>  <path>`` of each file (the ``sha256sum`` format), atomically."""
+    from pathlib import Path
+
+    from ddsolve.io.hdf5 import atomic_target
+
+    text = "".join(f"{sha256(path)}  {os.fspath(path)}\n" for path in paths)
+    with atomic_target(Path(manifest)) as tmp:
+        tmp.write_text(text)
+
+
+def read_manifest(manifest: str | os.PathLike) -> dict[str, str]:
+    """``{path: sha256}`` of a manifest written by :func:`write_manifest` (``{}`` if unreadable)."""
+    out = {}
+    try:
+        with open(manifest) as stream:
+            for line in stream:
+                digest, sep, path = line.rstrip("\n").partition("  ")
+                if sep and len(digest) == 64:
+                    out[path] = digest
+    except (OSError, UnicodeDecodeError):
+        return {}
+    return out
+
+
+def summarized_files(summary: str | os.PathLike) -> list[str]:
+    """The result files a summary CSV was built from (its ``file`` column; ``[]`` if unreadable)."""
+    import csv
+
+    try:
+        with open(summary, newline="") as stream:
+            return [row["file"] for row in csv.DictReader(stream) if row.get("file")]
+    except (OSError, csv.Error, UnicodeDecodeError):
+        return []
+
+
+def _changed_since_aggregated(path, recorded: Mapping[str, str], manifest) -> tuple[str | None, bool]:
+    """(what is wrong, rewritten) of a result that the manifest records.
+
+    Unchanged since the manifest was written (not newer): its SHA-256 must match
+    (else it rotted or was overwritten in place, keeping its time). Newer: a job
+    rewrote it after the aggregation (a changed parameter, an interrupted rerun),
+    so it is read whole instead (:func:`ddsolve.io.hdf5.validate_result`), and the
+    summary made before it is stale (``rewritten``).
+    """
+    key = os.fspath(path)
+    if key not in recorded:
+        return None, False
+    if os.path.getmtime(path) <= os.path.getmtime(manifest):
+        if sha256(path) != recorded[key]:
+            return "its SHA-256 differs from the one recorded when it was aggregated", False
+        return None, False
+    from ddsolve.io.hdf5 import ResultFileError, validate_result
+
+    try:
+        validate_result(path)
+    except ResultFileError as err:
+        return err.what, False
+    return None, sha256(path) != recorded[key]
+
+
+def check_results(paths: Iterable[str | os.PathLike], summary: str | os.PathLike | None = None,
+                  consumers: Iterable[str | os.PathLike] = (), log=None,
+                  manifest: str | os.PathLike | None = None) -> list[str]:
+    """Quick-check every existing result file, move the bad ones aside; rebuild what was made from them.
+
+    A truncated, empty or non-HDF5 file (:func:`ddsolve.io.check.quick_check`),
+    or one whose SHA-256 differs from the one in ``manifest`` (written by the
+    aggregate step from the files it validated), would count as done under its
+    output name: it is moved to ``<path>.corrupt``.
+    Snakemake does not recreate a missing intermediate file whose consumers are
+    up to date, so when a result that ``summary`` was built from (its ``file``
+    column) is missing now (moved aside here, or deleted), the summary and its
+    ``consumers`` (the reports made from it) are removed: the run then recomputes
+    the result and everything after it. So are they when a result is newer than
+    the manifest and differs from it (a job rewrote it after the aggregation). (A new case, never in the summary, needs
+    nothing: Snakemake's input rerun-trigger sees the changed inputs.)
+
+    Returns
+    -------
+    list of str
+        The files removed (the corrupt results moved aside, then the consumers).
+    """
+    from ddsolve.io.check import quick_check
+
+    removed, rewritten = [], []
+    recorded = read_manifest(manifest) if manifest is not None else {}
+    for path in paths:
+        if not os.path.exists(path):
+            continue
+        problem = quick_check(path)
+        if not problem:
+            problem, changed = _changed_since_aggregated(path, recorded, manifest)
+            if changed:
+                rewritten.append(os.fspath(path))
+        if problem:
+            target = quarantine(path, problem)
+            removed.append(os.fspath(path))
+            if log is not None:
+                log(f"ddsolve: corrupt result {os.fspath(path)} ({problem}): moved to {target}; it is recomputed")
+    if summary is None or not os.path.exists(summary):
+        return removed
+    gone = [path for path in (list(recorded) or summarized_files(summary)) if not os.path.exists(path)]
+    if gone or rewritten:
+        for consumer in [summary, *([manifest] if manifest else []), *consumers]:
+            if os.path.exists(consumer):
+                os.unlink(consumer)
+                removed.append(os.fspath(consumer))
+        if log is not None:
+            what = (f"{len(gone)} result(s) of {os.fspath(summary)} are missing ({gone[0]}"
+                    f"{', ...' if len(gone) > 1 else ''})" if gone else
+                    f"{len(rewritten)} result(s) were rewritten after {os.fspath(summary)} ({rewritten[0]}"
+                    f"{', ...' if len(rewritten) > 1 else ''})")
+            log(f"ddsolve: {what}: removed it and the reports made from it; all are rebuilt")
+    return removed
+
+
+def release_complete(paths: Iterable[str | os.PathLike], snakemake_dir: str | os.PathLike = ".snakemake",
+                     log=None) -> list[str]:
+    """Clear Snakemake's "incomplete" marks of results that are complete; the paths released.
+
+    Snakemake marks a job's outputs incomplete when the job starts and clears the
+    mark when it has recorded the job as finished; a run killed in between leaves a
+    finished file marked, and the next run refuses to start (or, with
+    ``--rerun-incomplete``, recomputes it). Our result files are written
+    atomically (:func:`ddsolve.io.hdf5.atomic_target`), so a file under its final
+    name is complete: a marked file that reads whole
+    (:func:`ddsolve.io.hdf5.validate_result`) is kept and its mark cleared; a
+    marked file that does not is moved aside (``<path>.corrupt``) and recomputed;
+    a marked path with no file is only unmarked (its job runs again anyway).
+    The marks are the files ``<snakemake_dir>/incomplete/<urlsafe base64 of the
+    path>`` of Snakemake's file persistence backend (Snakemake 8, 9).
+    """
+    from base64 import urlsafe_b64encode
+
+    folder = os.path.join(snakemake_dir, "incomplete")
+    if not os.path.isdir(folder):
+        return []
+    released = []
+    for path in paths:
+        key = urlsafe_b64encode(os.fspath(path).encode()).decode()
+        mark = os.path.join(folder, key)
+        if len(key) >= 255 or not os.path.isfile(mark):
+            continue
+        if os.path.exists(path):
+            from ddsolve.io.hdf5 import ResultFileError, validate_result
+
+            try:
+                validate_result(path)
+                released.append(os.fspath(path))
+                if log is not None:
+                    log(f"ddsolve: {os.fspath(path)} was marked incomplete by an interrupted run; it is complete "
+                        f"(written atomically, reads whole): kept")
+            except ResultFileError as err:
+                target = quarantine(path, err.what)
+                if log is not None:
+                    log(f"ddsolve: corrupt result {os.fspath(path)} ({err.what}): moved to {target}; "
+                        f"it is recomputed")
+        os.unlink(mark)
+    return released
+
+
+#: The file (under .snakemake/) naming the host and process of the run that holds the lock.
+OWNER_FILE = "ddsolve-lock-owner"
+
+
+def record_lock_owner(snakemake_dir: str | os.PathLike = ".snakemake") -> None:
+    """Write ``<host> <pid>`` of this (locked, running) Snakemake process; called from ``onstart``."""
+    import socket
+
+    os.makedirs(snakemake_dir, exist_ok=True)
+    with open(os.path.join(snakemake_dir, OWNER_FILE), "w") as stream:
+        stream.write(f"{socket.gethostname()} {os.getpid()}\n")
+
+
+def release_stale_lock(snakemake_dir: str | os.PathLike = ".snakemake", log=None) -> bool:
+    """Remove the locks that a killed run on this host left (its process is gone); True if removed.
+
+    Snakemake locks the working directory while it runs and never unlocks it when
+    killed (SIGKILL, a power loss): the next run stops until ``--unlock``. The
+    owner recorded by :func:`record_lock_owner` says which process held the lock;
+    only when it ran on this host and no longer exists are the locks removed.
+    """
+    import socket
+
+    locks = os.path.join(snakemake_dir, "locks")
+    owner = os.path.join(snakemake_dir, OWNER_FILE)
+    try:
+        names = [name for name in os.listdir(locks) if name.endswith(".lock")]
+        with open(owner) as stream:
+            host, pid = stream.read().split()
+        pid = int(pid)
+    except (OSError, ValueError):
+        return False
+    if not names or host != socket.gethostname():
+        return False
+    try:
+        os.kill(pid, 0)
+        return False              # alive (or not ours to signal): the lock may be real
+    except ProcessLookupError:
+        pass
+    except PermissionError:
+        return False
+    for name in names:
+        try:
+            os.unlink(os.path.join(locks, name))
+        except FileNotFoundError:
+            pass
+    os.unlink(owner)
+    if log is not None:
+        log(f"ddsolve: removed the lock of a killed run (process {pid} on {host} is gone)")
+    return True
+
+
+def remove_stale_tmp(root: str | os.PathLike = "results") -> list[str]:
+    """Remove the temporary files (``.<name>.<pid>.<random>.tmp``) that killed writers left under ``root``.
+
+    Call only while no job writes there (Snakemake's ``onstart``, which runs with the
+    working directory locked). Returns the removed paths.
+    """
+    removed = []
+    for folder, _, names in os.walk(root):
+        for name in names:
+            if name.startswith(".") and name.endswith(".tmp"):
+                path = os.path.join(folder, name)
+                try:
+                    os.unlink(path)
+                    removed.append(path)
+                except FileNotFoundError:
+                    pass
+    return removed
 
 
 def rule_sets() -> list[str]:

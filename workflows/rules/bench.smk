@@ -23,6 +23,10 @@ rule bench_reference:
     log:
         f"logs/{STUDY}/{{kind}}/reference.log",
     threads: config["threads"]
+    resources:
+        tasks=1,
+        mem_mb=lambda wc: studies_workflow.case_mem_mb(BENCH_SIZES[wc.kind], factor=4),
+        runtime=lambda wc: studies_workflow.case_runtime(BENCH_SIZES[wc.kind], factor=4, floor=30),
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -46,6 +50,10 @@ rule bench_case:
     log:
         f"logs/{STUDY}/{{kind}}/{{solver}}/{{tol}}.log",
     threads: config["threads"]
+    resources:
+        tasks=1,
+        mem_mb=lambda wc: studies_workflow.case_mem_mb(BENCH_SIZES[wc.kind], factor=4),
+        runtime=lambda wc: studies_workflow.case_runtime(BENCH_SIZES[wc.kind], factor=4, floor=30),
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -57,10 +65,15 @@ rule bench_summary:
         bench_case_files(),
     output:
         summary=f"results/{STUDY}/summary.csv",
+        manifest=f"results/{STUDY}/summary.sha256",
         table=report(f"reports/{STUDY}/work_precision.csv", caption="../report/bench_table.rst",
                      category="Work-precision benchmark"),
     log:
         f"logs/{STUDY}/summary.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -77,6 +90,10 @@ rule bench_plot:
         time=config["plot_time"],
     log:
         f"logs/{STUDY}/plot.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:

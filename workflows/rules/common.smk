@@ -7,9 +7,15 @@
 import itertools
 import re
 from dataclasses import asdict
+from types import SimpleNamespace
 
 #: Kinds whose cases are a grid solved by rule solve_case (solve.smk) and aggregated.
 GRID_KINDS = ("grid", "table_4", "contact")
+
+#: Resources of the jobs that only read results and write tables, figures and summaries
+#: (the solves' come from ddsolve.limits.estimate: ddstudies.workflow.case_mem_mb, case_runtime).
+REPORT_MEM_MB = 2000
+REPORT_RUNTIME = 15
 
 STUDY = config["study"]
 MULTIBODY = KIND == "table_4"
@@ -58,6 +64,27 @@ def case_spec(wildcards):
     else:
         spec["bodies"] = 2 if CONTACT else 1   # contact: the two membranes of (3.1)
     return spec
+
+
+def _case_specs():
+    """(result path, ProblemSpec mapping) of every case of the study."""
+    out = []
+    for path in case_files():
+        wc = _case_wildcards(path)
+        out.append((path, case_spec(wc)))
+    return out
+
+
+def _case_wildcards(path):
+    """The wildcards of a case path (results/<CASE>.h5) as an object with attributes."""
+    pattern = re.escape(f"results/{CASE}.h5").replace(r"\{", "{").replace(r"\}", "}")
+    regex = re.sub(r"\{(\w+)\}", r"(?P<\1>[^/]+)", pattern)
+    return SimpleNamespace(**re.fullmatch(regex, path).groupdict())
+
+
+def case_size(wildcards):
+    """The size estimate (ddsolve.limits.Estimate) of the case of a solve_case job."""
+    return CASE_SIZES[f"results/{CASE}.h5".format(**dict(wildcards.items()))]
 
 
 def case_files(wildcards=None):
@@ -118,6 +145,10 @@ if KIND in GRID_KINDS:
         CASE = "{study}/{method}/Ns{subdomains}_m{elements}"
     CASES = study_cases()
     CONTACTS = list(config.get("contacts", [])) if MULTIBODY else []
+    # Every case is a valid ProblemSpec that fits the machine, before any job runs.
+    CASE_SIZES = checked_cases(_case_specs())
+    if CONTACT:
+        FIGURE_5_2_SIZE = checked_cases([("figure_5_2", figure_5_2_spec())])["figure_5_2"]
 
     wildcard_constraints:
         study=re.escape(STUDY),
@@ -170,6 +201,9 @@ if KIND == "bench":
         raise WorkflowError(f"invalid config: {err}") from None
     BENCH_CASES = _bench_cases()
     BENCH_PROBLEMS = "|".join(re.escape(k) for k in config["problems"])
+    # each problem's spec: a valid ProblemSpec that fits the machine (the reference solves its 2x refinement)
+    BENCH_SIZES = {label.split("/")[1]: size for label, size in checked_cases(
+        (f"problems/{kind}/spec", bench_spec(SimpleNamespace(kind=kind))) for kind in config["problems"]).items()}
 
 
 # --- kind scaling (scaling.smk) -------------------------------------------------------------
@@ -197,9 +231,19 @@ def scaling_options(wildcards=None):
              ("repeats", 1), ("repeat_budget", 30.0))}
 
 
+def scaling_mem_mb(wildcards):
+    """mem_mb of a scaling job: the estimate of its contact problem (method active-set; pdas is alike)."""
+    elements = int(getattr(wildcards, "m", SCALING_PROFILE["elements"]))
+    return studies_workflow.case_mem_mb(SCALING_SIZES[elements], factor=2)
+
+
 if KIND == "scaling":
     SCALING_PROFILE = dict(config.get("profile") or {})
     SCALING_PROFILE.setdefault("elements", max(config["elements"]))
+    SCALING_SIZES = {int(label): size for label, size in checked_cases(
+        (str(m), {"problem": "contact", "method": "active-set", "subdomains": int(config["subdomains"]),
+                  "elements": int(m)}) for m in dict.fromkeys(list(config["elements"]) +
+                                                               [SCALING_PROFILE["elements"]])).items()}
 
 
 # --- kind ngsolve (ngsolve.smk) -------------------------------------------------------------
@@ -261,6 +305,16 @@ def stress_series_cases(wildcards):
     return [asdict(case) for case in STRESS_CASES if _stress_job(case) == wildcards.series]
 
 
+#: mem_mb of a stress series job (its largest cases are the catalog's "many subdomains" sizes).
+STRESS_MEM_MB = 4000
+
+
+def stress_runtime(wildcards):
+    """runtime (minutes) of a stress series: every case may take its `case_timeout`."""
+    n = sum(1 for case in STRESS_CASES if _stress_job(case) == wildcards.series)
+    return max(15, int(n * float(config["case_timeout"]) / 60.0) + 5)
+
+
 if KIND == "stress":
     from ddstudies.stress.catalogue import catalog as stress_catalog
 
@@ -300,3 +354,19 @@ def targets():
     if KIND == "unstructured":
         return [f"reports/{STUDY}/{name}" for name in ("unstructured.png", "unstructured.csv", "unstructured.md")]
     return [f"reports/{STUDY}/stress.md", f"results/{STUDY}/stress.csv"]
+
+
+# Integrity of results (docs/studies.md, "Integrity of results"): truncated result files are
+# moved aside, and results missing below an existing summary or report are recomputed.
+if KIND in GRID_KINDS:
+    check_result_files(case_files(), f"results/{STUDY}/summary.csv",
+                       [path for path in targets() if "figure_5_2" not in path],
+                       manifest=f"results/{STUDY}/summary.sha256")
+elif KIND == "bench":
+    check_result_files([f"results/{STUDY}/{kind}/reference.h5" for kind in config["problems"]])
+    check_result_files(bench_case_files(), f"results/{STUDY}/summary.csv", targets(),
+                       manifest=f"results/{STUDY}/summary.sha256")
+elif KIND == "scaling":
+    check_result_files(scaling_case_files(), f"results/{STUDY}/summary.csv",
+                       [path for path in targets() if not path.endswith("profile.txt")],
+                       manifest=f"results/{STUDY}/summary.sha256")

@@ -15,6 +15,10 @@ rule contact_table:
         table="|".join(config["tables"]),
     log:
         "logs/{study}/{table}.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -34,6 +38,10 @@ rule contact_comparison:
                    category="Chapters 5 and 6: contact"),
     log:
         "logs/{study}/comparison.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -52,6 +60,10 @@ rule figure_5_2:
     log:
         "logs/{study}/figure_5_2.log",
     threads: 1
+    resources:
+        tasks=1,
+        mem_mb=studies_workflow.case_mem_mb(FIGURE_5_2_SIZE),
+        runtime=studies_workflow.case_runtime(FIGURE_5_2_SIZE),
     conda:
         "../envs/ddsolve.yaml"
     script:

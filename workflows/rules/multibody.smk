@@ -21,6 +21,10 @@ rule table_4:
         base=list(CASES[0]),
     log:
         "logs/{study}/{table}.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -41,6 +45,10 @@ rule figure_4:
         base=list(CASES[0]),
     log:
         "logs/{study}/{figure}.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:

@@ -11,6 +11,10 @@ rule table:
         methods=config["methods"],
     log:
         "logs/{study}/table.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -26,6 +30,10 @@ rule plot_cond:
         methods=config["methods"],
     log:
         "logs/{study}/plot_cond.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:

@@ -25,6 +25,10 @@ rule scaling_case:
     log:
         f"logs/{STUDY}/{{method}}/N{{N}}_m{{m}}.log",
     threads: scaling_threads
+    resources:
+        tasks=1,
+        mem_mb=scaling_mem_mb,
+        runtime=120,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -36,6 +40,7 @@ rule scaling_summary:
         scaling_case_files(),
     output:
         summary=f"results/{STUDY}/summary.csv",
+        manifest=f"results/{STUDY}/summary.sha256",
         table=f"reports/{STUDY}/scaling.csv",
         markdown=report(f"reports/{STUDY}/scaling.md", caption="../report/scaling_table.rst",
                         category="Contact scaling"),
@@ -43,6 +48,10 @@ rule scaling_summary:
         targets=config.get("targets", {}),
     log:
         f"logs/{STUDY}/summary.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -56,6 +65,10 @@ rule scaling_plot:
         report(f"reports/{STUDY}/scaling.png", caption="../report/scaling_plot.rst", category="Contact scaling"),
     log:
         f"logs/{STUDY}/plot.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -79,6 +92,10 @@ rule scaling_profile:
     log:
         f"logs/{STUDY}/profile.log",
     threads: scaling_threads
+    resources:
+        tasks=1,
+        mem_mb=scaling_mem_mb,
+        runtime=120,
     conda:
         "../envs/ddsolve.yaml"
     script:

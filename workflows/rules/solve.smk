@@ -9,6 +9,10 @@ rule solve_case:
     log:
         f"logs/{CASE}.log",
     threads: 1
+    resources:
+        tasks=1,
+        mem_mb=lambda wc: studies_workflow.case_mem_mb(case_size(wc)),
+        runtime=lambda wc: studies_workflow.case_runtime(case_size(wc)),
     conda:
         "../envs/ddsolve.yaml"
     script:

@@ -22,6 +22,10 @@ rule stress_series:
     log:
         f"logs/{STUDY}/cases/{{series}}.log",
     threads: 1
+    resources:
+        tasks=1,
+        mem_mb=STRESS_MEM_MB,
+        runtime=stress_runtime,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -36,6 +40,10 @@ rule stress_report:
         csv=f"results/{STUDY}/stress.csv",
     log:
         f"logs/{STUDY}/stress_report.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     conda:
         "../envs/ddsolve.yaml"
     script:

@@ -2,8 +2,21 @@
 # lists of ddsolve.options injected (ddstudies.workflow.load_schema), filling in the
 # schema's defaults; a short error that names the offending key.
 import os
+import sys
 
 from ddstudies import workflow as studies_workflow
+
+
+def _main_process():
+    """True in the Snakemake process that plans the run (not in a cluster job re-reading the workflow)."""
+    try:
+        return bool(workflow.is_main_process)
+    except Exception:  # an older Snakemake or settings not set: the plain run
+        return True
+
+
+#: Integrity actions (locks, incomplete marks, moving corrupt results aside) happen only here.
+MAIN_PROCESS = _main_process()
 
 
 def schema_path(schema):
@@ -22,10 +35,39 @@ def validate_config(data, schema, key="config"):
 
 
 def validate_study(data):
-    """Validate a single-study config against the schema of its `kind`; the kind."""
+    """Validate a single-study config against the schema of its `kind`; the kind.
+
+    Numbers must be finite (YAML .nan / .inf are refused, naming the key); the cases
+    themselves are checked through ddsolve.spec.ProblemSpec in common.smk.
+    """
+    try:
+        studies_workflow.check_finite(data)
+    except studies_workflow.ConfigError as err:
+        raise WorkflowError(str(err)) from None
     kind = data.get("kind")
     if kind not in studies_workflow.SCHEMAS:
         raise WorkflowError(f"invalid config: kind: {kind!r} is not one of {list(studies_workflow.SCHEMAS)} "
                             f"(every single-study config names its kind)")
     validate_config(data, studies_workflow.SCHEMAS[kind])
     return kind
+
+
+def checked_cases(cases):
+    """check_cases (ddstudies.workflow) as a WorkflowError: {label: size Estimate} of (label, spec) pairs."""
+    try:
+        return studies_workflow.check_cases(cases, max_memory=config.get("max_memory"))
+    except studies_workflow.ConfigError as err:
+        raise WorkflowError(str(err)) from None
+
+
+def check_result_files(paths, summary=None, consumers=(), manifest=None):
+    """Before planning: clear the "incomplete" marks that an interrupted run left on complete results
+    (ddstudies.workflow.release_complete); move truncated / non-HDF5 results aside (<file>.corrupt); if
+    a result the summary was built from is missing, remove the summary and its consumers, so that this
+    run rebuilds them and the result (ddstudies.workflow.check_results)."""
+    if not MAIN_PROCESS:
+        return
+    paths = list(paths)
+    studies_workflow.release_complete(paths, log=lambda line: print(line, file=sys.stderr))
+    studies_workflow.check_results(paths, summary, consumers, manifest=manifest,
+                                   log=lambda line: print(line, file=sys.stderr))

@@ -8,10 +8,12 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
 
     from ddstudies.bench.scaling import scaling_summary, summary_markdown
     from ddstudies.aggregate import collect, write_table
+    from ddstudies.workflow import write_manifest
 
     sm = snakemake  # noqa: F821
-    df = collect(sm.input)
+    df = collect(sm.input, quarantine=True)
     write_table(df, sm.output.summary)
+    write_manifest(sm.input, sm.output.manifest)
     summary = scaling_summary(df, dict(sm.params.targets))
     write_table(summary["table"], sm.output.table)
     text = summary_markdown(summary)

@@ -1,0 +1,104 @@
+"""The SLURM profile (profiles/slurm): a dry run always; a real single-node cluster when one can be started.
+
+The real run starts SLURM with tools/slurm-local.sh (Debian's slurm-wlm and munge, as root),
+runs a tiny Poisson study through the profile (every job submitted with sbatch by
+snakemake-executor-plugin-slurm), checks the outputs and stops the daemons it started.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+from conftest import ROOT, copy_workflow
+
+pytest.importorskip("snakemake")
+
+TINY = "study: slurm_tiny\nsubdomains: [2]\nelements: [2]\nmethods: [bddc]\ncond: false\ncheck: false\n"
+ARGS = ("--profile", "profiles/slurm", "--configfile", "config/poisson.yaml", "tiny.yaml")
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), str(ROOT / "studies"), env.get("PYTHONPATH")]))
+    env.setdefault("OMP_NUM_THREADS", "1")
+    return env
+
+
+def snakemake(wd, *args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=wd, env=_env(), capture_output=True,
+                          text=True, timeout=timeout)
+
+
+@pytest.fixture
+def workdir(tmp_path):
+    wd = copy_workflow(tmp_path)
+    shutil.copytree(ROOT / "profiles", wd / "profiles")
+    (wd / "tiny.yaml").write_text(TINY)
+    return wd
+
+
+def test_profiles_declare_the_defaults():
+    import yaml
+
+    for name in ("local", "slurm"):
+        profile = yaml.safe_load((ROOT / "profiles" / name / "config.yaml").read_text())
+        assert profile["rerun-incomplete"] is True
+        assert {"mem_mb", "runtime", "tasks"} <= set(profile["default-resources"])
+    assert yaml.safe_load((ROOT / "profiles" / "slurm" / "config.yaml").read_text())["executor"] == "slurm"
+
+
+def test_dry_run_with_the_slurm_profile(workdir):
+    proc = snakemake(workdir, "-n", *ARGS)
+    text = proc.stdout + proc.stderr
+    assert proc.returncode == 0, text
+    counts = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)\s*$", text, flags=re.MULTILINE)}
+    assert counts == {"solve_case": 1, "aggregate": 1, "table": 1, "plot_cond": 1, "all": 1, "total": 5}
+    solve = text[text.index("rule solve_case:"):]
+    resources = re.search(r"resources: (.*)", solve).group(1)
+    assert "mem_mb=500" in resources and "runtime=15" in resources and "tasks=1" in resources
+
+
+def _cluster_missing() -> str | None:
+    for tool in ("slurmctld", "slurmd", "munged", "sbatch", "squeue"):
+        if shutil.which(tool) is None and not os.path.exists(f"/usr/sbin/{tool}"):
+            return f"{tool} not installed (apt-get install slurm-wlm munge)"
+    if os.geteuid() != 0:
+        return "tools/slurm-local.sh start needs root"
+    return None
+
+
+@pytest.fixture
+def cluster():
+    """A single-node SLURM cluster (tools/slurm-local.sh); stopped afterwards if this fixture started it."""
+    reason = _cluster_missing()
+    if reason:
+        pytest.skip(f"no local SLURM cluster: {reason}")
+    running = subprocess.run(["sinfo", "-h", "-o", "%t"], capture_output=True, text=True, timeout=30)
+    already = running.returncode == 0 and re.search(r"^(idle|mix|alloc)", running.stdout, re.MULTILINE)
+    if not already:
+        start = subprocess.run([str(ROOT / "tools" / "slurm-local.sh"), "start"], capture_output=True, text=True,
+                               timeout=120)
+        if start.returncode != 0:
+            pytest.skip(f"tools/slurm-local.sh start failed: {start.stderr.strip()[-300:]}")
+    yield
+    if not already:
+        subprocess.run([str(ROOT / "tools" / "slurm-local.sh"), "stop"], capture_output=True, timeout=60)
+
+
+@pytest.mark.slow
+def test_tiny_study_on_a_local_slurm_cluster(workdir, cluster):
+    import pandas as pd
+
+    proc = snakemake(workdir, *ARGS, timeout=400)
+    text = proc.stdout + proc.stderr
+    assert proc.returncode == 0, text
+    assert "Submitted" in text or "sbatch" in text.lower() or "SLURM" in text
+    df = pd.read_csv(workdir / "results" / "slurm_tiny" / "summary.csv")
+    assert len(df) == 1 and df["converged"].all() and df["method"].tolist() == ["bddc"]
+    assert "BDDC iter" in (workdir / "reports" / "slurm_tiny" / "table.md").read_text()
+    again = snakemake(workdir, "-n", *ARGS)
+    assert "Nothing to be done" in again.stdout + again.stderr
