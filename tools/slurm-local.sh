@@ -3,7 +3,7 @@
 #
 #   tools/slurm-local.sh start    # writes a minimal slurm.conf, starts munged, slurmctld and slurmd (as root)
 #   tools/slurm-local.sh status   # sinfo
-#   tools/slurm-local.sh stop     # stops the daemons started by `start`
+#   tools/slurm-local.sh stop     # stops the daemons started by `start` and removes the slurm.conf it wrote
 #
 # Needs Debian's slurm-wlm and munge packages (`apt-get install slurm-wlm munge`) and root.
 # No accounting database: run Snakemake with `--slurm-status-command squeue` (profiles/slurm does).
@@ -11,6 +11,7 @@
 set -euo pipefail
 DIR=${SLURM_LOCAL_DIR:-/tmp/ddsolve-slurm}
 CONF=/etc/slurm/slurm.conf
+MARK="# written by ddsolve tools/slurm-local.sh (removed by its stop)"
 cmd=${1:-status}
 
 need() { command -v "$1" >/dev/null 2>&1 || { echo "slurm-local: $1 not found (apt-get install slurm-wlm munge)" >&2; exit 3; }; }
@@ -28,7 +29,11 @@ start() {
     host=$(hostname -s)
     cpus=$(nproc)
     mem=$(awk '/MemTotal/ {print int($2 / 1024 * 0.9)}' /proc/meminfo)
+    if [ -e "$CONF" ] && ! grep -q "$MARK" "$CONF"; then
+        echo "slurm-local: $CONF exists and was not written by this script; not touching it" >&2; exit 3
+    fi
     cat > "$CONF" <<CONF
+$MARK
 ClusterName=ddsolve-local
 SlurmctldHost=$host
 SlurmUser=root
@@ -68,6 +73,9 @@ CONF
 stop() {
     pkill -x slurmd 2>/dev/null || true
     pkill -x slurmctld 2>/dev/null || true
+    # Leave the machine as it was: with a slurm.conf but no controller, every `scontrol` (and so
+    # every `snakemake` start, whose SLURM executor plugin asks it for MinJobAge) waits ~10 s.
+    if [ -e "$CONF" ] && grep -q "$MARK" "$CONF"; then rm -f "$CONF"; fi
 }
 
 case "$cmd" in

@@ -21,7 +21,9 @@ rule mpi_case:
         repeats=int(config["repeats"]),
     resources:
         tasks=lambda wildcards: int(wildcards.P),
-        mpi=config["mpiexec"],
+        mpi=config["launcher"],
+        mem_mb=lambda wildcards: 4000 * int(wildcards.P),
+        runtime=60,
     threads: lambda wildcards: int(wildcards.P)
     log:
         f"logs/{STUDY}/{{method}}/P{{P}}.log",
@@ -37,6 +39,10 @@ rule mpi_summary:
     output:
         table=f"reports/{STUDY}/mpi.csv",
         markdown=report(f"reports/{STUDY}/mpi.md", caption="../report/mpi.rst", category="MPI"),
+    resources:
+        tasks=1,
+        mem_mb=2000,
+        runtime=15,
     log:
         f"logs/{STUDY}/summary.log",
     conda:

@@ -22,6 +22,10 @@ rule ngsolve_bench:
     log:
         f"logs/{STUDY}/ngsolve.log",
     threads: scaling_threads
+    resources:
+        tasks=1,
+        mem_mb=16000,
+        runtime=240,
     conda:
         "../envs/ddsolve.yaml"
     shell:

@@ -23,6 +23,10 @@ rule unstructured_case:
     log:
         f"logs/{STUDY}/{{problem}}/r{{refine}}.log",
     threads: scaling_threads
+    resources:
+        tasks=1,
+        mem_mb=lambda wildcards: 8000 if int(wildcards.refine) >= 4 else 4000,
+        runtime=lambda wildcards: 120 if int(wildcards.refine) >= 4 else 30,
     conda:
         "../envs/ddsolve.yaml"
     script:
@@ -39,6 +43,10 @@ rule unstructured_summary:
         markdown=f"reports/{STUDY}/unstructured.md",
     params:
         targets=config.get("targets", {}),
+    resources:
+        tasks=1,
+        mem_mb=2000,
+        runtime=15,
     log:
         f"logs/{STUDY}/summary.log",
     conda:
@@ -53,6 +61,10 @@ rule unstructured_plot:
     output:
         report(f"reports/{STUDY}/unstructured.png", caption="../report/unstructured_plot.rst",
                category="Unstructured meshes"),
+    resources:
+        tasks=1,
+        mem_mb=2000,
+        runtime=15,
     log:
         f"logs/{STUDY}/plot.log",
     conda:
