@@ -120,6 +120,21 @@ def test_comparison_caption_is_computed():
                                                         columns=TABLE_6_1_COLUMNS).columns
 
 
+def test_comparison_uses_one_rule_set_of_a_presets_sweep():
+    """With runs of two presets per grid the comparison shows the default's only and names it."""
+    default = synthetic([10, 20, 20, 30], [40, 50, 50, 60]).assign(preset="default")
+    literal = synthetic([11, 22, 23, 35], [41, 52, 55, 66]).assign(preset="thesis")
+    md, _, table, caption = render_comparison(pd.concat([default, literal]), {})
+    assert table.equals(method_comparison(default.drop(columns="preset")))
+    assert "Rule set: default (the runs of the other rule sets of the study, thesis, are in" in md
+    assert "Rule set:" not in render_comparison(default, {})[0]
+    both = contact_table(pd.concat([default, literal]), method="active-set", columns=TABLE_5_1_COLUMNS)
+    assert both.index.get_level_values("rules").tolist() == ["default", "thesis"] * 4
+    assert both[("total it.", "ours")].tolist() == [10, 11, 20, 22, 20, 23, 30, 35]
+    with pytest.raises(ValueError, match="no run of rule set 'default'"):
+        render_comparison(literal, {})
+
+
 def test_plots_write_files(tmp_path):
     from ddstudies.report.contact_plots import (contact_line, membrane_surfaces, plot_contact_line,
                                               plot_membranes, plot_method_comparison, solve_contact_case)
@@ -141,7 +156,8 @@ def test_plots_write_files(tmp_path):
 
 
 def test_dry_run_plans_the_contact_study(tmp_path):
-    """50 solves, one summary, both tables, the comparison and Figure 5.2; nothing runs."""
+    """100 solves (25 grids x 2 methods x 2 presets), one summary, both tables, the comparison and
+    Figure 5.2; nothing runs."""
     import re
 
     from conftest import copy_workflow, run_snakemake
@@ -150,5 +166,6 @@ def test_dry_run_plans_the_contact_study(tmp_path):
     proc = run_snakemake(copy_workflow(tmp_path), "-n", "--cores", "1", "--configfile", "config/table_5_6.yaml")
     text = proc.stdout + proc.stderr
     counts = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)\s*$", text, flags=re.MULTILINE)}
-    assert counts == {"solve_case": 50, "aggregate": 1, "contact_table": 2, "contact_comparison": 1,
-                      "figure_5_2": 1, "contact_work_precision": 1, "all": 1, "total": 57}
+    assert counts == {"solve_case": 100, "aggregate": 1, "contact_table": 2, "contact_comparison": 1,
+                      "figure_5_2": 1, "contact_work_precision": 1, "all": 1, "total": 107}
+    assert "results/table_5_6/smalbe/Ns20_m20.h5" in text and "results/table_5_6/smalbe/Ns20_m20_thesis.h5" in text

@@ -91,3 +91,14 @@ def test_closer_sentence_edge_cases():
     t = pd.DataFrame({("a", "x_dev"): [0.5]})
     u = pd.DataFrame({("b", "x"): [1.0]})
     assert "no value to compare" in rs.closer_sentence({"default": t, "thesis": u})
+
+
+def test_closer_sentence_counts_differences_below_the_printed_precision_as_ties():
+    """Lanczos estimates differing in the fifth digit (|dev| 6.00% vs 6.003%) make neither rule set closer."""
+    base = pd.DataFrame({("(I)", "cond_dev"): [0.0600, -0.004, 0.135]})
+    near = pd.DataFrame({("(I)", "cond_dev"): [0.0600, -0.00403, 0.13499]})
+    note = rs.closer_sentence({"default": base, "thesis": near})
+    assert "preset thesis is as close to the thesis as the defaults (not closer) (closer in 0, farther in 0 of 3" in note
+    far = pd.DataFrame({("(I)", "cond_dev"): [0.08, -0.004, 0.135]})
+    assert "preset thesis is not closer to the thesis than the defaults (closer in 0, farther in 1 of 3" in \
+        rs.closer_sentence({"default": base, "thesis": far})

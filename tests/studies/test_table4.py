@@ -277,6 +277,7 @@ study: tiny4
 problem: multibody
 methods: [feti-feti]
 contacts: [full, middle]
+presets: [default]   # first the default rule set alone; the test then adds the thesis preset
 sweeps:
   - {bodies: 2, subdomains: 2, elements: 2}
 check: false
@@ -298,8 +299,10 @@ def test_dry_run_table_4(workdir):
     (workdir / "thesis.yaml").write_text(f"thesis_tables: {thesis_dir()}\n")
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "thesis.yaml")
     text = proc.stdout + proc.stderr
-    assert planned(proc)["solve_case"] == 23 * 2 * 2
+    assert planned(proc)["solve_case"] == 23 * 2 * 2 * 2   # cases x contacts x methods x presets
     assert "results/table_4/feti-feti/middle/Nb2_Ns18_m2.h5" in text
+    assert "results/table_4/feti-feti/middle/Nb2_Ns18_m2_thesis.h5" in text   # the thesis preset's run
+    assert "preset_tag=_thesis" in text
     assert "results/table_4/hybrid/full/Nb12_Ns2_m2.h5" in text
     assert "results/table_4/hybrid/middle/Nb2_Ns48_m2.h5" in text  # beyond the thesis's table
     assert "reports/table_4/table_4_2.md" in text and "reports/table_4/figure_hybrid_iterations.png" in text
@@ -308,7 +311,7 @@ def test_dry_run_table_4(workdir):
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "thesis.yaml",
                      "--config", "methods=[feti-feti]")
     text = proc.stdout + proc.stderr
-    assert planned(proc)["solve_case"] == 46
+    assert planned(proc)["solve_case"] == 46 * 2
     assert "table_4_1.md" in text and "figure_4_3.png" in text
     assert "table_4_2" not in text and "figure_hybrid_iterations" not in text
     assert "table_4_growth" not in text and "figure_iterations_vs_HbHs" not in text
@@ -329,6 +332,8 @@ def test_tiny_multibody_study_end_to_end(workdir):
     reports = workdir / "reports" / "tiny4"
     table = (reports / "table_4_1.md").read_text()
     assert "2.5536" in table and "1.9940" in table and "(II) cond dev." in table
+    alone = [[cell.strip() for cell in line.split("|")[1:-1]] for line in table.splitlines() if line.startswith("|")]
+    assert alone[0][3] == "(I) cond" and "rule set" not in table   # one rule set: no rule-set column
     assert "2.5536" in (reports / "table_4_1.tex").read_text()
     assert not (reports / "table_4_2.md").exists()  # no hybrid runs: no table 4.2
     readings = (reports / "table_4_1_readings.md").read_text()
@@ -344,6 +349,23 @@ def test_tiny_multibody_study_end_to_end(workdir):
     (workdir / "rtol.yaml").write_text("rtol: 1.0e-8\n")
     rerun = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "tiny.yaml", "rtol.yaml"))
     assert rerun["solve_case"] == 2
+
+    # the thesis preset beside the default: only its new cases run, Table 4.1 shows both rule sets
+    (workdir / "presets.yaml").write_text("presets: [default, thesis]\n")
+    both = ("--configfile", "config/table_4.yaml", "tiny.yaml", "presets.yaml")
+    plan = snakemake(workdir, "-n", "--cores", "1", *both)
+    assert planned(plan)["solve_case"] == 2   # full and middle under the thesis preset; no default rerun
+    assert "Nb2_Ns2_m2_thesis.h5" in plan.stdout + plan.stderr
+    snakemake(workdir, "--cores", "2", *both)
+    df = pd.read_csv(workdir / "results" / "tiny4" / "summary.csv")
+    assert sorted(zip(df["preset"], df["contact"])) == [("default", "full"), ("default", "middle"),
+                                                        ("thesis", "full"), ("thesis", "middle")]
+    table = (reports / "table_4_1.md").read_text()
+    rows = [[cell.strip() for cell in line.split("|")[1:-1]] for line in table.splitlines() if line.startswith("|")]
+    assert rows[0][3] == "rule set" and [row[3] for row in rows[2:]] == ["default", "thesis"]
+    assert rows[2][4] == alone[2][3]   # the default's (I) cond: the run made before, not recomputed
+    assert rows[2][5] == rows[3][5] == "2.5536"   # each rule set beside the thesis's value
+    assert "2.5536" in table and "Rule sets:" in table   # the computed closer-to-the-thesis note
 
 
 def run_script(name: str, **attrs) -> None:

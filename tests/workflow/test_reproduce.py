@@ -71,8 +71,8 @@ def test_default_run_plans_every_report(workdir):
     for path in REQUIRED_REPORTS:
         assert path in text, path
     counts = jobs(text)
-    assert counts["poisson_solve_case"] == 36 and counts["table_4_solve_case"] == 92
-    assert counts["table_5_6_solve_case"] == 50 and counts["scaling_scaling_case"] == 14
+    assert counts["poisson_solve_case"] == 36 and counts["table_4_solve_case"] == 92 * 2   # presets default, thesis
+    assert counts["table_5_6_solve_case"] == 50 * 2 and counts["scaling_scaling_case"] == 14
     assert counts["unstructured_unstructured_case"] == 8     # refine 0..3 of each problem (not the 1M cases)
     assert counts["all"] == 1
     quick = jobs((lambda p: p.stdout + p.stderr)(snakemake(workdir, "-n", "--cores", "2", "--configfile",

@@ -2,8 +2,10 @@
 # the case list, the parameters of one case and the targets, per study kind. Every
 # setting comes from the validated config; rule files hold rules only.
 # Grid kinds: paths depend only on a case's keys (study, method, [contact, bodies,]
-# subdomains, elements); all other parameters travel in `params`, so Snakemake's
-# params rerun-trigger reruns exactly the cases whose parameters changed.
+# subdomains, elements, rule set); all other parameters travel in `params`, so Snakemake's
+# params rerun-trigger reruns exactly the cases whose parameters changed. Rule sets
+# (config `presets`): the default's path has no suffix (the paths of runs made before
+# `presets` existed), any other preset's ends in _<preset> (Ns4_m8_thesis.h5).
 import itertools
 import re
 from dataclasses import asdict
@@ -54,11 +56,39 @@ def study_cases():
     return cases
 
 
+def study_presets():
+    """The presets (ddsolve.presets, the rule sets) the study sweeps, from config `presets`, no duplicates.
+
+    A study that sets the single key `preset` and leaves `presets` at its default
+    ([default]) runs that one preset; setting both, `preset` must be in `presets`.
+    """
+    presets = list(dict.fromkeys(config.get("presets", ["default"])))
+    if "preset" in config:
+        if presets == ["default"]:
+            return [config["preset"]]
+        if config["preset"] not in presets:
+            raise WorkflowError(f"invalid config: preset: {config['preset']!r} is not in presets {presets}")
+    return presets
+
+
+def preset_tag(preset):
+    """The case-path suffix of a preset, none for the default and _<preset> otherwise."""
+    return "" if preset == "default" else f"_{preset}"
+
+
+def tag_preset(tag):
+    """The rule set of a case-path suffix (inverse of preset_tag)."""
+    return tag[1:] if tag else "default"
+
+
 def case_spec(wildcards):
     """The ProblemSpec mapping of one case (a plain dict: a params value)."""
-    spec = {key: config[key] for key in SHARED_SPEC_KEYS if key in config}
+    spec = {key: config[key] for key in SHARED_SPEC_KEYS if key in config and key != "preset"}
     spec.update(method=wildcards.method, subdomains=int(wildcards.subdomains),
                 elements=int(wildcards.elements))
+    preset = tag_preset(wildcards.preset_tag)
+    if preset != "default" or "preset" in config:   # the default: params as before `presets` (no rerun)
+        spec["preset"] = preset
     if MULTIBODY:
         spec.update(bodies=int(wildcards.bodies), contact=wildcards.contact)
     else:
@@ -78,7 +108,8 @@ def _case_specs():
 def _case_wildcards(path):
     """The wildcards of a case path (results/<CASE>.h5) as an object with attributes."""
     pattern = re.escape(f"results/{CASE}.h5").replace(r"\{", "{").replace(r"\}", "}")
-    regex = re.sub(r"\{(\w+)\}", r"(?P<\1>[^/]+)", pattern)
+    regex = re.sub(r"\{(\w+)\}", r"(?P<\1>[^/]+?)", pattern).replace(
+        "(?P<preset_tag>[^/]+?)", "(?P<preset_tag>(?:_[^/]+)?)")   # the default's suffix is empty
     return SimpleNamespace(**re.fullmatch(regex, path).groupdict())
 
 
@@ -91,8 +122,8 @@ def case_files(wildcards=None):
     """All result files of the configured study."""
     contacts = CONTACTS or [None]
     return [f"results/{CASE}.h5".format(study=STUDY, method=method, contact=contact, bodies=b,
-                                        subdomains=s, elements=m)
-            for method in config["methods"] for contact in contacts for b, s, m in CASES]
+                                        subdomains=s, elements=m, preset_tag=preset_tag(preset))
+            for preset in PRESETS for method in config["methods"] for contact in contacts for b, s, m in CASES]
 
 
 def thesis_table(name):
@@ -140,9 +171,10 @@ def grid_report_files():
 if KIND in GRID_KINDS:
     #: One case's path below results/ and logs/ (without the suffix).
     if MULTIBODY:
-        CASE = "{study}/{method}/{contact}/Nb{bodies}_Ns{subdomains}_m{elements}"
+        CASE = "{study}/{method}/{contact}/Nb{bodies}_Ns{subdomains}_m{elements}{preset_tag}"
     else:
-        CASE = "{study}/{method}/Ns{subdomains}_m{elements}"
+        CASE = "{study}/{method}/Ns{subdomains}_m{elements}{preset_tag}"
+    PRESETS = study_presets()
     CASES = study_cases()
     CONTACTS = list(config.get("contacts", [])) if MULTIBODY else []
     # Every case is a valid ProblemSpec that fits the machine, before any job runs.
@@ -157,6 +189,7 @@ if KIND in GRID_KINDS:
         bodies=r"[1-9]\d*",
         subdomains=r"[1-9]\d*",
         elements=r"[1-9]\d*",
+        preset_tag="(?:" + "|".join(re.escape(preset_tag(p)) for p in PRESETS) + ")",   # "" (default) or _<preset>
 
 
 # --- kind bench (bench.smk) --------------------------------------------------------------

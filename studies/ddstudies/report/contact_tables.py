@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from ..aggregate import parse_list
-from .rule_sets import RULE_SET_COLUMN, by_rule_set
+from .rule_sets import DEFAULT, RULE_SET_COLUMN, by_rule_set, one_rule_set, rule_sets
 from .tables import NOT_CONVERGED_MARK, NOT_CONVERGED_NOTE, describe_constants, to_latex, to_markdown
 
 #: Our key columns -> the key columns of the thesis transcriptions (table_5_1.csv, table_6_1.csv).
@@ -331,8 +331,12 @@ def render_contact_table(df: pd.DataFrame, thesis: pd.DataFrame | None, name: st
 
 
 def render_comparison(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None],
-                      methods: Sequence[str] = ("active-set", "smalbe")) -> tuple[str, str, pd.DataFrame, str]:
+                      methods: Sequence[str] = ("active-set", "smalbe"),
+                      rule_set: str = DEFAULT) -> tuple[str, str, pd.DataFrame, str]:
     """The method comparison as Markdown and LaTeX, with its computed caption.
+
+    Only the runs of rule set ``rule_set`` (:func:`~ddstudies.report.rule_sets.one_rule_set`);
+    the page names it when the study ran several.
 
     Returns
     -------
@@ -340,10 +344,15 @@ def render_comparison(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None
         Markdown page, LaTeX ``tabular``, the :func:`method_comparison` frame and
         the :func:`comparison_caption` line.
     """
+    ran = rule_sets(df)
+    df = one_rule_set(df, rule_set)   # one run per grid and method (a study may sweep `presets`)
     table = method_comparison(df, theses, methods=methods)
     caption = comparison_caption(table, methods=methods)
+    others = [name for name in ran if name != rule_set]
+    shown = (f"Rule set: {rule_set} (the runs of the other rule sets of the study, {', '.join(others)}, are in "
+             "Tables 5.1 / 6.1).\n\n" if others else "")
     heading = ("# Active set + hybrid vs SMALBE: total iterations and wall time per grid\n\n"
-               f"{caption}\n\n"
+               f"{shown}{caption}\n\n"
                "total it.: the sum of the inner iterations (Tables 5.1 / 6.1; the active set method's "
                "PCG iterations for the initial guess are not included, as in the thesis); thesis: "
                "Table 5.1 / 6.1; wall time: setup_seconds + solve_seconds of the run (assembly, "

@@ -40,6 +40,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from .rule_sets import DEFAULT, one_rule_set, rule_sets  # noqa: E402
 from .tables import (CONTACT_CASES, LATEX_LABELS, METHOD_LABELS, MULTIBODY_ROW_LABELS,  # noqa: E402
                      ROW_LABELS, THESIS_KEYS, THESIS_QUANTITIES)
 
@@ -372,20 +373,23 @@ def thesis_sweep(thesis: pd.DataFrame, *, x: str, y: str, base: Sequence[int],
 def plot_multibody_sweep(df: pd.DataFrame, thesis: pd.DataFrame | None, path: str | os.PathLike | None = None,
                          *, method: str, x: str, y: str, base: Sequence[int], model: str,
                          contacts: Sequence[str] = ("full", "middle"), logx: bool = False,
-                         title: str | None = None) -> dict:
+                         title: str | None = None, rule_set: str = DEFAULT) -> dict:
     """Figures 4.2 / 4.3 style: ``y`` of ``method`` against ``x`` from ``base``, cases I and II.
 
-    Our values (:func:`multibody_sweep`) and the thesis's (:func:`thesis_sweep`,
-    when ``thesis`` is given) with fits of ``model``; see :func:`plot_sweep_fits`
-    for the returned fits.
+    Our values (:func:`multibody_sweep`, the runs of rule set ``rule_set`` only:
+    :func:`~ddstudies.report.rule_sets.one_rule_set`) and the thesis's
+    (:func:`thesis_sweep`, when ``thesis`` is given) with fits of ``model``; see
+    :func:`plot_sweep_fits` for the returned fits.
     """
+    fixed_rules = f", rule set {rule_set}" if len(rule_sets(df)) > 1 else ""
+    df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
     series = multibody_sweep(df, method=method, x=x, y=y, base=base, contacts=contacts)
     reference = thesis_sweep(thesis, x=x, y=y, base=base, contacts=contacts) if thesis is not None else None
     def math_label(key: str) -> str:
         label = MULTIBODY_ROW_LABELS.get(key, key)
         return LATEX_LABELS.get(label, label)
 
-    fixed = ", ".join(f"{math_label(k)} = {int(v)}" for k, v in zip(THESIS_KEYS, base) if k != x)
+    fixed = ", ".join(f"{math_label(k)} = {int(v)}" for k, v in zip(THESIS_KEYS, base) if k != x) + fixed_rules
     ylabel = {"cond": "condition number estimate", "iterations": "iterations"}.get(y, y)
     full_title = f"{title}\n({fixed})" if title else f"{METHOD_LABELS.get(method, method)} ({fixed})"
     return plot_sweep_fits(series, path, model=model, reference=reference,
@@ -433,8 +437,10 @@ def _crossing(feti: tuple, hybrid: tuple, elements: int, lo: float, hi: float = 
 
 
 def hbhs_growth(df: pd.DataFrame, *, base: Sequence[int], contacts: Sequence[str] = ("full", "middle"),
-                start: int = 4, end: int | None = None) -> pd.DataFrame:
+                start: int = 4, end: int | None = None, rule_set: str = DEFAULT) -> pd.DataFrame:
     """Growth in H_b/H_s of FETI-FETI's cond and iterations and the hybrid's iterations.
+
+    Only the runs of rule set ``rule_set`` (:func:`~ddstudies.report.rule_sets.one_rule_set`).
 
     Parameters
     ----------
@@ -457,6 +463,7 @@ def hbhs_growth(df: pd.DataFrame, *, base: Sequence[int], contacts: Sequence[str
         iterations reach the fitted hybrid iterations (NaN if beyond 1e6 or
         no FETI-FETI runs).
     """
+    df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
     elements = int(base[2])
     rows = []
     for contact in contacts:
@@ -490,8 +497,11 @@ def hbhs_growth(df: pd.DataFrame, *, base: Sequence[int], contacts: Sequence[str
 
 def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None] | None = None,
                             path: str | os.PathLike | None = None, *, base: Sequence[int],
-                            contacts: Sequence[str] = ("full", "middle"), title: str | None = None) -> dict:
+                            contacts: Sequence[str] = ("full", "middle"), title: str | None = None,
+                            rule_set: str = DEFAULT) -> dict:
     """FETI-FETI and hybrid iterations against H_b/H_s, one panel per contact case.
+
+    Only the runs of rule set ``rule_set`` (:func:`~ddstudies.report.rule_sets.one_rule_set`).
 
     Our iterations are filled markers with the fitted law of :data:`HBHS_LAWS`
     (dashed; FETI-FETI a + b sqrt(H_b/H_s), hybrid a + b log(H_b/h) with
@@ -504,6 +514,8 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
     dict
         ``{(case, method): ((a, b), r2)}`` of our fits.
     """
+    fixed_rules = f", rule set {rule_set}" if len(rule_sets(df)) > 1 else ""
+    df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
     theses = dict(theses or {})
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     styles = {"feti-feti": (colors[0], "o"), "hybrid": (colors[1], "s")}
@@ -562,7 +574,7 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
         else:
             ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
     axes[0][0].set_ylabel("iterations")
-    fixed = f"$1/H_b$ = {int(base[0])}, $H_s/h$ = {elements}, $H_b/h = {elements}\\,H_b/H_s$"
+    fixed = f"$1/H_b$ = {int(base[0])}, $H_s/h$ = {elements}, $H_b/h = {elements}\\,H_b/H_s${fixed_rules}"
     fig.suptitle(f"{title}\n({fixed})" if title else f"Iterations against $H_b/H_s$ ({fixed})",
                  fontsize="medium")
     fig.tight_layout()

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["DEFAULT", "RULE_SET_COLUMN", "RULE_SET_LEVEL", "by_rule_set", "closer_sentence", "rule_sets"]
+__all__ = ["DEFAULT", "RULE_SET_COLUMN", "RULE_SET_LEVEL", "by_rule_set", "closer_sentence", "one_rule_set",
+           "rule_sets"]
 
 #: column of the aggregated runs naming the rule set (the spec's ``preset``)
 RULE_SET_COLUMN = "preset"
@@ -28,6 +29,10 @@ DEFAULT = "default"
 RULE_SET_LEVEL = "rules"
 #: relative deviation below which a value counts as reproduced
 MATCH = 0.01
+#: difference of two relative deviations below which they count as equal (0.1 percentage
+#: point, the precision the tables print them with): a Lanczos estimate differing in its
+#: fifth digit makes neither rule set closer
+TIE = 1e-3
 #: the note's mark (a key of ``attrs["notes"]``)
 NOTE_MARK = "Rule sets:"
 
@@ -38,6 +43,27 @@ def rule_sets(df: pd.DataFrame) -> list[str]:
         return [DEFAULT]
     names = {DEFAULT if pd.isna(v) or v in ("", None) else str(v) for v in df[RULE_SET_COLUMN]}
     return sorted(names, key=lambda n: (n != DEFAULT, n)) or [DEFAULT]
+
+
+def one_rule_set(df: pd.DataFrame, name: str = DEFAULT) -> pd.DataFrame:
+    """The runs of one rule set, without the column :data:`RULE_SET_COLUMN`.
+
+    For the reports that show one run per case (figures, the growth table, the
+    contact comparison): a study sweeping ``presets`` has several runs per case,
+    and these reports must not mix them. ``df`` without the column is returned
+    unchanged (all its runs are the defaults').
+
+    Raises
+    ------
+    ValueError
+        If ``df`` has runs but none of rule set ``name``.
+    """
+    if RULE_SET_COLUMN not in df.columns:
+        return df
+    out = _select(df, name)
+    if out.empty and not df.empty:
+        raise ValueError(f"one_rule_set: no run of rule set {name!r} (have: {', '.join(rule_sets(df))})")
+    return out
 
 
 def _select(df: pd.DataFrame, name: str) -> pd.DataFrame:
@@ -85,10 +111,11 @@ def closer_sentence(tables: Mapping[str, pd.DataFrame], *, tried: str = "docs/fi
         if not a.size:
             parts.append(f"{name}: no value to compare with the thesis")
             continue
-        closer, farther = int(np.sum(b < a)), int(np.sum(b > a))
+        closer, farther = int(np.sum(b < a - TIE)), int(np.sum(b > a + TIE))
         matched = int(np.sum(b <= MATCH)), int(np.sum(a <= MATCH))
         reproduced_any |= bool(matched[0] or matched[1])
-        verdict = ("closer to the thesis than the defaults" if b.mean() < a.mean() else
+        verdict = ("closer to the thesis than the defaults" if b.mean() < a.mean() - TIE else
+                   "as close to the thesis as the defaults (not closer)" if b.mean() <= a.mean() + TIE else
                    "not closer to the thesis than the defaults")
         parts.append(f"preset {name} is {verdict} (closer in {closer}, farther in {farther} of {a.size} "
                      f"compared values; mean |dev| {b.mean():.1%} against {a.mean():.1%}; within "

@@ -28,7 +28,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from .rule_sets import RULE_SET_COLUMN, by_rule_set
+from .rule_sets import DEFAULT, RULE_SET_COLUMN, by_rule_set, one_rule_set
 
 #: Display names of key columns (1/H = subdomains per side, H/h = elements per subdomain side).
 ROW_LABELS: dict[str, str] = {
@@ -373,8 +373,11 @@ def mark_beyond_thesis(table: pd.DataFrame, mark: str = BEYOND_MARK, note: str =
 
 def hbhs_sweep_table(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None], *,
                      base: Sequence[int], contacts: Sequence[str] = ("full", "middle"),
-                     quantities: Mapping[str, Sequence[str]] | None = None) -> pd.DataFrame:
+                     quantities: Mapping[str, Sequence[str]] | None = None,
+                     rule_set: str = DEFAULT) -> pd.DataFrame:
     """Both methods along the H_b/H_s sweep from ``base``, our values beside the thesis's.
+
+    Only the runs of rule set ``rule_set`` (:func:`~ddstudies.report.rule_sets.one_rule_set`).
 
     Parameters
     ----------
@@ -398,6 +401,7 @@ def hbhs_sweep_table(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None]
         counts as in :func:`condition_table`.
     """
     quantities = dict(quantities or {})
+    df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
     data = df[(pd.to_numeric(df["bodies"]) == int(base[0])) & (pd.to_numeric(df["elements"]) == int(base[2]))]
     parts, marks = [], []
     for method, thesis in theses.items():
