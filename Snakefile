@@ -1,4 +1,4 @@
-# ddsolve studies. Layout of results/ and reports/: README.md, "Running studies".
+# ddsolve studies. Layout of results/ and reports/: docs/studies.md.
 #   snakemake --cores 2                                   every study of config/default.yaml (the reproduction)
 #   snakemake --cores 2 --configfile config/quick.yaml    the same studies, small (a smoke test)
 #   snakemake --cores 2 --configfile config/table_4.yaml  one study (any single-study config, with its `kind`)

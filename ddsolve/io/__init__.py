@@ -1,7 +1,7 @@
 """Result files.
 
 - :mod:`ddsolve.io.hdf5`: one run per HDF5 file (:func:`write_result`,
-  :func:`read_result`, :func:`read_residuals`); layout in README.md, "HDF5 layout".
+  :func:`read_result`, :func:`read_residuals`); layout in docs/hdf5.md.
 - :mod:`ddsolve.io.joblog`: a Snakemake job's output into its log file.
 
 Many runs into one DataFrame / CSV is :mod:`ddstudies.aggregate` (the study
