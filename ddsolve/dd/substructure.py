@@ -100,10 +100,40 @@ class Substructures:
             self.template = np.arange(self.n_sub)
             self.stiffness = [local.stiffness[t] for t in local.template]
             self.batch_local = True
+        full_off, keep = self._layout(scene, local.nodes, primal)
+        self.scaling = scaling
+        self.gamma = float(gamma)
+        self.delta = self.scaling_weights(scaling, gamma)
+
+        self.K_W = self._block_diagonal(full_off, keep)
+        f_full = np.concatenate(local.loads)
+        self.f_W = f_full[keep]
+        self._free_local = [self.local_index[self.offsets[s]:self.offsets[s + 1]] for s in range(self.n_sub)]
+
+    def _layout(self, scene, nodes: list[np.ndarray], primal: str) -> tuple[np.ndarray, np.ndarray]:
+        """The W layout and the interface classification of ``scene`` (shared with ddsolve.parallel).
+
+        Sets ``rho``, ``body_of_sub``, ``node_of_W``, ``sub_of_W``, ``local_index``, ``n_W``,
+        ``offsets``, ``floating_sub``, ``dof_of_node``, ``ndof``, ``l2g``, ``multiplicity``,
+        ``interface``, ``cross_point``, ``vertex`` and ``primal``.
+
+        Parameters
+        ----------
+        scene : Scene
+        nodes : list of ndarray
+            Global node numbers of each subdomain, in local order.
+        primal : str
+
+        Returns
+        -------
+        full_off : ndarray, shape (n_sub + 1,)
+            Offsets of the subdomains in the node lists with Dirichlet nodes.
+        keep : ndarray of bool
+            The entries of those lists that are free (the W entries).
+        """
         self.rho = np.asarray(scene.rho, dtype=float)
         self.body_of_sub = scene.subdomain_body
 
-        nodes = local.nodes
         sizes_full = np.array([len(nd) for nd in nodes])
         full_off = np.concatenate([[0], np.cumsum(sizes_full)])
         node_full = np.concatenate(nodes)
@@ -137,14 +167,7 @@ class Substructures:
         self.vertex = self._anchor_floating(self.cross_point.copy())
         self.primal = primal
 
-        self.scaling = scaling
-        self.gamma = float(gamma)
-        self.delta = self.scaling_weights(scaling, gamma)
-
-        self.K_W = self._block_diagonal(full_off, keep)
-        f_full = np.concatenate(local.loads)
-        self.f_W = f_full[keep]
-        self._free_local = [self.local_index[self.offsets[s]:self.offsets[s + 1]] for s in range(self.n_sub)]
+        return full_off, keep
 
     # ------------------------------------------------------------------ primal
     def _primal_components(self, vertex: np.ndarray) -> np.ndarray:

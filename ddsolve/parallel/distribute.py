@@ -49,44 +49,14 @@ def topology(scene: Scene, scaling: str = "rho", gamma: float = 1.0) -> Substruc
     """The layout and interface classification of :class:`Substructures` without any assembly.
 
     Returns a :class:`Substructures` object with every attribute of its
-    constructor except ``K_W``, ``f_W``, ``stiffness`` and ``local`` (the same
-    lines of :meth:`Substructures.__init__`, so the same W order, primal
-    vertices and delta weights as a serial solve).
+    constructor except ``K_W``, ``f_W``, ``stiffness`` and ``local``
+    (:meth:`Substructures._layout`, the code of the serial constructor: the same W
+    order, primal vertices and delta weights as a serial solve).
     """
     topo = Substructures.__new__(Substructures)
     topo.scene = scene
     topo.n_sub = scene.n_subdomains
-    topo.rho = np.asarray(scene.rho, dtype=float)
-    topo.body_of_sub = scene.subdomain_body
-    nodes = scene.subdomain_nodes()
-    sizes_full = np.array([len(nd) for nd in nodes])
-    full_off = np.concatenate([[0], np.cumsum(sizes_full)])
-    node_full = np.concatenate(nodes)
-    sub_full = np.repeat(np.arange(topo.n_sub), sizes_full)
-    local_full = np.arange(full_off[-1]) - full_off[sub_full]
-    keep = ~scene.dirichlet[node_full]
-    topo.node_of_W = node_full[keep]
-    topo.sub_of_W = sub_full[keep]
-    topo.local_index = local_full[keep]
-    topo.n_W = int(keep.sum())
-    counts = np.bincount(topo.sub_of_W, minlength=topo.n_sub)
-    topo.offsets = np.concatenate([[0], np.cumsum(counts)])
-    topo.floating_sub = np.bincount(sub_full, weights=scene.dirichlet[node_full], minlength=topo.n_sub) == 0
-    dof_of_node = np.full(scene.n_nodes, -1, dtype=np.int64)
-    free_nodes = np.flatnonzero(~scene.dirichlet)
-    dof_of_node[free_nodes] = np.arange(free_nodes.size)
-    topo.dof_of_node = dof_of_node
-    topo.ndof = int(free_nodes.size)
-    topo.l2g = dof_of_node[topo.node_of_W]
-    topo.multiplicity = np.bincount(topo.node_of_W, minlength=scene.n_nodes)[topo.node_of_W]
-    topo.interface = topo.multiplicity > 1
-    on_body_boundary = np.zeros(topo.n_W, dtype=bool)
-    for b in range(scene.n_bodies):
-        in_b = topo.body_of_sub[topo.sub_of_W] == b
-        on_body_boundary[in_b] = scene.boundary_nodes(b)[topo.node_of_W[in_b]]
-    topo.cross_point = (topo.multiplicity >= 3) | ((topo.multiplicity == 2) & on_body_boundary)
-    topo.vertex = topo._anchor_floating(topo.cross_point.copy())
-    topo.primal = "vertices"
+    topo._layout(scene, scene.subdomain_nodes(), "vertices")
     topo.scaling = scaling
     topo.gamma = float(gamma)
     topo.delta = topo.scaling_weights(scaling, gamma)

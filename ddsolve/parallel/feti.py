@@ -114,7 +114,7 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     def M(lam: np.ndarray) -> np.ndarray:
         return exchange.sum(M_loc(lam))
 
-    d = F_d = exchange.sum(B @ Kplus.solve(sub.f_W))
+    F_d = exchange.sum(B @ Kplus.solve(sub.f_W))
     n_fact = Kplus.n_new_factorizations + schur.II.n_new_factorizations
     # global numbering of the floating subdomains; G = B R row by row from the two copies of each multiplier
     floating = topo.floating_sub

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import pandas as pd
-import pytest
 
 from ddstudies.report import rule_sets as rs
 from ddstudies.report.contact_tables import TABLE_5_1_COLUMNS, contact_table
