@@ -11,6 +11,44 @@ from .operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from .substructure import Substructures
 
 
+
+class InterfaceMap:
+    """The interface space of BDDC: one value per interface dof, and its maps to and from W.
+
+    Parameters
+    ----------
+    sub : Substructures
+    gamma_mask : ndarray of bool, shape (n_W,)
+        The interface entries of W.
+
+    Attributes
+    ----------
+    dofs : ndarray, shape (n,)
+        Global dof numbers of the interface, sorted.
+    delta : ndarray
+        The delta-dagger weights of the interface entries of W.
+    """
+
+    def __init__(self, sub, gamma_mask: np.ndarray) -> None:
+        self.n_W = sub.n_W
+        self.entries = np.flatnonzero(gamma_mask)
+        self.dofs = np.unique(sub.l2g[self.entries])
+        self.n = int(self.dofs.size)
+        self.position = np.searchsorted(self.dofs, sub.l2g[self.entries])  # interface index of each entry
+        self.delta = sub.delta[self.entries]
+
+    def scatter(self, u_g: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+        """R^T (weighted): interface values, shape (n,), to a W vector, shape (n_W,)."""
+        w = np.zeros(self.n_W)
+        w[self.entries] = u_g[self.position] if weights is None else weights * u_g[self.position]
+        return w
+
+    def gather(self, w: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+        """R (weighted): the sum of the W entries of each interface dof, shape (n,)."""
+        vals = w[self.entries] if weights is None else weights * w[self.entries]
+        return np.bincount(self.position, weights=vals, minlength=self.n)
+
+
 def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False) -> MethodOutput:
     """BDDC: PCG on S^_Gamma u_Gamma = g (2.25) with M^{-1} = R_D^T S~^{-1} R_D (2.27).
 
@@ -37,21 +75,8 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     gamma_mask = sub.interface
     schur = DirichletSchur(sub, gamma_mask, cache)
     primal_solver = PrimalConstrainedSolver(sub, sub.vertex, cache)
-    gamma_entries = np.flatnonzero(gamma_mask)
-    dofs = np.unique(sub.l2g[gamma_entries])
-    n_g = dofs.size
-    gamma_pos = np.searchsorted(dofs, sub.l2g[gamma_entries])    # global interface index of each Gamma entry
-    delta_g = sub.delta[gamma_entries]
-
-    def scatter(u_g: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-        w = np.zeros(sub.n_W)
-        w[gamma_entries] = u_g[gamma_pos] if weights is None else weights * u_g[gamma_pos]
-        return w
-
-    def gather(w: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-        vals = w[gamma_entries] if weights is None else weights * w[gamma_entries]
-        return np.bincount(gamma_pos, weights=vals, minlength=n_g)
-
+    iface = InterfaceMap(sub, gamma_mask)
+    scatter, gather, delta_g, n_g = iface.scatter, iface.gather, iface.delta, iface.n
     def S_hat(u_g: np.ndarray) -> np.ndarray:
         return gather(schur.matvec(scatter(u_g)))
 

@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from ..dd.bddc import InterfaceMap
 from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, linear_operator
 from .coarse import DistributedPrimalSolver
@@ -35,25 +36,14 @@ def solve_bddc_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     cache: dict = {}
     schur = DirichletSchur(sub, sub.interface, cache)
     primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, np.unique(topo.l2g[topo.vertex]))
-    gamma_entries = np.flatnonzero(sub.interface)
-    dofs = np.unique(sub.l2g[gamma_entries])                       # this rank's interface dofs (global ids)
-    gamma_pos = np.searchsorted(dofs, sub.l2g[gamma_entries])
-    delta_g = sub.delta[gamma_entries]
+    iface = InterfaceMap(sub, sub.interface)                       # this rank's interface dofs (global ids)
+    dofs, scatter, gather, delta_g = iface.dofs, iface.scatter, iface.gather, iface.delta
     all_gamma = np.flatnonzero(topo.interface)
     n_interface = int(np.unique(topo.l2g[all_gamma]).size)
     shared = SharedIndex.build(comm.rank, dofs, topo.l2g[all_gamma],
                                prob.rank_of_sub[topo.sub_of_W[all_gamma]], topo.ndof)
     exchange = NeighbourSum(comm, shared)
-    n_g = dofs.size
-
-    def scatter(u_g: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-        w = np.zeros(sub.n_W)
-        w[gamma_entries] = u_g[gamma_pos] if weights is None else weights * u_g[gamma_pos]
-        return w
-
-    def gather(w: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-        vals = w[gamma_entries] if weights is None else weights * w[gamma_entries]
-        return np.bincount(gamma_pos, weights=vals, minlength=n_g)
+    n_g = iface.n
 
     def S_hat(u_g: np.ndarray) -> np.ndarray:
         return exchange.sum(gather(schur.matvec(scatter(u_g))))
