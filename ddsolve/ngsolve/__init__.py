@@ -3,6 +3,7 @@
 Inside this subpackage ``import ngsolve`` is the real NGSolve. Importing
 ``ddsolve.ngsolve`` imports NGSolve.
 """
+from .contact import ContactResult, contact_solve
 from .inverse import DDInverse, DDPreconditioner
 
-__all__ = ["DDInverse", "DDPreconditioner"]
+__all__ = ["ContactResult", "DDInverse", "DDPreconditioner", "contact_solve"]
