@@ -121,19 +121,26 @@ def _converted_dofs(fes: Any) -> np.ndarray:
     return d2h.reshape(ne, -1)
 
 
-def element_matrices(a: Any, fes: Any, n_local: int) -> np.ndarray:
-    """Element matrices of the integrators of ``a``, shape (n_elements, n_local, n_local).
+def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = None) -> np.ndarray:
+    """Element matrices of the volume integrators of ``a``, shape (n_elements, n_local, n_local).
 
-    One assembly of ``a.integrators`` on ``Discontinuous(fes)``: its matrix is
-    block diagonal with one full n_local x n_local block per element, whose
-    dofs are numbered contiguously in element-local order.
+    One assembly of the integrators (default ``a.integrators``; give the
+    volume ones of :func:`split_integrators` when ``a`` has ``ds`` terms) on
+    ``Discontinuous(fes)``: its matrix is block diagonal with one full
+    n_local x n_local block per element, whose dofs are numbered contiguously
+    in element-local order.
     """
     import ngsolve
+    from netgen.meshing import NgException
 
     fesd = ngsolve.Discontinuous(fes)
     ad = ngsolve.BilinearForm(fesd, symmetric=False, check_unused=False)
-    for integ in a.integrators:
-        ad += integ
+    for k, integ in enumerate(a.integrators if integrators is None else integrators):
+        try:
+            ad += integ
+        except NgException as exc:
+            raise InputError("a", f"integrator {k} cannot be assembled element by element on "
+                                  f"Discontinuous(fes): {exc}") from None
     ad.Assemble()
     r, c, v = ad.mat.COO()
     ne = fes.mesh.ne
@@ -155,3 +162,96 @@ def is_symmetric(Ke: np.ndarray, n_check: int = 32, tol: float = 1e-10) -> bool:
     scale = np.abs(K).max(axis=(1, 2)) + 1e-300
     asym = np.abs(K - K.transpose(0, 2, 1)).max(axis=(1, 2))
     return bool(np.all(asym <= tol * scale))
+
+
+def split_integrators(a: Any, fes: Any) -> tuple[list, list]:
+    """The volume and the boundary (``ds``) integrators of ``a``.
+
+    NGSolve's integrator objects do not say whether they are ``dx`` or ``ds``:
+    an integrator is a boundary one when its assembly on the boundary-only
+    space ``H1(mesh, definedon=mesh.Boundaries(".*"))`` (no volume elements,
+    so cheap) is not zero.
+    """
+    import ngsolve
+
+    mesh = fes.mesh
+    fb = ngsolve.H1(mesh, order=int(fes.globalorder), definedon=mesh.Boundaries(".*"))
+    volume, boundary = [], []
+    for integ in a.integrators:
+        ab = ngsolve.BilinearForm(fb, check_unused=False)
+        ab += integ
+        ab.Assemble()
+        values = np.asarray(ab.mat.COO()[2])
+        (boundary if values.size and np.abs(values).max() > 0 else volume).append(integ)
+    return volume, boundary
+
+
+def boundary_element_matrices(fes: Any, integrators: list) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Element matrices of boundary (``ds``) integrators, or None if there are none.
+
+    They are computed on the boundary elements of each integrator's region
+    (``GetDefinedOn``); there are O(sqrt(n_elements)) of them in 2D, so the
+    loop over them costs little next to the volume assembly.
+
+    Returns
+    -------
+    Kb : ndarray, shape (n_b, n_lb, n_lb)
+        Summed boundary element matrices, in the local order of ``fes.GetDofNrs``.
+    Tb : ndarray of int, shape (n_b, n_lb)
+        Their global H1 dofs.
+    Vb : ndarray of int, shape (n_b, 2)
+        The two vertices of each boundary element (to find the volume element it bounds).
+    """
+    import ngsolve
+
+    if not integrators:
+        return None
+    mesh = fes.mesh
+    regions = [(integ, np.array(integ.GetDefinedOn(), dtype=bool)) for integ in integrators]
+    mats, dofs, verts = [], [], []
+    for el in mesh.Elements(ngsolve.BND):
+        active = [integ for integ, on in regions if on.size == 0 or on[el.index]]
+        if not active:
+            continue
+        ei = ngsolve.ElementId(el)
+        fe, trafo = fes.GetFE(ei), mesh.GetTrafo(ei)
+        mats.append(sum(integ.CalcElementMatrix(fe, trafo).NumPy() for integ in active))
+        dofs.append(fes.GetDofNrs(ei))
+        verts.append([v.nr for v in el.vertices])
+    if not mats:
+        return None
+    log.info("%d boundary integrators on %d boundary elements", len(integrators), len(mats))
+    return np.asarray(mats), np.asarray(dofs, dtype=np.int64), np.asarray(verts, dtype=np.int64)
+
+
+def add_boundary_matrices(Ke: np.ndarray, T: np.ndarray, V: np.ndarray, Kb: np.ndarray, Tb: np.ndarray,
+                          Vb: np.ndarray) -> None:
+    """Add each boundary element matrix to the element matrix of the volume element it bounds (in place).
+
+    A = sum_e K_e + sum_b K_b with every boundary element b inside one volume
+    element e(b) (the one sharing its edge), so adding K_b to K_e(b) keeps the
+    assembled matrix and every subdomain matrix symmetric positive semidefinite.
+
+    Parameters
+    ----------
+    Ke : ndarray, shape (n_elements, n_local, n_local)
+    T : ndarray of int, shape (n_elements, n_local)
+    V : ndarray of int, shape (n_elements, k)
+    Kb, Tb, Vb : as returned by :func:`boundary_element_matrices`
+    """
+    k = V.shape[1]
+    nv = np.int64(max(int(V.max()), int(Vb.max())) + 1)
+    lo = np.minimum(V, np.roll(V, -1, axis=1)).ravel()
+    hi = np.maximum(V, np.roll(V, -1, axis=1)).ravel()
+    key = lo * nv + hi
+    order = np.argsort(key)
+    bkey = Vb.min(axis=1) * nv + Vb.max(axis=1)
+    at = np.minimum(np.searchsorted(key[order], bkey), key.size - 1)
+    if not np.array_equal(key[order][at], bkey):
+        raise InputError("a", "a boundary element does not lie on an edge of a volume element")
+    parent = order[at] // k
+    hit = T[parent][:, None, :] == Tb[:, :, None]           # (n_b, n_lb, n_local)
+    if not hit.any(axis=2).all():
+        raise InputError("a", "boundary element dofs are not dofs of the neighbouring volume element")
+    pos = hit.argmax(axis=2)
+    np.add.at(Ke, (parent[:, None, None], pos[:, :, None], pos[:, None, :]), Kb)

@@ -14,10 +14,13 @@ from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_opera
 from ..errors import InputError
 from ..krylov import KrylovResult, pcg
 from .dofs import (
+    add_boundary_matrices,
+    boundary_element_matrices,
     check_space,
     element_dofs,
     element_matrices,
     is_symmetric,
+    split_integrators,
     vertex_table,
 )
 from .local import boundary_vertex_dofs, condense, element_parts, part_matrices
@@ -115,8 +118,9 @@ class DDInverse(ngsolve.BaseMatrix):
     Parameters
     ----------
     a : ngsolve.BilinearForm
-        Assembled or not (only its volume integrators are used: one assembly of
-        ``a.integrators`` on ``Discontinuous(fes)``; ``ds`` terms are not supported).
+        Assembled or not: its volume integrators are assembled once on
+        ``Discontinuous(fes)``, its boundary (``ds``) integrators element by
+        element on the boundary and added to the volume element they bound.
     fes : ngsolve.H1, optional
         Defaults to ``a.space``.
     method : {"bddc", "fetidp", "feti"}
@@ -177,7 +181,11 @@ class DDInverse(ngsolve.BaseMatrix):
         T = element_dofs(fes)
         self.timings["dof_table"] = time.perf_counter() - t
         t = time.perf_counter()
-        Ke = element_matrices(a, fes, T.shape[1])
+        volume, boundary = split_integrators(a, fes)
+        Ke = element_matrices(a, fes, T.shape[1], volume)
+        bnd = boundary_element_matrices(fes, boundary)   # ds terms (Robin): added to the element they bound
+        if bnd is not None:
+            add_boundary_matrices(Ke, T, V, *bnd)
         self.timings["assembly"] = time.perf_counter() - t
         if not is_symmetric(Ke):
             raise InputError("a", f"the form is not symmetric; method {method!r} needs a symmetric form")

@@ -205,3 +205,17 @@ def test_coarse_partition_is_inherited_by_refinement():
     assert relerr(x, direct(fes, a, f)) < 1e-8
     with pytest.raises(InputError, match="parts: .*coarse mesh"):
         DDInverse(a, parts=coarse.ne + 1, partition="coarse")
+
+
+@pytest.mark.parametrize("order", [1, 3])
+@pytest.mark.parametrize("method", ["bddc", "fetidp", "feti"])
+def test_robin_boundary_terms(order, method):
+    """ds integrators (Robin on part of the boundary, a variable one elsewhere) are not dropped."""
+    mesh = holed(0.1)
+    fes, a, f = forms(mesh, order, 1.0 + ngs.x, dirichlet="")
+    u, v = fes.TnT()
+    a += 5.0 * u * v * ngs.ds("outer")
+    a += (1 + ngs.y) * u * v * ngs.ds("hole")
+    x, inv = dd(fes, a, f, method=method, parts=6)
+    assert inv.converged
+    assert relerr(x, direct(fes, a, f)) < 1e-8
