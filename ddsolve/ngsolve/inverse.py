@@ -7,10 +7,13 @@ from typing import Any
 
 import ngsolve
 import numpy as np
+import scipy.sparse as sp
 
-from ..dd import Substructures, solve_feti
-from ..dd.dual import dual_operators
+from ..dd import Substructures
+from ..dd.dual import dual_operators, projection_weights
+from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
+from ..dd.projection import Projection
 from ..errors import InputError
 from ..krylov import KrylovResult, pcg
 from .dofs import (
@@ -107,6 +110,63 @@ class _FETIDP:
         d = self.B @ self.primal.solve(f_W)
         kr = pcg(self.F, d, None, rtol=rtol, maxiter=maxiter, M=self.M, cond=cond)
         return self.primal.solve(f_W - self.BT @ kr.x), kr
+
+
+class _FETI:
+    """Persistent one-level FETI operators (Section 2.5), as in :func:`ddsolve.dd.solve_feti`.
+
+    Everything that does not depend on the right-hand side is built once: the
+    generalized inverse A^+ (one node fixed per floating subdomain), the
+    Dirichlet preconditioner (the Schur operator of ``bddc``), G = B R and the
+    projection P of (2.13) (its factorization of G^T Q G). A solve is projected
+    PCG on P F lambda = P d (2.14) with the Q-weighted projection of
+    :func:`ddsolve.dd.dual.solve_dual`.
+    """
+
+    def __init__(self, sub: Substructures, bddc: _BDDC, vertex_W: np.ndarray, projection: str = "weighted") -> None:
+        self.sub = sub
+        self.B, B_D = sub.jump_operators(np.ones(sub.n_W, dtype=bool))
+        self.BT = self.B.T.tocsr()
+        # generalized inverse: fix one vertex dof (the constants live on the vertex dofs of a
+        # hierarchical basis; fixing an edge dof would leave the kernel) of every floating part
+        floating = np.flatnonzero(sub.floating_sub)
+        candidates = np.flatnonzero(vertex_W & sub.floating_sub[sub.sub_of_W])
+        first = np.searchsorted(sub.sub_of_W[candidates], floating)
+        count = np.searchsorted(sub.sub_of_W[candidates], floating, side="right") - first
+        if np.any(count == 0):
+            raise InputError("method", "a floating part has no vertex dof; one-level FETI cannot pin it")
+        fixed = np.zeros(sub.n_W, dtype=bool)
+        fixed[candidates[first + count // 2]] = True
+        self.Kplus = BatchedSolver(sub, ~fixed, {})
+        F, M = dual_operators(self.B, B_D, self.Kplus.solve, bddc.schur.matvec)
+        n = self.B.shape[0]
+        q = projection_weights(B_D, sub.rho[sub.sub_of_W], sub.scaling, projection)
+        self.sq = sq = np.ones(n) if q is None else np.sqrt(q)
+        self.F = linear_operator(n, lambda mu: sq * F(sq * mu))
+        self.M = linear_operator(n, lambda mu: M(mu / sq) / sq)
+        self.R = self.projection = self.P = None
+        if floating.size:
+            # R: orthonormal constants (1 on the vertex dofs) of every floating part, shape (n_W, n_floating)
+            col = np.full(sub.n_sub, -1)
+            col[floating] = np.arange(floating.size)
+            entries = np.flatnonzero(vertex_W & sub.floating_sub[sub.sub_of_W])
+            size = np.bincount(sub.sub_of_W[entries], minlength=sub.n_sub)
+            self.R = sp.csr_matrix((1.0 / np.sqrt(size[sub.sub_of_W[entries]]), (entries, col[sub.sub_of_W[entries]])),
+                                   shape=(sub.n_W, floating.size))
+            self.projection = Projection((sp.diags(sq) @ (self.B @ self.R)).tocsc(), sparse=True)
+            self.P = linear_operator(n, self.projection.apply)
+
+    def solve(self, f_W: np.ndarray, rtol: float, maxiter: int, cond: bool):
+        sq = self.sq
+        d = sq * (self.B @ self.Kplus.solve(f_W))
+        mu0 = np.zeros(d.size)
+        if self.projection is not None:
+            mu0 = self.projection.particular(self.R.T @ f_W)
+        kr = pcg(self.F, d, mu0, rtol=rtol, maxiter=maxiter, M=self.M, P=self.P, cond=cond)
+        u_W = self.Kplus.solve(f_W - self.BT @ (sq * kr.x))
+        if self.projection is not None:
+            u_W = u_W + self.R @ self.projection.coefficients(self.F.matvec(kr.x) - d)
+        return self.sub.restrict(self.sub.average(u_W)), kr
 
 
 class DDInverse(ngsolve.BaseMatrix):
@@ -218,10 +278,14 @@ class DDInverse(ngsolve.BaseMatrix):
         self._bddc = _BDDC(sub)
         self._fetidp = _FETIDP(sub, self._bddc) if method == "fetidp" else None
         if method == "feti":
-            R1 = sub.K_W @ np.ones(sub.n_W)
+            # the constants are 1 on the vertex dofs and 0 on the edge/bubble dofs of a hierarchical basis;
+            # a part floats when its matrix annihilates them (no Dirichlet dof, no reaction or Robin term)
+            vertex_W = pm.node_dof[sub.node_of_W] < fes.mesh.nv
+            R1 = sub.K_W @ vertex_W.astype(float)
             res = np.bincount(sub.sub_of_W, weights=np.abs(R1), minlength=sub.n_sub)
             scale = np.bincount(sub.sub_of_W, weights=np.abs(sub.K_W.diagonal()), minlength=sub.n_sub)
             sub.floating_sub = sub.floating_sub & (res <= 1e-10 * scale)
+            self._feti = _FETI(sub, self._bddc, vertex_W)
         self.timings["setup"] = time.perf_counter() - t
         log.info("DDInverse: %d parts, %d dofs, %d primal, timings %s", self.n_parts, ndof, sub.n_primal,
                  self.timings)
@@ -287,10 +351,7 @@ class DDInverse(ngsolve.BaseMatrix):
         elif self.method == "fetidp":
             u_W, kr = self._fetidp.solve(f_W, self.rtol, self.maxiter, self.want_cond)
         else:
-            self.sub.f_W = f_W
-            out = solve_feti(self.sub, rtol=self.rtol, maxiter=self.maxiter, cond=self.want_cond)
-            kr = out.krylov
-            u_W = self.sub.restrict(out.u)
+            u_W, kr = self._feti.solve(f_W, self.rtol, self.maxiter, self.want_cond)
         self.iterations, self.residuals, self.cond = kr.iterations, kr.residuals, kr.cond
         self.converged, self.reason = kr.converged, kr.reason
         if not kr.converged:

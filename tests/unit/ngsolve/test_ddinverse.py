@@ -219,3 +219,33 @@ def test_robin_boundary_terms(order, method):
     x, inv = dd(fes, a, f, method=method, parts=6)
     assert inv.converged
     assert relerr(x, direct(fes, a, f)) < 1e-8
+
+
+@pytest.mark.parametrize("method", ["bddc", "fetidp", "feti"])
+def test_factorizations_happen_once_at_construction(method, monkeypatch):
+    """Two Mults (and a preconditioner application) factor nothing: every method factors at construction."""
+    import scipy.linalg
+    import scipy.sparse.linalg
+
+    count = {"n": 0}
+
+    def counting(fn):
+        def wrapped(*args, **kwargs):
+            count["n"] += 1
+            return fn(*args, **kwargs)
+        return wrapped
+
+    for module, name in ((scipy.sparse.linalg, "splu"), (scipy.linalg, "cho_factor"), (scipy.linalg, "lu_factor")):
+        monkeypatch.setattr(module, name, counting(getattr(module, name)))
+    mesh = ngs.Mesh(unit_square.GenerateMesh(maxh=0.1))
+    fes, a, f = forms(mesh, 2, 1.0 + ngs.x, dirichlet="left")     # floating parts for FETI
+    inv = DDInverse(a, method=method, parts=6, rtol=1e-10)
+    at_construction = count["n"]
+    assert at_construction >= 2
+    ref = direct(fes, a, f)
+    gfu = ngs.GridFunction(fes)
+    for scale in (1.0, 2.0):
+        gfu.vec.data = inv * (scale * f.vec)
+        assert relerr(gfu.vec.FV().NumPy(), scale * ref) < 1e-8
+    gfu.vec.data = inv.preconditioner * f.vec
+    assert count["n"] == at_construction
