@@ -15,7 +15,9 @@ All run in one process (one Snakemake job), one after another, with one
 thread each; the load average is recorded with every row. Errors of the
 reference solution (``sparsecholesky`` where run) are reported per row.
 
-Run: ``python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png``.
+Run: ``python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png``; the iterations
+against the number of parts on one mesh:
+``python -m ddstudies.ngsolve_bench --parts-sweep ORDER NDOF 64,256,1024`` (a markdown table).
 """
 from __future__ import annotations
 
@@ -214,8 +216,34 @@ def _write_atomic(path: str, text: str) -> None:
     os.replace(tmp, path)
 
 
+def parts_sweep(order: int, ndof: int, parts: list[int], rtol: float = 1e-8, method: str = "bddc") -> list[Row]:
+    """DDInverse iterations on one mesh (about ``ndof`` dofs of order ``order``) for each METIS part count."""
+    mesh = make_mesh(order, ndof)
+    rows = []
+    for p in parts:
+        s, t, its, x = run_solver(f"ddinverse-{method}", mesh, order, int(p), rtol, 1000)
+        rows.append(Row(f"ddinverse-{method}-sweep", order, int(np.asarray(x).size), int(p), s, t, s + t, its,
+                        math.nan, os.getloadavg()[0]))
+        log.info("sweep order %d parts %d: %d iterations", order, p, its)
+    return rows
+
+
+def sweep_table(rows: list[Row]) -> str:
+    """Markdown table of :func:`parts_sweep` rows (iterations, seconds, load average)."""
+    lines = ["| order | dofs | parts | iterations | setup s | solve s | load avg |", "|---|---|---|---|---|---|---|"]
+    lines += [f"| {r.order} | {r.ndof:,} | {r.parts:,} | {r.iterations} | {r.setup_s:.2f} | {r.solve_s:.2f} | "
+              f"{r.load:.1f} |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--parts-sweep"] and len(argv) == 4:
+        # python -m ddstudies.ngsolve_bench --parts-sweep ORDER NDOF 64,256,1024   (markdown on stdout)
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        rows = parts_sweep(int(argv[1]), int(argv[2]), [int(p) for p in argv[3].split(",")])
+        sys.stdout.write(sweep_table(rows))
+        return 0
     if len(argv) != 4:
         print("usage: python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png", file=sys.stderr)
         return 2

@@ -59,3 +59,13 @@ def test_workflow_runs_the_study(tmp_path):
     assert [r["solver"] for r in rows] == ["ddinverse-bddc", "sparsecholesky"]
     assert float(rows[0]["relerr"]) < 1e-6
     assert (tmp_path / "reports" / "ngs_tiny" / "ngsolve.png").stat().st_size > 1000
+
+
+def test_parts_sweep_table():
+    from ddstudies.ngsolve_bench import parts_sweep, sweep_table
+
+    rows = parts_sweep(1, 3000, [4, 16])
+    assert [r.parts for r in rows] == [4, 16]
+    assert all(0 < r.iterations < 40 for r in rows)
+    table = sweep_table(rows)
+    assert table.count("\n") == 4 and "| 1 | " in table
