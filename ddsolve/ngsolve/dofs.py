@@ -142,17 +142,18 @@ def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = 
             raise InputError("a", f"integrator {k} cannot be assembled element by element on "
                                   f"Discontinuous(fes): {exc}") from None
     ad.Assemble()
-    r, c, v = ad.mat.COO()
     ne = fes.mesh.ne
-    v = np.asarray(v)
-    if v.size != ne * n_local * n_local:
+    vals, cols, ptr = (np.asarray(x) for x in ad.mat.CSR())     # views, no copy
+    width = n_local * n_local
+    if vals.size != ne * width:
         raise InputError("a", "unexpected sparsity of the broken element matrices")
-    r = np.asarray(r)
-    c = np.asarray(c)
-    if not (np.all(np.diff(r) >= 0)):
-        order = np.lexsort((c, r))
-        v = v[order]
-    return v.reshape(ne, n_local, n_local).copy()
+    # dofs of element e are e*n_local .. (e+1)*n_local - 1: every row holds its element's block, columns sorted
+    expected = (np.arange(ne)[:, None, None] * n_local + np.arange(n_local)).astype(cols.dtype)
+    if np.array_equal(ptr, np.arange(ne * n_local + 1) * n_local) and np.array_equal(cols.reshape(ne, n_local, n_local), np.broadcast_to(expected, (ne, n_local, n_local))):
+        return vals.reshape(ne, n_local, n_local).copy()
+    r, c, v = (np.asarray(x) for x in ad.mat.COO())
+    order = np.lexsort((c, r))
+    return v[order].reshape(ne, n_local, n_local).copy()
 
 
 def is_symmetric(Ke: np.ndarray, n_check: int = 32, tol: float = 1e-10) -> bool:

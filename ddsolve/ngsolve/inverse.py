@@ -16,6 +16,7 @@ from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_opera
 from ..dd.projection import Projection
 from ..errors import InputError
 from ..krylov import KrylovResult, pcg
+from ..scene.scene import sorted_unique
 from .dofs import (
     add_boundary_matrices,
     boundary_element_matrices,
@@ -60,7 +61,7 @@ class _BDDC:
         self.schur = DirichletSchur(sub, sub.interface, cache)
         self.primal = PrimalConstrainedSolver(sub, sub.vertex, cache)
         ge = np.flatnonzero(sub.interface)
-        dofs = np.unique(sub.l2g[ge])
+        dofs = sorted_unique(sub.l2g[ge])
         self.n_g = dofs.size
         self.ge, self.gpos, self.delta_g = ge, np.searchsorted(dofs, sub.l2g[ge]), sub.delta[ge]
         self.S_hat = linear_operator(self.n_g, lambda u: self.gather(self.schur.matvec(self.scatter(u))))

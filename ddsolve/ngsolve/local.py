@@ -26,6 +26,7 @@ from scipy.sparse.csgraph import connected_components
 from ..errors import InputError
 from ..scene.assembly import LocalProblems
 from ..scene.partition import element_graph, partition_elements
+from ..scene.scene import sorted_unique
 
 log = logging.getLogger(__name__)
 
@@ -225,7 +226,7 @@ def part_matrices(S: np.ndarray, Tw: np.ndarray, part: np.ndarray, free: np.ndar
         Vertex dofs on the domain boundary.
     """
     n_parts = int(part.max()) + 1
-    node_dof = np.unique(Tw)
+    node_dof = sorted_unique(Tw.ravel())          # sort-based (numpy's hash unique is slower here)
     node_of_dof = np.full(ndof, -1, dtype=np.int64)
     node_of_dof[node_dof] = np.arange(node_dof.size)
     n_nodes = node_dof.size
@@ -268,7 +269,7 @@ def boundary_vertex_dofs(V: np.ndarray, ndof: int) -> np.ndarray:
     k = V.shape[1]
     e = np.stack([np.sort(np.stack([V[:, i], V[:, (i + 1) % k]], axis=1), axis=1) for i in range(k)], axis=1)
     e = e.reshape(-1, 2)
-    uniq, count = np.unique(e[:, 0] * (V.max() + 1) + e[:, 1], return_counts=True)
+    uniq, count = sorted_unique(e[:, 0] * (V.max() + 1) + e[:, 1], return_counts=True)
     bnd = uniq[count == 1]
     out = np.zeros(ndof, dtype=bool)
     n = V.max() + 1
