@@ -278,6 +278,7 @@ class DDInverse(ngsolve.BaseMatrix):
         t = time.perf_counter()
         self._bddc = _BDDC(sub)
         self._fetidp = _FETIDP(sub, self._bddc) if method == "fetidp" else None
+        self._feti: _FETI | None = None
         if method == "feti":
             # the constants are 1 on the vertex dofs and 0 on the edge/bubble dofs of a hierarchical basis;
             # a part floats when its matrix annihilates them (no Dirichlet dof, no reaction or Robin term)

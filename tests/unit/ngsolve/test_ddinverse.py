@@ -249,3 +249,30 @@ def test_factorizations_happen_once_at_construction(method, monkeypatch):
         assert relerr(gfu.vec.FV().NumPy(), scale * ref) < 1e-8
     gfu.vec.data = inv.preconditioner * f.vec
     assert count["n"] == at_construction
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_feti_floating_parts_any_order(order):
+    """One-level FETI with floating parts: the kernel (constants) is 1 on the vertex dofs only."""
+    mesh = lshape(0.1)
+    fes, a, f = forms(mesh, order, 1 + 10 * ngs.IfPos(ngs.x - 0.5, 1, 0), dirichlet="")
+    x, inv = dd(fes, a, f, method="feti", parts=8, freedofs=_left_free(fes))
+    assert inv.converged and inv._feti.R is not None and inv._feti.R.shape[1] > 0
+    assert relerr(x, _direct_on(fes, a, f, _left_free(fes))) < 1e-8
+
+
+def _left_free(fes):
+    """Free dofs of the L-shape with u = 0 on its left side x = 0 only (most parts float)."""
+    free = np.ones(fes.ndof, dtype=bool)
+    for el in fes.mesh.Elements(ngs.BND):
+        if all(abs(fes.mesh[v].point[0]) < 1e-12 for v in el.vertices):
+            free[list(fes.GetDofNrs(el))] = False
+    return free
+
+
+def _direct_on(fes, a, f, free):
+    a.Assemble()
+    mask = ngs.BitArray([bool(b) for b in free])
+    gfu = ngs.GridFunction(fes)
+    gfu.vec.data = a.mat.Inverse(mask, inverse="sparsecholesky") * f.vec
+    return gfu.vec.FV().NumPy().copy()
