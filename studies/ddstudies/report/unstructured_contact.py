@@ -10,8 +10,8 @@ the same call as Figure 5.2). :func:`plot_unstructured_contact` draws three pane
    the subdomain boundaries (edges between triangles of two subdomains) in
    black, and the contact pairs on x = 1 marked: active (lambda > 0) filled red,
    inactive open grey;
-3. along the contact line Gamma_c: u^1, u^2 and the multiplier lambda against y,
-   the active pairs shaded (:func:`ddstudies.report.contact_plots.contact_line`).
+3. along the contact line Gamma_c (bottom, the full width): u^1, u^2 and the
+   multiplier lambda against y, the active pairs shaded (:func:`ddstudies.report.contact_plots.contact_line`).
 
 Uses the non-interactive Agg backend.
 """
@@ -87,7 +87,7 @@ def subdomain_boundaries(triangles: np.ndarray, subdomain: np.ndarray) -> np.nda
 
 def plot_unstructured_contact(problem: Any, solution: Any, path: str | os.PathLike | None, *,
                               title: str | None = None) -> Any:
-    """Partition, solution with subdomain boundaries and active set, and Gamma_c (three panels); the figure.
+    """Partition and solution (top), Gamma_c (bottom): three panels; the figure.
 
     Parameters
     ----------
@@ -102,8 +102,9 @@ def plot_unstructured_contact(problem: Any, solution: Any, path: str | os.PathLi
     """
     mesh = mesh_solution(problem, solution.u)
     line: pd.DataFrame = contact_line(problem, solution)
-    fig, axes = plt.subplots(1, 3, figsize=(16, 5), gridspec_kw={"width_ratios": [1.35, 1.6, 1.0]})
-    ax_part, ax_u, ax_line = axes
+    fig = plt.figure(figsize=(13, 9.5))
+    grid = fig.add_gridspec(2, 2, height_ratios=[1.0, 0.8], width_ratios=[1.0, 1.12])
+    ax_part, ax_u, ax_line = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, :])
     n_sub = int(mesh.subdomain.max()) + 1
     # a permutation of the subdomain ids, so that neighbours rarely share a colour of the cyclic map
     colours = np.random.default_rng(0).permutation(n_sub)[mesh.subdomain] % 20
@@ -112,7 +113,7 @@ def plot_unstructured_contact(problem: Any, solution: Any, path: str | os.PathLi
     ax_part.set_title(f"METIS partition: {n_sub} subdomains, {len(mesh.triangles):,} triangles")
     tpc = ax_u.tripcolor(mesh.x, mesh.y, mesh.triangles, mesh.u, shading="gouraud", cmap="viridis")
     ax_u.tricontour(mesh.x, mesh.y, mesh.triangles, mesh.u, levels=12, colors="white", linewidths=0.4, alpha=0.6)
-    fig.colorbar(tpc, ax=ax_u, fraction=0.04, pad=0.02, label="u")
+    fig.colorbar(tpc, ax=ax_u, fraction=0.03, pad=0.02, label="u")
     edges = subdomain_boundaries(mesh.triangles, mesh.subdomain)
     from matplotlib.collections import LineCollection
 
@@ -143,7 +144,7 @@ def plot_unstructured_contact(problem: Any, solution: Any, path: str | os.PathLi
     twin.set_ylabel("$\\lambda$ (contact pressure)")
     handles = ax_line.get_legend_handles_labels()
     more = twin.get_legend_handles_labels()
-    ax_line.legend(handles[0] + more[0], handles[1] + more[1], fontsize=8, loc="lower left")
+    ax_line.legend(handles[0] + more[0], handles[1] + more[1], fontsize=8, loc="center right")
     ax_line.set_title(f"$\\Gamma_c$: {int(active.sum())} of {len(line)} pairs active (shaded)")
     ax_line.grid(True, alpha=0.3)
     if title:
