@@ -25,8 +25,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -339,6 +340,6 @@ def require_points(cond_law: Mapping[str, Any]) -> None:
                                  f" values for its fit")
 
 
-__all__: Sequence[str] = ["CondCase", "SWEEPS", "sweep_points", "cond_cases", "case_spec", "fit_line", "fit_parts",
-                          "fit_log_law", "cond_table", "cond_law_summary", "cond_law_markdown", "plot_cond_law",
-                          "require_points"]
+__all__: Sequence[str] = ["SWEEPS", "CondCase", "case_spec", "cond_cases", "cond_law_markdown", "cond_law_summary",
+                          "cond_table", "fit_line", "fit_log_law", "fit_parts", "plot_cond_law", "require_points",
+                          "sweep_points"]
