@@ -44,6 +44,8 @@ def test_parts_fit_and_last_step():
     assert fit.cond.a == pytest.approx(2.0) and fit.cond.b == pytest.approx(0.25) and fit.cond.r2 == pytest.approx(1)
     assert fit.last_step == pytest.approx((2 + 0.25 * math.log(256)) / (2 + 0.25 * math.log(64)))
     assert fit.iterations_ratio == pytest.approx(1.3) and fit.parts == (4, 256) and fit.h_ratio == (16.0, 16.3)
+    limit = fit_parts(rows.assign(cond=4.0 - 2.0 / np.sqrt(P))).limit     # levels off at 4
+    assert limit.a == pytest.approx(4.0) and limit.b == pytest.approx(-2.0) and limit.r2 == pytest.approx(1.0)
     line = fit_line([1, 2, 3], [1, 3, 5])
     assert (line.a, line.b, line.n_points) == (pytest.approx(-1), pytest.approx(2), 3)
 
@@ -99,7 +101,7 @@ def test_summary_table_fits_and_markdown(tmp_path):
     assert set(summary["parts_fits"]) == {("fetidp", "vertices"), ("bddc", "vertices")}
     text = cond_law_markdown(summary)
     assert "## H/h about fixed, P growing" in text and "## P fixed, H/h growing" in text
-    assert "1.200 + 0.1000 x^2" in text
+    assert "1.200 + 0.1000 x^2" in text and "/ sqrt(P)" in text
     fig = plot_cond_law(summary, None)
     assert len(fig.axes) == 2
     plot_cond_law(summary, tmp_path / "law.png")

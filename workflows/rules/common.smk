@@ -366,7 +366,7 @@ if KIND == "unstructured":
     # every case (and the figure) is a valid ProblemSpec that fits the machine, before any job runs
     COND_SIZES = checked_cases(COND_SPECS.items())
     if "contact_figure" in config:
-        checked_cases([("contact_figure", unstructured_figure_spec())])
+        FIGURE_SIZE = checked_cases([("contact_figure", unstructured_figure_spec())])["contact_figure"]
 
 
 # --- kind stress (stress.smk) ---------------------------------------------------------------

@@ -152,8 +152,8 @@ rule unstructured_contact_figure:
     threads: 1
     resources:
         tasks=1,
-        mem_mb=REPORT_MEM_MB,
-        runtime=REPORT_RUNTIME,
+        mem_mb=lambda wc: studies_workflow.case_mem_mb(FIGURE_SIZE),
+        runtime=lambda wc: studies_workflow.case_runtime(FIGURE_SIZE),
     conda:
         "../envs/ddsolve.yaml"
     script:

@@ -8,10 +8,13 @@ preconditioned operator's condition number from the PCG coefficients):
 
 * ``fixed_Hh``: H/h about constant, the number of subdomains P growing
   (``refine`` r and ``parts`` P grow together, P ~ 4^r, so that the dofs per
-  subdomain stay about the same). Theory (Lee 2009, Section 2; the FETI-DP and
-  BDDC bound kappa <= C (1 + log(H/h))^2 does not depend on P): cond and
-  iterations level off. Fitted: cond = a + b log P (least squares), with
-  max/min of cond over the sweep.
+  subdomain stay about the same). Theory (Lee 2009, Sections 2.6 and 2.7: the
+  FETI-DP and BDDC bound kappa <= C (1 + log(H/h))^2, C independent of H and h,
+  hence of P at fixed H/h): cond and iterations level off. Fitted: cond = a + b log P (least squares), with
+  max/min of cond over the sweep, and cond = c_inf - d / sqrt(P): the share
+  of subdomains that touch the Dirichlet boundary (and so are not floating)
+  falls like 1 / sqrt(P) for a square split into P compact parts, and c_inf is
+  the value cond levels off at.
 * ``fixed_P``: P fixed, the mesh refined (H/h growing). Fitted:
   cond = C (1 + log(H/h))^2 (least squares for C), cond = a + C (1 + log(H/h))^2,
   and the free exponent p of cond = c (1 + log(H/h))^p (a line in log-log).
@@ -120,6 +123,7 @@ class PartsFit:
     """Sweep ``fixed_Hh``: cond and iterations against P."""
 
     cond: LineFit            # cond = a + b log P
+    limit: LineFit           # cond = c_inf - d / sqrt(P): a = c_inf, b = -d
     iterations: LineFit      # iterations = a + b log P
     cond_ratio: float        # max cond / min cond over the sweep
     iterations_ratio: float  # max / min iterations
@@ -129,11 +133,15 @@ class PartsFit:
 
 
 def fit_parts(rows: pd.DataFrame) -> PartsFit:
-    """cond = a + b log P and iterations = a + b log P on the rows of one method (columns parts, cond, iterations)."""
+    """cond = a + b log P, cond = c_inf - d / sqrt(P) and iterations = a + b log P on the rows of one method.
+
+    ``rows`` has the columns parts, cond, iterations and H_over_h.
+    """
     rows = rows.sort_values("parts")
     logp = np.log(rows["parts"].astype(float))
     cond, its = rows["cond"].astype(float), rows["iterations"].astype(float)
-    return PartsFit(cond=fit_line(logp, cond), iterations=fit_line(logp, its),
+    return PartsFit(cond=fit_line(logp, cond), limit=fit_line(1.0 / np.sqrt(rows["parts"].astype(float)), cond),
+                    iterations=fit_line(logp, its),
                     cond_ratio=float(cond.max() / cond.min()), iterations_ratio=float(its.max() / its.min()),
                     last_step=float(cond.iloc[-1] / cond.iloc[-2]),
                     parts=(int(rows["parts"].min()), int(rows["parts"].max())),
@@ -245,15 +253,19 @@ def cond_law_markdown(summary: Mapping[str, Any]) -> str:
     if summary["parts_fits"]:
         lines += ["", f"## {SWEEP_TITLES['fixed_Hh']}: cond = a + b log P", "",
                   "| method | primal | P | H/h | a | b | R^2 | cond max/min | cond last step | "
-                  "iterations a + b log P | iterations max/min |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "c_inf - d / sqrt(P) | R^2 | iterations a + b log P | iterations max/min |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for (method, primal), fit in summary["parts_fits"].items():
             lines.append(f"| {method} | {primal} | {fit.parts[0]}..{fit.parts[1]} | "
                          f"{fit.h_ratio[0]:.1f}..{fit.h_ratio[1]:.1f} | {fit.cond.a:.3f} | {fit.cond.b:.3f} | "
-                         f"{fit.cond.r2:.2f} | {fit.cond_ratio:.2f} | {fit.last_step:.2f} | {fit.iterations.a:.1f} + "
+                         f"{fit.cond.r2:.2f} | {fit.cond_ratio:.2f} | {fit.last_step:.2f} | "
+                         f"{fit.limit.a:.3f} - {-fit.limit.b:.3f} / sqrt(P) | {fit.limit.r2:.2f} | "
+                         f"{fit.iterations.a:.1f} + "
                          f"{fit.iterations.b:.2f} log P | {fit.iterations_ratio:.2f} |")
         lines += ["", "cond last step: cond at the largest P over cond at the next smaller P of the sweep; 1 "
                   "where cond has levelled off. With few subdomains none or few are floating (all touch the "
-                  "Dirichlet boundary), which keeps the first points low."]
+                  "Dirichlet boundary), which keeps the first points low; their share falls like 1 / sqrt(P), "
+                  "and c_inf of the fit c_inf - d / sqrt(P) is the value cond levels off at."]
     if summary["log_fits"]:
         lines += ["", f"## {SWEEP_TITLES['fixed_P']}: cond against x = 1 + log(H/h)", "",
                   "| method | primal | C of C x^2 | R^2 | a + C x^2 | R^2 | p of c x^p | R^2 | points |",
@@ -268,7 +280,7 @@ def cond_law_markdown(summary: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-_COLORS = {"fetidp": "tab:blue", "bddc": "tab:cyan"}
+_COLORS = {"fetidp": "tab:blue", "bddc": "tab:orange"}
 
 
 def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
@@ -290,6 +302,9 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
         if fit:
             p = np.geomspace(rows["parts"].min(), rows["parts"].max(), 50)
             ax_p.plot(p, fit.cond.a + fit.cond.b * np.log(p), "--", color=color)
+            ax_p.plot(p, fit.limit.a + fit.limit.b / np.sqrt(p), "-", color=color, alpha=0.6,
+                      label=f"{method}: {fit.limit.a:.2f} - {-fit.limit.b:.2f} / sqrt(P) (R^2 {fit.limit.r2:.2f})")
+            ax_p.axhline(fit.limit.a, color=color, lw=0.6, alpha=0.4)
         ax_p.plot(rows["parts"], rows["iterations"] / 10.0, marker=marker, linestyle=":", color=color,
                   alpha=0.5, label=f"{method} ({primal}) iterations / 10")
     ax_p.set_xscale("log", base=2)
