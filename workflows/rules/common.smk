@@ -316,11 +316,57 @@ def unstructured_case(wildcards):
             "seed": int(config.get("seed", 0))}
 
 
+def unstructured_cond_files(wildcards=None):
+    """The result files of the condition-number sweeps (config `cond_law`; none without it)."""
+    return list(COND_SPECS)
+
+
+def unstructured_cond_spec(wildcards):
+    """The ProblemSpec mapping of one condition-number case (a params value)."""
+    return COND_SPECS[f"results/{STUDY}/cond/{wildcards.method}/{wildcards.stem}.h5"]
+
+
+def unstructured_cond_size(wildcards):
+    return COND_SIZES[f"results/{STUDY}/cond/{wildcards.method}/{wildcards.stem}.h5"]
+
+
+def unstructured_figure_spec(wildcards=None):
+    """The ProblemSpec mapping of the contact figure (config `contact_figure`)."""
+    fig = config["contact_figure"]
+    return {"problem": "contact", "mesh": "unstructured", "maxh": float(fig["maxh"]), "refine": int(fig["refine"]),
+            "parts": int(fig["parts"]), "method": fig["method"], "rtol": float(fig["rtol"])}
+
+
+def unstructured_report_files():
+    """The reports of an unstructured study: the timing series, the cond law and the contact figure."""
+    files = [f"reports/{STUDY}/{name}" for name in ("unstructured.png", "unstructured.csv", "unstructured.md")]
+    if "cond_law" in config:
+        files += [f"reports/{STUDY}/{name}" for name in ("cond_law.md", "cond_law.csv", "cond_law.png")]
+    if "contact_figure" in config:
+        files.append(f"reports/{STUDY}/contact_solution.png")
+    return files
+
+
 if KIND == "unstructured":
     for _problem, _series in config["problems"].items():
         if not isinstance(_series["parts"], int) and len(_series["parts"]) != len(_series["refine"]):
             raise WorkflowError(f"invalid config: problems: {_problem}: parts: {len(_series['parts'])} values for "
                                 f"{len(_series['refine'])} refinements")
+    COND_SPECS = {}
+    if "cond_law" in config:
+        from ddstudies.bench import cond_law as studies_cond_law
+
+        _law = config["cond_law"]
+        try:
+            studies_cond_law.require_points(_law)
+            COND_SPECS = {f"results/{STUDY}/cond/{case.method}/{case.stem}.h5": studies_cond_law.case_spec(
+                case, rtol=_law["rtol"], maxiter=_law["maxiter"]) for case in studies_cond_law.cond_cases(_law)}
+        except ValueError as err:
+            raise WorkflowError(f"invalid config: cond_law: {err}") from None
+    # every case (and the figure) is a valid ProblemSpec that fits the machine, before any job runs
+    COND_SIZES = checked_cases(COND_SPECS.items())
+    if "contact_figure" in config:
+        FIGURE_SIZE = checked_cases([("contact_figure", unstructured_figure_spec())])["contact_figure"]
 
 
 # --- kind stress (stress.smk) ---------------------------------------------------------------
@@ -385,7 +431,7 @@ def targets():
     if KIND == "ngsolve":
         return [f"reports/{STUDY}/ngsolve.md", f"reports/{STUDY}/ngsolve.png", f"results/{STUDY}/ngsolve.csv"]
     if KIND == "unstructured":
-        return [f"reports/{STUDY}/{name}" for name in ("unstructured.png", "unstructured.csv", "unstructured.md")]
+        return unstructured_report_files()
     return [f"reports/{STUDY}/stress.md", f"results/{STUDY}/stress.csv"]
 
 
@@ -403,3 +449,7 @@ elif KIND == "scaling":
     check_result_files(scaling_case_files(), f"results/{STUDY}/summary.csv",
                        [path for path in targets() if not path.endswith("profile.txt")],
                        manifest=f"results/{STUDY}/summary.sha256")
+elif KIND == "unstructured" and COND_SPECS:
+    check_result_files(unstructured_cond_files(), f"results/{STUDY}/cond/summary.csv",
+                       [f"reports/{STUDY}/cond_law.{ext}" for ext in ("md", "csv", "png")],
+                       manifest=f"results/{STUDY}/cond/summary.sha256")

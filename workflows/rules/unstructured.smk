@@ -5,6 +5,12 @@
 #   results/<study>/summary.csv                  all jobs
 #   reports/<study>/unstructured.csv, .md        table (ratios to the direct peer), exponent fits, targets
 #   reports/<study>/unstructured.png             time against dofs
+# With config `cond_law` (condition numbers on METIS partitions, ddstudies.bench.cond_law):
+#   results/<study>/cond/<method>/h<maxh>_r<refine>_P<parts>.h5   one solve (ddsolve.solve, cond=True)
+#   results/<study>/cond/summary.csv, summary.sha256              every case, validated (aggregate.py)
+#   reports/<study>/cond_law.md, .csv, .png                       table, fitted laws, log plot
+# With config `contact_figure`:
+#   reports/<study>/contact_solution.png         one contact solution, its METIS partition and active set
 
 
 rule unstructured:
@@ -71,3 +77,84 @@ rule unstructured_plot:
         "../envs/ddsolve.yaml"
     script:
         "../scripts/unstructured_plot.py"
+
+
+rule unstructured_cond_case:
+    output:
+        f"results/{STUDY}/cond/{{method}}/{{stem}}.h5",
+    wildcard_constraints:
+        method="fetidp|bddc",
+        stem=r"h[0-9.e+-]+_r\d+_P\d+(_[a-z-]+)?",
+    params:
+        spec=unstructured_cond_spec,
+    log:
+        f"logs/{STUDY}/cond/{{method}}/{{stem}}.log",
+    threads: 1
+    resources:
+        tasks=1,
+        mem_mb=lambda wc: studies_workflow.case_mem_mb(unstructured_cond_size(wc)),
+        runtime=lambda wc: studies_workflow.case_runtime(unstructured_cond_size(wc)),
+    conda:
+        "../envs/ddsolve.yaml"
+    script:
+        "../scripts/solve_case.py"
+
+
+rule unstructured_cond_aggregate:
+    input:
+        unstructured_cond_files,
+    output:
+        summary=f"results/{STUDY}/cond/summary.csv",
+        manifest=f"results/{STUDY}/cond/summary.sha256",
+    log:
+        f"logs/{STUDY}/cond/aggregate.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
+    conda:
+        "../envs/ddsolve.yaml"
+    script:
+        "../scripts/aggregate.py"
+
+
+rule unstructured_cond_law:
+    input:
+        f"results/{STUDY}/cond/summary.csv",
+    output:
+        markdown=report(f"reports/{STUDY}/cond_law.md", caption="../report/unstructured_cond_table.rst",
+                        category="Unstructured meshes"),
+        table=f"reports/{STUDY}/cond_law.csv",
+        plot=report(f"reports/{STUDY}/cond_law.png", caption="../report/unstructured_cond_plot.rst",
+                    category="Unstructured meshes"),
+    params:
+        cond_law=config.get("cond_law", {}),
+    log:
+        f"logs/{STUDY}/cond/law.log",
+    resources:
+        tasks=1,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
+    conda:
+        "../envs/ddsolve.yaml"
+    script:
+        "../scripts/unstructured_cond_law.py"
+
+
+rule unstructured_contact_figure:
+    output:
+        report(f"reports/{STUDY}/contact_solution.png", caption="../report/unstructured_contact.rst",
+               category="Unstructured meshes"),
+    params:
+        spec=unstructured_figure_spec,
+    log:
+        f"logs/{STUDY}/contact_figure.log",
+    threads: 1
+    resources:
+        tasks=1,
+        mem_mb=lambda wc: studies_workflow.case_mem_mb(FIGURE_SIZE),
+        runtime=lambda wc: studies_workflow.case_runtime(FIGURE_SIZE),
+    conda:
+        "../envs/ddsolve.yaml"
+    script:
+        "../scripts/unstructured_contact_figure.py"
