@@ -105,6 +105,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..dd.projection import Projection
+from ..krylov.convergence import norm2
 from ..multibody.fetifeti import FetiFetiSolver
 from ..qp import estimate_norm, smalbe
 from ..qp.result import QPResult
@@ -147,6 +148,11 @@ class DualProblem:
         -e~: the load on Omega^2 that sum(lambda) must carry (> 0).
     n_F : list of int
         One-element counter of products with F.
+    F_scale : float
+        The coefficient scale of F = B A~^+ B^T: 1 / min rho (F ~ 1/rho; 1 for rho = 1). Converts
+        the dual's displacements into forces (``||b|| / F_scale``) and sets the defaults of the
+        absolute SMALBE parameters (:func:`ddsolve.contact.smalbe_dual.solve_contact_smalbe`), so
+        that they follow rho -> s rho.
     """
 
     problem: ContactProblem
@@ -162,6 +168,7 @@ class DualProblem:
     e_tilde: float
     net_load: float
     n_F: list = field(default_factory=lambda: [0])
+    F_scale: float = 1.0
 
     @property
     def n(self) -> int:
@@ -209,13 +216,17 @@ def dualize(problem: ContactProblem, solver: FetiFetiSolver) -> DualProblem | st
     kernel = solver.R.toarray().ravel()                       # (n_W,) constants on Omega^2
     G_tilde = np.asarray(B @ kernel).ravel()                  # (n_lambda,)
     e_tilde = float(kernel @ sub.f_W)
-    norm_G_tilde = float(np.linalg.norm(G_tilde))
+    norm_G_tilde = norm2(G_tilde)
     if norm_G_tilde == 0.0 or not e_tilde < 0.0:
         return (f"the floating body is not pressed onto the contact interface "
                 f"(R^T f_W = {e_tilde:.3g}, ||G~|| = {norm_G_tilde:.3g})")
+    rho = np.asarray(sub.rho, dtype=float)
+    rho_min = float(rho.min()) if rho.size else 1.0
+    F_scale = 1.0 / rho_min if rho_min > 0.0 and math.isfinite(1.0 / rho_min) else 1.0
     return DualProblem(problem=problem, solver=solver, B=B, BT=B.T.tocsr(), B_contact=B_contact,
                        n_local=solver.B_loc.shape[0], n_contact=B_contact.shape[0], kernel=kernel,
-                       G=G_tilde / norm_G_tilde, e=e_tilde / norm_G_tilde, e_tilde=e_tilde, net_load=-e_tilde)
+                       G=G_tilde / norm_G_tilde, e=e_tilde / norm_G_tilde, e_tilde=e_tilde, net_load=-e_tilde,
+                       F_scale=F_scale)
 
 
 @dataclass
@@ -321,7 +332,7 @@ def enforce(homogeneous: HomogeneousProblem, rho_bar: float | None) -> EnforcedP
 
     return EnforcedProblem(homogeneous=homogeneous, projection=P,
                            hessian=spla.LinearOperator((n, n), matvec=hessian, rmatvec=hessian, dtype=np.float64),
-                           equality=sp.csr_matrix(G[None, :]), b=b, norm_b=float(np.linalg.norm(b)),
+                           equality=sp.csr_matrix(G[None, :]), b=b, norm_b=norm2(b),
                            norm_PFP=norm_PFP, n_norm_estimate=n_est, rho_bar=rho_bar)
 
 
@@ -330,10 +341,10 @@ def solve_enforced(enforced: EnforcedProblem, *, eps: float, M: float, rho0: flo
                    ) -> tuple[QPResult, float | None]:
     """SMALBE (Figure 6.7) with MPRGP inner solves (Figure 6.6) on (6.17).
 
-    Stopping rule ||g^P|| <= eps ||b|| and ||G lambda|| <= eps min(||b||, ||e||) (module
-    docstring, "Stopping rule"; ``equality_rule="min"``) or ||G lambda|| <= eps ||b||
-    (``"section-6.4"``, as printed); steplength from
-    ``norm_A = NORM_SAFETY max(||P F P||, rho_bar)``.
+    Stopping rule ||g^P|| <= eps ||b|| and ||G lambda|| <= eps min(||b|| / F_scale, ||e||)
+    (:mod:`ddsolve.contact.smalbe_dual`, "Stopping rule"; ``equality_rule="min"``; ||b|| / F_scale
+    is the displacement ||b|| in force units, ||b|| for rho = 1) or ||G lambda|| <= eps ||b||
+    (``"section-6.4"``, as printed); steplength from ``norm_A = NORM_SAFETY max(||P F P||, rho_bar)``.
 
     Returns
     -------
@@ -345,7 +356,8 @@ def solve_enforced(enforced: EnforcedProblem, *, eps: float, M: float, rho0: flo
         Invalid SMALBE parameters.
     """
     e = enforced.homogeneous.dual.e
-    tol_eq = eps * min(enforced.norm_b, abs(e)) if isinstance(eps, numbers.Real) and math.isfinite(eps) else 0.0
+    b_force = enforced.norm_b / enforced.homogeneous.dual.F_scale
+    tol_eq = eps * min(b_force, abs(e)) if isinstance(eps, numbers.Real) and math.isfinite(eps) else 0.0
     tol_eq = tol_eq if tol_eq > 0.0 else None              # invalid eps: smalbe reports it; b = 0: its rule
     if equality_rule == "section-6.4":
         tol_eq = None                                      # smalbe's own rule: eps ||b||

@@ -8,9 +8,18 @@ Problem (6.17) is solved by :func:`ddsolve.qp.smalbe` (Figure 6.7) for the equal
 G lambda = 0 with MPRGP inner solves (Figure 6.6), M = 1, rho_0 = 30,
 Gamma = 1, eps = 1e-5 (Section 6.4). Choices not stated in the thesis:
 
+* Units. M, rho_0 and rho_bar are absolute numbers in the units of
+  F = B A~^+ B^T (~ 1/rho), and ||b|| is a displacement while G lambda is a
+  force. With F_scale = 1 / min rho (:class:`~ddsolve.contact.smalbe_chain.DualProblem`,
+  1 for rho = 1) the defaults are M = F_scale, rho_0 = 30 F_scale,
+  rho_bar = F_scale, and ||b|| enters the equality rule below as the force
+  ||b|| / F_scale: the default run is invariant under rho -> s rho and
+  f -> t f (same iterations, u -> (t/s) u, lambda -> t lambda), and for
+  rho = 1 it is the run with the thesis's numbers. Explicit values are used
+  as given.
 * Stopping rule. Section 6.4 stops when ||g^P|| <= eps ||b|| and
   ||G lambda|| <= eps ||b||, b = P d. We keep the first and tighten the
-  second to ||G lambda|| <= eps min(||b||, ||e||), ||e|| = |e~| / sqrt(n_c)
+  second to ||G lambda|| <= eps min(||b|| / F_scale, ||e||), ||e|| = |e~| / sqrt(n_c)
   the right-hand side of G lambda = e in (6.15) (a relative residual of
   that equation). Reason: G lambda is the force imbalance of the floating
   body, -||G~|| G lambda = R^T (f_W - B^T (lambda + lambda~)), and the
@@ -24,7 +33,7 @@ Gamma = 1, eps = 1e-5 (Section 6.4). Choices not stated in the thesis:
   the same defect gave KKT stationarity 6e-5..3e-3 and lambda errors up to
   5e-3. ``feas_tol`` of :func:`ddsolve.qp.smalbe` carries the tighter value;
   SMALBE itself (Figure 6.7) is unchanged.
-* rho_bar = 1 (default; ``rho_bar=`` overrides, ``None`` takes the ARPACK
+* rho_bar = 1 F_scale (default; ``rho_bar=`` overrides, ``None`` takes the ARPACK
   estimate of ||P F P||, the previous default). Without bounds the equality
   part of an outer iteration contracts G lambda by rho_bar / (rho_bar + rho),
   so rho_bar = ||P F P|| (~100-400 here) against rho_0 = 30 needs 5-20
@@ -110,14 +119,21 @@ from .smalbe_chain import (
     solve_enforced,
 )
 
-__all__ = ["solve_contact_smalbe", "DEFAULT_RHO_BAR", "FORCE_FACTOR", "STATIONARITY_FACTOR", "EQUALITY_RULES",
+__all__ = ["solve_contact_smalbe", "DEFAULT_M", "DEFAULT_RHO0", "DEFAULT_RHO_BAR", "RELATIVE", "FORCE_FACTOR", "STATIONARITY_FACTOR", "EQUALITY_RULES",
            "ACCEPTANCE", "POLISH_MAXITER", "NORM_SAFETY", "DualProblem", "dualize", "HomogeneousProblem",
            "homogenize", "EnforcedProblem", "enforce", "solve_enforced", "RecoveredSolution", "map_back"]
 
 log = logging.getLogger(__name__)
 
-#: Default rho_bar of (6.17) (the thesis: any positive constant; module docstring).
+#: Defaults of SMALBE's absolute parameters, in units of F = B A~^+ B^T (times ``F_scale`` =
+#: 1 / min rho, :class:`~ddsolve.contact.smalbe_chain.DualProblem`; the values themselves for rho = 1):
+#: the precision control M and the initial penalty rho_0 of Section 6.4, and rho_bar of (6.17)
+#: (the thesis: any positive constant; module docstring).
+DEFAULT_M = 1.0
+DEFAULT_RHO0 = 30.0
 DEFAULT_RHO_BAR = 1.0
+#: ``rho_bar`` value selecting the default DEFAULT_RHO_BAR F_scale.
+RELATIVE = "relative"
 #: Acceptance check: |sum(lambda) - net load| <= FORCE_FACTOR eps net load.
 FORCE_FACTOR = 10.0
 #: Acceptance check: relative KKT stationarity (ContactProblem.kkt) <= STATIONARITY_FACTOR eps.
@@ -138,9 +154,10 @@ POLISH_MAXITER = 100
 
 
 
-def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float = 1.0, rho0: float = 30.0,
+def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float | None = None,
+                         rho0: float | None = None,
                          Gamma: float = 1.0, maxiter: int | None = None,
-                         solver: FetiFetiSolver | None = None, rho_bar: float | None = DEFAULT_RHO_BAR,
+                         solver: FetiFetiSolver | None = None, rho_bar: float | str | None = RELATIVE,
                          polish: bool | str = "auto", max_outer: int = 100,
                          equality_rule: str = "min", acceptance: str = "enforce") -> ContactSolution:
     """Solve (3.1) by SMALBE/MPRGP on the FETI-DP dual (6.17) (thesis Section 6.4).
@@ -159,19 +176,25 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         G lambda = e in (6.15), the net load on Omega^2 / sqrt(n_c): this bounds
         the contact force error by ``eps`` times the net load). Also the
         tolerance of the acceptance check (``FORCE_FACTOR eps``).
-    M, rho0, Gamma : float
-        SMALBE precision control constant, initial penalty and MPRGP proportioning
-        parameter (Section 6.4: 1, 30, 1).
+    M, rho0 : float, optional
+        SMALBE precision control constant and initial penalty (Section 6.4: 1 and 30).
+        They are absolute numbers in the units of F = B A~^+ B^T (~ 1/rho); the defaults
+        (None) are :data:`DEFAULT_M` and :data:`DEFAULT_RHO0` times ``F_scale`` = 1 / min rho
+        (the thesis's 1 and 30 for rho = 1), so that the default run is invariant under
+        rho -> s rho. An explicit value is used as given (its meaning is absolute).
+    Gamma : float
+        MPRGP proportioning parameter (Section 6.4: 1; dimensionless).
     maxiter : int, optional
         Maximum total number of MPRGP steps (default of :func:`ddsolve.qp.smalbe`,
         ``max(200, 20 n_lambda)``).
     solver : FetiFetiSolver, optional
         Prebuilt FETI-FETI operators of ``problem.sub`` / ``problem.gi`` (their
         factorizations are reused); built here when not given.
-    rho_bar : float or None
-        The constant rho_bar > 0 of (6.17) (default :data:`DEFAULT_RHO_BAR` = 1);
-        ``None``: the estimate of ||P F P|| (the default before; slower: the
-        equality part contracts by rho_bar / (rho_bar + rho) per outer iteration).
+    rho_bar : float, "relative" or None
+        The constant rho_bar > 0 of (6.17): ``"relative"`` (default) :data:`DEFAULT_RHO_BAR`
+        ``F_scale`` (1 for rho = 1); a number: that absolute value; ``None``: the estimate
+        of ||P F P|| (the default before; slower: the equality part contracts by
+        rho_bar / (rho_bar + rho) per outer iteration).
     polish : {"auto", True, False}
         ``True``: after a converged SMALBE, solve the equality-constrained problem
         on the active set it found by FETI-FETI PCG (3.35), warm started from its
@@ -192,9 +215,10 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         Maximum number of SMALBE outer iterations.
     equality_rule : {"min", "section-6.4"}
         Equality part of the stopping rule: ``"min"`` (default)
-        ``||G lambda|| <= eps min(||b||, ||e||)``; ``"section-6.4"``
-        ``||G lambda|| <= eps ||b||`` as printed (the thesis preset, with
-        ``rho_bar=None`` and ``polish=False``).
+        ``||G lambda|| <= eps min(||b|| / F_scale, ||e||)`` (||b|| / F_scale: the
+        displacement ||b|| in force units, invariant under rho -> s rho; ||b|| for
+        rho = 1); ``"section-6.4"`` ``||G lambda|| <= eps ||b||`` as printed (the thesis
+        preset, with ``rho_bar=None`` and ``polish=False``; not invariant under rho -> s rho).
     acceptance : {"enforce", "report"}
         ``"enforce"`` (default): a result that fails the acceptance check (force
         balance, KKT stationarity) is ``converged=False``. ``"report"``: the
@@ -248,6 +272,13 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
     homogeneous = homogenize(dual)
     if isinstance(homogeneous, str):
         return _failure(problem, t0, homogeneous)
+    # absolute parameters in the units of F: the defaults follow its scale (F_scale = 1 for rho = 1)
+    M = DEFAULT_M * dual.F_scale if M is None else M
+    rho0 = DEFAULT_RHO0 * dual.F_scale if rho0 is None else rho0
+    if isinstance(rho_bar, str) and rho_bar == RELATIVE:
+        rho_bar = DEFAULT_RHO_BAR * dual.F_scale
+    elif isinstance(rho_bar, str):
+        return _failure(problem, t0, f"rho_bar must be a positive number, {RELATIVE!r} or None, got {rho_bar!r}")
     enforced = enforce(homogeneous, rho_bar)
     if isinstance(enforced, str):
         return _failure(problem, t0, enforced)
@@ -274,6 +305,7 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         "n_hessian": res.n_hessian, "n_cg": res.n_cg, "n_expansion": res.n_expansion,
         "n_proportioning": res.n_proportioning, "n_Fmult": dual.n_F[0], "n_norm_estimate": enforced.n_norm_estimate,
         "penalty": res.penalty, "rho_bar": rho_bar, "norm_PFP": enforced.norm_PFP, "alpha": res.alpha,
+        "M": M, "rho0": rho0, "F_scale": dual.F_scale,
         "lambda_tilde": float(homogeneous.lambda_tilde[-1]), "mu": res.mu, "rigid_alpha": rec.rigid_alpha,
         "norm_b": norm_b, "norm_e": abs(dual.e), "tol_equality": tol_eq, "net_load": net,
         "gradient_norms": res.gradient_norms, "constraint_norms": res.constraint_norms,
@@ -281,10 +313,13 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         "equality_defect": Gx, "setup_seconds": setup, "qp_seconds": res.seconds,
         "lambda": rec.lambda_balanced, "u_unpolished": rec.u, "lambda_unpolished": rec.lam_contact,
     }
-    converged, reason = _judge(problem, res, rec, enforced, eps, tol_eq, extra, enforce=acceptance == "enforce")
+    # ||b|| as a force for the equality part of Section 6.4's rule (literally ||b|| under the thesis's rule)
+    b_level = norm_b if equality_rule == "section-6.4" else norm_b / dual.F_scale
+    converged, reason = _judge(problem, res, rec, enforced, eps, tol_eq, extra, enforce=acceptance == "enforce",
+                               b_level=b_level)
     # the rule of Section 6.4 alone (||G lambda|| <= eps ||b||): met, but the contact force is not resolved
     gp_last = float(res.gradient_norms[-1]) if res.gradient_norms.size else math.inf
-    section_64 = gp_last <= eps * norm_b and abs(Gx) <= eps * norm_b
+    section_64 = gp_last <= eps * norm_b and abs(Gx) <= eps * b_level
     rescue = polish == "auto" and not converged and (section_64 or res.converged)
     refine = polish == "auto" and converged
     if (polish is True and converged or rescue or refine) and active.any():
@@ -315,16 +350,20 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
 
 
 def _judge(problem: ContactProblem, res: QPResult, rec: RecoveredSolution, enforced: EnforcedProblem,
-           eps: float, tol_eq: float | None, extra: dict, enforce: bool = True) -> tuple[bool, str]:
+           eps: float, tol_eq: float | None, extra: dict, enforce: bool = True,
+           b_level: float | None = None) -> tuple[bool, str]:
     """SMALBE's verdict, the note when only the rule of Section 6.4 is met, and the acceptance check.
 
     ``enforce=False``: a failed check is noted in the reason but leaves SMALBE's verdict.
+    ``b_level``: the bound on ||G lambda|| of that rule over eps (default ||b||; the default
+    rule passes ||b|| / F_scale, ||b|| in force units).
     """
     converged, reason = bool(res.converged), res.reason
     norm_b, Gx = enforced.norm_b, rec.equality_defect
+    b_level = norm_b if b_level is None else b_level
     net = enforced.homogeneous.dual.net_load
     gp_last = float(res.gradient_norms[-1]) if res.gradient_norms.size else math.inf
-    section_64 = gp_last <= eps * norm_b and abs(Gx) <= eps * norm_b
+    section_64 = gp_last <= eps * norm_b and abs(Gx) <= eps * b_level
     if not converged and section_64:
         reason = (f"SMALBE met the rule of Section 6.4 (||G lambda|| = {abs(Gx):.2e} <= eps ||b||) but not "
                   f"||G lambda|| <= eps ||e|| = {tol_eq or 0.0:.2e}: the contact force (net load {net:.3g}) "
