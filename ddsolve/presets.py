@@ -18,7 +18,9 @@ method, and :mod:`ddsolve.api`'s runners pass them on.
       (default: rtol max(||r_0||, ||F||), ``face_rtol_rule="initial"``), the initial
       active set {lambda_hat > 0} (default: {lambda_hat > 10 rtol max lambda_hat},
       ``initial_active="positive"``) and the removal of Figure 6.3, one blocking pair
-      per outer iteration (default: all negative multipliers at once, ``removal="blocking"``);
+      per outer iteration (default: all negative multipliers at once, ``removal="blocking"``),
+      face solves stopped in the plain ||.||_2 of Section 4.4 (default: the gaps weighted
+      by max rho, invariant under rho -> s rho and equal to it for rho = 1, ``face_norm="l2"``);
     - SMALBE (Section 6.4): the stopping rule ||g^P|| <= eps ||b||, ||G lambda|| <= eps ||b||
       (default: ||G lambda|| <= eps min(||b||, ||e||), ``equality_rule="section-6.4"``),
       rho_bar = ||P F P|| (default 1, ``rho_bar=None``), no FETI-FETI polish
@@ -41,7 +43,7 @@ THESIS_OPTIONS: dict[tuple[str, str], dict[str, Any]] = {
     ("poisson", "feti"): {"projection": "orthogonal"},
     ("multibody", "feti-feti"): {"projection": "orthogonal"},
     ("contact", "active-set"): {"face_rtol_rule": "initial", "initial_active": "positive",
-                                "removal": "blocking"},
+                                "removal": "blocking", "face_norm": "l2"},
     ("contact", "smalbe"): {"equality_rule": "section-6.4", "rho_bar": None, "polish": False},
 }
 

@@ -68,10 +68,13 @@ from .problem import ContactProblem
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ActiveSetHybrid", "solve_contact_active_set", "INITIAL_ACTIVE", "REMOVALS"]
+__all__ = ["ActiveSetHybrid", "solve_contact_active_set", "INITIAL_ACTIVE", "REMOVALS", "FACE_NORMS"]
 
 #: Initial active sets: {lambda^ > feasibility_tol max lambda^} (default) or {lambda^ > 0} (Chapter 5).
 INITIAL_ACTIVE: tuple[str, ...] = ("relative", "positive")
+#: Stopping norms of the face solves: l2 with the gaps weighted by max rho (default), Section 4.4's
+#: plain l2, or the preconditioner's M-norm (:meth:`ActiveSetHybrid.face_norm_options`).
+FACE_NORMS: tuple[str, ...] = ("scaled", "l2", "M")
 #: Removal rules for negative multipliers: all at once (default) or Figure 6.3's blocking pair.
 REMOVALS: tuple[str, ...] = ("all", "blocking")
 
@@ -125,6 +128,24 @@ class ActiveSetHybrid:
         """
         return scaled_jump(self.all_pairs.scaled_jump_gamma, self.hybrid.S_hat)(lam)
 
+    def face_norm_options(self, face_norm: str) -> dict[str, Any]:
+        """Keywords of :meth:`HybridSolver.solve` for a face solve's stopping norm.
+
+        ``"scaled"``: ``norm="l2"`` with ``multiplier_weight`` c = max_i rho_i, the
+        coefficient scale (||S^_c|| = O(max rho) for the 2D stiffness): the residual
+        (||r_u||^2 + c^2 ||r_lambda||^2)^{1/2} adds forces to forces, so the rule, and
+        with it every iteration count, is invariant under rho -> s rho and f -> t f.
+        For rho = 1 it is the thesis's ||.||_2 exactly (c = 1).
+        ``"l2"``: c = 1 at any rho (Section 4.4 as printed). ``"M"``: ``norm="M"``.
+        """
+        if face_norm == "M":
+            return {"norm": "M"}
+        if face_norm == "l2":
+            return {"norm": "l2"}
+        rho = np.asarray(self.problem.sub.rho, dtype=float)
+        c = float(rho.max()) if rho.size else 1.0
+        return {"norm": "l2", "multiplier_weight": c if c > 0.0 and np.isfinite(c) else 1.0}
+
     # ---------------------------------------------------------- initial guess
     def initial_multipliers(self, rtol: float = 1e-5, maxiter: int = 1000
                             ) -> tuple[np.ndarray, np.ndarray, KrylovResult, QPResult]:
@@ -161,7 +182,7 @@ class ActiveSetHybrid:
     def solve(self, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5, maxiter: int = 1000, max_outer: int = 50,
               feasibility_tol: float | None = None, removal: str = "all",
               forcing: float | None = None, face_rtol_rule: str = "max",
-              initial_active: str = "relative") -> ContactSolution:
+              initial_active: str = "relative", face_norm: str = "scaled") -> ContactSolution:
         """Run the active set method.
 
         Parameters
@@ -200,6 +221,12 @@ class ActiveSetHybrid:
             ``rtol_rule``): ``"max"`` (default) ||r_k|| <= rtol max(||r_0||, ||F||),
             so a warm start stops where a cold start would; ``"initial"``
             ||r_k|| <= rtol ||r_0|| (the thesis's rule, also for warm starts).
+        face_norm : {"scaled", "l2", "M"}
+            Norm of every face solve's stopping rule (:meth:`face_norm_options`):
+            ``"scaled"`` (default) ||.||_2 with the multiplier block (gaps, ~ 1/rho)
+            weighted by the coefficient scale max rho, invariant under rho -> s rho;
+            ``"l2"`` the plain ||.||_2 of Section 4.4 (the thesis preset), which adds
+            forces (~ rho) to displacements (~ 1/rho); ``"M"`` the preconditioner's norm.
         initial_active : {"relative", "positive"}
             The initial active set: ``"relative"`` (default)
             {lambda^_i > feasibility_tol max lambda^} (the projection by MPRGP
@@ -221,6 +248,9 @@ class ActiveSetHybrid:
             raise ValueError(f"face_rtol_rule must be one of {', '.join(RTOL_RULES)}, got {face_rtol_rule!r}")
         if initial_active not in INITIAL_ACTIVE:
             raise ValueError(f"initial_active must be one of {', '.join(INITIAL_ACTIVE)}, got {initial_active!r}")
+        if face_norm not in FACE_NORMS:
+            raise ValueError(f"face_norm must be one of {', '.join(FACE_NORMS)}, got {face_norm!r}")
+        face_norm_options = self.face_norm_options(face_norm)
         tol = 10.0 * rtol if feasibility_tol is None else float(feasibility_tol)
         h, n = self.hybrid, self.n_contact
         lam_star, lam_hat, kr0, qp = self.initial_multipliers(pcg_rtol, maxiter)
@@ -244,7 +274,8 @@ class ActiveSetHybrid:
             face_rtol = float(forcing) if loose else rtol
             sign_tol = max(tol, face_rtol) if loose else tol
             out = h.solve(active, rtol=face_rtol, maxiter=maxiter,
-                          x0={"u_gamma": u_k, "lambda": lam_k}, rtol_rule=face_rtol_rule)
+                                        x0={"u_gamma": u_k, "lambda": lam_k}, rtol_rule=face_rtol_rule,
+                          **face_norm_options)
             inner.append(int(out.krylov.iterations))
             face_tols.append(face_rtol)
             if not out.krylov.converged:
@@ -306,7 +337,8 @@ class ActiveSetHybrid:
 def solve_contact_active_set(problem: ContactProblem, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5,
                              maxiter: int = 1000, max_outer: int = 50,
                              solver: ActiveSetHybrid | None = None, removal: str = "all",
-                             face_rtol_rule: str = "max", initial_active: str = "relative") -> ContactSolution:
+                             face_rtol_rule: str = "max", initial_active: str = "relative",
+                             face_norm: str = "scaled") -> ContactSolution:
     """Solve (3.1) by the active set method with the hybrid method (Chapter 5).
 
     See :meth:`ActiveSetHybrid.solve` (``removal``, ``face_rtol_rule``, ``initial_active``:
@@ -315,4 +347,4 @@ def solve_contact_active_set(problem: ContactProblem, *, rtol: float = 1e-5, pcg
     """
     solver = solver if solver is not None else ActiveSetHybrid(problem)
     return solver.solve(rtol=rtol, pcg_rtol=pcg_rtol, maxiter=maxiter, max_outer=max_outer, removal=removal,
-                        face_rtol_rule=face_rtol_rule, initial_active=initial_active)
+                        face_rtol_rule=face_rtol_rule, initial_active=initial_active, face_norm=face_norm)

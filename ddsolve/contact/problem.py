@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd.substructure import Substructures
+from ..krylov.convergence import norm2
 from ..multibody.interface import GlobalInterface
 
 
@@ -135,6 +136,6 @@ class ContactProblem:
         dual = max(float((-lam).max(initial=0.0)), 0.0) / l_inf + 0.0 if l_inf > 0 else 0.0
         comp = abs(float((lam / l_one) @ (g / u_inf))) if l_one > 0 else 0.0   # no under/overflow of l_one u_inf
         contact = self.B.T @ lam
-        scale = max(float(np.linalg.norm(self.f) + np.linalg.norm(contact)), 1e-300)
-        stat = float(np.linalg.norm(self.K @ u - self.f + contact) / scale)
+        scale = norm2(self.f) + norm2(contact)                  # scaled norms: no under/overflow of squares
+        stat = norm2(self.K @ u - self.f + contact) / scale if scale > 0.0 else 0.0
         return KKTResiduals(feas, dual, comp, stat)

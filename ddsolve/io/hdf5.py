@@ -10,10 +10,14 @@ dictionary ``timings`` flattened to ``timings_mesh``, ``timings_partition``,
 ... attributes), the dataset ``/result/residuals`` and one dataset per
 list-valued entry.
 
-:func:`write_result` never leaves a partial file at the target path: it writes
-``.<name>.<pid>.<random>.tmp`` in the target's directory, flushes and fsyncs
-it, then renames it onto the target with :func:`os.replace` (atomic on POSIX);
-on any error the temporary file is removed and the target is left untouched.
+:func:`write_result` never leaves a partial file at the target path: it builds
+the file in memory (h5py's ``core`` driver without backing store), writes the
+image with plain Python file I/O to ``.<name>.<pid>.<random>.tmp`` in the
+target's directory, flushes and fsyncs it, then renames it onto the target with
+:func:`os.replace` (atomic on POSIX); on any error the temporary file is removed
+and the target is left untouched. libhdf5 itself never writes to the disk, so a
+full disk is an ordinary ``OSError`` of the byte write, not a failure (or a
+crash) inside the HDF5 library.
 A full disk (``ENOSPC``, ``EDQUOT``) is reported as one line,
 :class:`NoSpaceError` ``no space left on device writing <path>``.
 
@@ -249,25 +253,40 @@ def write_result(path: str | os.PathLike, spec: Any, result: Any, *, store_solut
     if store_solution and getattr(result, "u", None) is not None:
         solution = np.asarray(result.u)
 
+    # Build the file in memory (HDF5 "core" driver, no backing store) and write its bytes with plain
+    # file I/O: a full disk is then an ordinary OSError of os.write, never an error inside libhdf5
+    # (which could crash the process instead of reporting it).
+    with h5py.File(f"ddsolve-result-{uuid.uuid4().hex}.h5", "w", driver="core", backing_store=False,
+                   track_order=True) as h5:
+        h5.attrs["format"] = FORMAT
+        h5.attrs["format_version"] = np.int64(FORMAT_VERSION)
+        h5.attrs["ddsolve_version"] = ddsolve_version()
+        gparams = h5.create_group("params", track_order=True)
+        for key, val in param_attrs.items():
+            gparams.attrs[key] = val
+        gresult = h5.create_group("result", track_order=True)
+        for key, val in result_attrs.items():
+            gresult.attrs[key] = val
+        gresult.create_dataset("residuals", data=residuals, dtype=np.float64)
+        for key, arr in result_lists.items():
+            gresult.create_dataset(key, data=arr)
+        if solution is not None:
+            gresult.create_dataset("u", data=solution)
+        h5.flush()
+        image = h5.id.get_file_image()
     with atomic_target(path) as tmp:
-        with h5py.File(tmp, "x", track_order=True) as h5:
-            h5.attrs["format"] = FORMAT
-            h5.attrs["format_version"] = np.int64(FORMAT_VERSION)
-            h5.attrs["ddsolve_version"] = ddsolve_version()
-            gparams = h5.create_group("params", track_order=True)
-            for key, val in param_attrs.items():
-                gparams.attrs[key] = val
-            gresult = h5.create_group("result", track_order=True)
-            for key, val in result_attrs.items():
-                gresult.attrs[key] = val
-            gresult.create_dataset("residuals", data=residuals, dtype=np.float64)
-            for key, arr in result_lists.items():
-                gresult.create_dataset(key, data=arr)
-            if solution is not None:
-                gresult.create_dataset("u", data=solution)
-            h5.flush()
-        _fsync(tmp)
+        _write_bytes(tmp, image)
     return path
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    """Create ``path`` (exclusively) with ``data``, flushed and fsynced; OSError as the OS reports it."""
+    with open(path, "xb") as fh:
+        view = memoryview(data)
+        while view:                                  # os.write may write less than asked
+            view = view[fh.write(view):]
+        fh.flush()
+        os.fsync(fh.fileno())
 
 
 def _no_space(exc: BaseException) -> bool:

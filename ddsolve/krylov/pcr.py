@@ -46,7 +46,10 @@ __all__ = ["NORMS", "PCR", "pcr"]
 logger = logging.getLogger(__name__)
 
 #: ``|<z, A z>| <= _CR_PIVOT_TOL * ||z|| * ||A z||`` hands over to the three-term
-#: recurrence (the two-term CR would divide by a numerically zero pivot).
+#: recurrence (the two-term CR would divide by a numerically zero pivot). For
+#: ``norm="M"`` the norms are those of the M-geometry, ``||z||_{M^-1} = <r, M r>^{1/2}``
+#: and ``||A z||_M``, so the test is invariant under block scalings of the unknowns
+#: (rho -> s rho in a saddle-point system); see :func:`_pivot_vanishes`.
 _CR_PIVOT_TOL = 1e-8
 #: A negative ``<r, M r>`` within ``_ROUNDING * ||r|| ||M r||`` is rounding, not an
 #: indefinite ``M``: its square root is taken of the absolute value.
@@ -192,6 +195,21 @@ class PCR(KrylovSolver):
                               "or NaN/inf)")
 
 
+def _pivot_vanishes(st: PCR, rho: float, z: np.ndarray, az: np.ndarray, maz: np.ndarray | None) -> bool:
+    """Whether the CR pivot ``rho = <z, A z>`` is numerically zero (the cosine test of ``_CR_PIVOT_TOL``).
+
+    ``norm="l2"``: ``|rho| <= tol ||z||_2 ||A z||_2``. ``norm="M"`` (``maz = P M A z``):
+    ``|rho| <= tol <r, z>^{1/2} <A z, M A z>^{1/2}``, the Cauchy-Schwarz bound in the
+    M^{-1} / M pairing, which is invariant when the unknowns' blocks are scaled
+    differently (x -> D x, r -> D^{-1} r, M -> D M D): the l2 cosine is not, so a saddle
+    point system with rho -> s rho would switch recurrences at other iterations.
+    """
+    if maz is None:
+        return abs(rho) <= _CR_PIVOT_TOL * norm2(z) * norm2(az)
+    rz, am = float(np.dot(st.r, z)), float(np.dot(az, maz))
+    return abs(rho) <= _CR_PIVOT_TOL * math.sqrt(abs(rz)) * math.sqrt(abs(am))
+
+
 def _two_term(st: PCR) -> str:
     """Conjugate residual recurrences for ``M A`` in the ``M^{-1}`` inner product::
 
@@ -204,8 +222,9 @@ def _two_term(st: PCR) -> str:
         p_{k+1}   = z_{k+1} + beta_k p_k
         A p_{k+1} = A z_{k+1} + beta_k A p_k,   M A p_{k+1} = M (A p_{k+1})
 
-    One operator (``A z``) and one preconditioner (``M A p``) application per
-    iteration. ``z`` is ``st.z``, updated in place by :meth:`PCR.step`.
+    (``norm="M"``: ``M A p_{k+1} = M A z_{k+1} + beta_k M A p_k``, with ``M A z``
+    needed by the invariant pivot test, :func:`_pivot_vanishes`.) One operator
+    (``A z``) and one preconditioner application per iteration. ``z`` is ``st.z``, updated in place by :meth:`PCR.step`.
     Returns ``_SWITCH`` when ``rho`` is numerically zero.
     """
     if st.z is None:
@@ -216,11 +235,13 @@ def _two_term(st: PCR) -> str:
     if not math.isfinite(rho):
         st.reason = f"breakdown: non-finite <z, A z> at iteration {st.iterations + 1}"
         return BREAKDOWN
-    if abs(rho) <= _CR_PIVOT_TOL * norm2(z) * norm2(az):
+    m_geometry = st.norm == "M"
+    maz = st.precondition(az) if m_geometry else None
+    if _pivot_vanishes(st, rho, z, az, maz):
         return _SWITCH
     p = z.copy()
     ap = az
-    map_ = st.precondition(ap)
+    map_ = maz if m_geometry else st.precondition(ap)
     while True:
         den = float(np.dot(ap, map_))
         if not (den > 0.0 and math.isfinite(den)):
@@ -237,7 +258,8 @@ def _two_term(st: PCR) -> str:
         if not math.isfinite(rho_new):
             st.reason = f"breakdown: non-finite <z, A z> at iteration {st.iterations + 1}"
             return BREAKDOWN
-        if abs(rho_new) <= _CR_PIVOT_TOL * norm2(z) * norm2(az):
+        maz = st.precondition(az) if m_geometry else None
+        if _pivot_vanishes(st, rho_new, z, az, maz):
             return _SWITCH
         beta = rho_new / rho
         rho = rho_new
@@ -245,7 +267,11 @@ def _two_term(st: PCR) -> str:
         p += z
         ap *= beta
         ap += az
-        map_ = st.precondition(ap)
+        if m_geometry:                            # M A p = M A z + beta M A p (no extra M)
+            map_ *= beta
+            map_ += maz
+        else:
+            map_ = st.precondition(ap)
 
 
 def _three_term(st: PCR) -> str:

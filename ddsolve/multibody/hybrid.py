@@ -38,6 +38,7 @@ small dense matrix G^kT G^k.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -423,7 +424,8 @@ class HybridSolver:
     # ---------------------------------------------------------------- solve
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000,
               x0: Any = None, restart: int = 100, norm: str = "l2",
-              projection: str = "orthogonal", rtol_rule: str = "max") -> MethodOutput:
+              projection: str = "orthogonal", rtol_rule: str = "max",
+              multiplier_weight: float = 1.0) -> MethodOutput:
         """Solve the KKT system (4.2) on the active set Z^k: PCR on (4.5) with (4.11).
 
         The iteration runs on range(P_R) x V^k for (u_Gamma, mu) with
@@ -480,6 +482,15 @@ class HybridSolver:
             ``"initial"``: at ||r_n|| <= rtol ||r_0|| (Section 4.4 as printed, also
             for a warm start: the thesis preset, :mod:`ddsolve.presets`). The two
             agree for a zero initial guess (r_0 = F_k).
+        multiplier_weight : float
+            Weight c > 0 of the multiplier block in the stopping norm:
+            ``norm="l2"`` measures (||r_u||^2 + c^2 ||r_lambda||^2)^{1/2}. PCR runs
+            on D A D y = D b with D = diag(I, c I), x = D y, and the preconditioner
+            D^{-1} M D^{-1}: the same iterates in exact arithmetic, only the
+            stopping rule (and ``krylov``'s residuals) change. c = 1 (default) is
+            the thesis's ||.||_2; c ~ ||S^_c|| (e.g. the coefficient scale
+            max rho) balances forces r_u with displacements r_lambda and makes the
+            rule invariant under rho -> s rho (the active set method's default).
 
         Returns
         -------
@@ -528,10 +539,25 @@ class HybridSolver:
         xs = self._initial_guess(a, x0, lam0, proj)
         n = n_g + n_act
         setup = time.perf_counter() - t0
+        c = float(multiplier_weight)
+        if not (c > 0.0 and math.isfinite(c)):
+            raise ValueError(f"multiplier_weight must be positive and finite, got {multiplier_weight!r}")
+        if c != 1.0:                                            # D A D y = D b, x = D y, D = diag(I, c I)
+            A_c, M_c = A_op, M_op
+            d = np.r_[np.ones(n_g), np.full(n_act, c)]
+
+            def A_op(x: np.ndarray) -> np.ndarray:
+                return d * A_c(d * x)
+
+            def M_op(r: np.ndarray) -> np.ndarray:
+                return M_c(r / d) / d
+
+            b = d * b
+            xs = None if xs is None else xs / d
         kr = self._pcr(linear_operator(n, A_op), b, xs, linear_operator(n, M_op), rtol, maxiter, restart,
                        norm=norm, relative_to_rhs=rtol_rule == "max")
         u_g = kr.x[:n_g]
-        mu = kr.x[n_g:]
+        mu = kr.x[n_g:] * c if c != 1.0 else kr.x[n_g:]
         lam = lam0 + proj.apply(mu)
         # u_Gamma - R_c (G^T G)^{-1} G^T Z B^ u_Gamma (after (4.5))
         if nf:

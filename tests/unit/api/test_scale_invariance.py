@@ -13,14 +13,18 @@ The iterative contact methods carry rules with units by design, so they are
 checked for what holds (ddsolve/qp rescales its quadratic programs by powers of
 two, so MPRGP and SMALBE themselves are scale-invariant, tests/unit/qp):
 
-* active set (Chapter 5): its hybrid face solves use the thesis's ||.||_2 rule,
-  which adds forces (~ rho) to displacements (~ 1/rho), so it is invariant under
-  load scaling f -> t f only (as the hybrid with norm="l2");
-* SMALBE (Section 6.4): rho_0 = 30, rho_bar = 1 and M = 1 are absolute numbers in
-  the units of F = B A^+ B^T (~ 1/rho), and the equality tolerance
-  eps min(||b||, ||e||) compares a displacement (||P d||) with a force (||e||).
-  Invariant under f -> t f; under rho -> s rho with rho_0, rho_bar and M scaled
-  by 1/s as long as ||e|| <= ||b|| stays the smaller one (s <= 1 here).
+* active set (Chapter 5): its hybrid face solves stop on ||.||_2 with the
+  multiplier block (gaps, ~ 1/rho) weighted by max rho (``face_norm="scaled"``),
+  so the rule adds forces to forces and is invariant under both scalings. The
+  thesis's plain ||.||_2 (``face_norm="l2"``, the thesis preset) adds forces
+  (~ rho) to displacements (~ 1/rho): invariant under f -> t f only;
+* SMALBE (Section 6.4): rho_0, rho_bar and M are absolute numbers in the units
+  of F = B A^+ B^T (~ 1/rho); their defaults are 30, 1 and 1 times
+  F_scale = 1 / min rho, and the equality tolerance eps min(||b|| / F_scale, ||e||)
+  compares forces with forces, so the default run is invariant under both
+  scalings. Explicit values keep their absolute meaning (invariant when scaled
+  by 1/s with rho). The thesis's literal equality rule eps ||b|| (the preset)
+  compares a force with a displacement and is not invariant under rho -> s rho.
 """
 from __future__ import annotations
 
@@ -49,20 +53,25 @@ SPECS = {
     "multibody": {"problem": "multibody", "bodies": 2, "subdomains": 2, "elements": 3,
                   "rho": "body-checkerboard:100"},
     "contact": {"problem": "contact", "method": "direct", "subdomains": 2, "elements": 4},
+    "contact-jump": {"problem": "contact", "method": "direct", "subdomains": 2, "elements": 4,
+                     "rho": "checkerboard:100"},
 }
 _POISSON = {"fetidp": solve_fetidp, "feti": solve_feti, "bddc": solve_bddc}
 
 CASES = [
     ("poisson", "fetidp"), ("poisson", "feti"), ("poisson", "bddc"), ("poisson", "direct"),
     ("multibody", "feti-feti"), ("multibody", "hybrid"), ("multibody", "direct"),
-    ("contact", "direct"),
+    ("contact", "direct"), ("contact", "active-set"), ("contact-jump", "active-set"),
+    ("contact", "smalbe"), ("contact-jump", "smalbe"),
 ]
 
 
-def _solve(problem: str, method: str, s: float, t: float, norm: str = "M", units: bool = False):
+def _solve(problem: str, method: str, s: float, t: float, norm: str = "M", units: bool = False,
+           **options):
     """(u, lambda or None, iteration counts, converged, reason) of the problem with rho*s, f*t.
 
-    ``units``: SMALBE with rho_0, rho_bar and M scaled by 1/s (the units of F).
+    ``units``: SMALBE with rho_0, rho_bar and M scaled by 1/s (the units of F); ``options``:
+    keywords of the contact solver.
     """
     spec = ProblemSpec.from_mapping(SPECS[problem])
     scene = scene_from_spec(spec)
@@ -76,8 +85,8 @@ def _solve(problem: str, method: str, s: float, t: float, norm: str = "M", units
             sol = solve_contact_smalbe(prepared.contact, eps=RTOL, maxiter=MAXITER, rho0=30.0 / s,
                                        rho_bar=1.0 / s, M=1.0 / s)
             return sol.u, sol.lam, (sol.total_iterations, sol.outer_iterations), sol.converged, sol.reason
-        if problem == "contact":
-            sol = run_contact_method(method, prepared.contact, rtol=RTOL, maxiter=MAXITER)
+        if problem.startswith("contact"):
+            sol = run_contact_method(method, prepared.contact, rtol=RTOL, maxiter=MAXITER, **options)
             return sol.u, sol.lam, (sol.total_iterations, sol.outer_iterations), sol.converged, sol.reason
         if problem == "poisson":
             out = (solve_direct(sub) if method == "direct"
@@ -98,14 +107,15 @@ def _solve(problem: str, method: str, s: float, t: float, norm: str = "M", units
 
 
 @functools.cache
-def _reference(problem: str, method: str, norm: str = "M", units: bool = False):
-    return _solve(problem, method, 1.0, 1.0, norm, units)
+def _reference(problem: str, method: str, norm: str = "M", units: bool = False, options: tuple = ()):
+    return _solve(problem, method, 1.0, 1.0, norm, units, **dict(options))
 
 
-def _check(problem: str, method: str, s: float, t: float, norm: str = "M", units: bool = False) -> None:
-    u0, lam0, it0, conv0, _ = _reference(problem, method, norm, units)
+def _check(problem: str, method: str, s: float, t: float, norm: str = "M", units: bool = False,
+           **options) -> None:
+    u0, lam0, it0, conv0, _ = _reference(problem, method, norm, units, tuple(sorted(options.items())))
     assert conv0
-    u, lam, it, conv, reason = _solve(problem, method, s, t, norm, units)
+    u, lam, it, conv, reason = _solve(problem, method, s, t, norm, units, **options)
     assert conv, reason
     assert np.all(np.abs(np.subtract(it, it0)) <= 1), (it, it0)
     assert np.all(np.isfinite(u))
@@ -149,13 +159,58 @@ def test_contact_invariant_under_load_scaling(method: str, et: int) -> None:
 
 
 @settings(max_examples=3, derandomize=True, deadline=None, database=None)
-@given(es=st.integers(min_value=-150, max_value=0), et=EXPONENT)
+@given(et=EXPONENT)
+@example(et=150)
+@example(et=-150)
+def test_active_set_thesis_l2_faces_invariant_under_load_scaling(et: int) -> None:
+    """The thesis's plain ||.||_2 face rule (``face_norm="l2"``) adds forces to displacements: f -> t f only."""
+    _check("contact", "active-set", 1.0, 10.0 ** et, face_norm="l2")
+
+
+def test_active_set_thesis_l2_faces_not_invariant_under_rho_scaling() -> None:
+    """Why the default weights the gaps: with the plain ||.||_2 rule, rho -> 1e10 rho stops the second face
+    solve at once (forces dominate the residual) and the solution is off by ~1e-3."""
+    u0, _, it0, conv0, _ = _reference("contact", "active-set", "M", False, (("face_norm", "l2"),))
+    u, _, it, conv, _ = _solve("contact", "active-set", 1e10, 1.0, face_norm="l2")
+    assert conv0 and conv
+    assert it0 != it
+    assert np.linalg.norm(u * 1e10 - u0) / np.linalg.norm(u0) > 1e-4
+
+
+@settings(max_examples=3, derandomize=True, deadline=None, database=None)
+@given(es=EXPONENT, et=EXPONENT)
 @example(es=-150, et=150)
-@example(es=-150, et=-150)
-def test_smalbe_invariant_with_parameters_in_the_units_of_F(es: int, et: int) -> None:
-    """rho -> s rho (s <= 1), f -> t f, with rho_0, rho_bar, M scaled by 1/s: t/s up to 1e300 (MPRGP's
-    curvatures ~ 1e600 before ddsolve.qp rescaled by powers of two)."""
+@example(es=150, et=-150)
+def test_smalbe_invariant_with_explicit_parameters_in_the_units_of_F(es: int, et: int) -> None:
+    """rho -> s rho, f -> t f, with explicit rho_0, rho_bar, M scaled by 1/s: t/s over 1e-300..1e300 (MPRGP's
+    curvatures ~ 1e600 before ddsolve.qp rescaled by powers of two; ||b|| ~ 1e-300 needs scaled norms)."""
     _check("contact", "smalbe", 10.0 ** es, 10.0 ** et, units=True)
+
+
+def test_smalbe_defaults_follow_the_scale_of_F() -> None:
+    """The defaults of M, rho_0, rho_bar are 1, 30, 1 times F_scale = 1 / min rho (the thesis's values for
+    rho = 1); explicit values are used as given."""
+    spec = ProblemSpec.from_mapping({**SPECS["contact"], "rho": "checkerboard:0.01"})
+    prepared = prepare(spec)
+    sol = solve_contact_smalbe(prepared.contact, eps=RTOL, maxiter=MAXITER)
+    assert sol.extra["F_scale"] == 100.0
+    assert (sol.extra["M"], sol.extra["rho0"], sol.extra["rho_bar"]) == (100.0, 3000.0, 100.0)
+    sol = solve_contact_smalbe(prepared.contact, eps=RTOL, maxiter=MAXITER, M=1.0, rho0=30.0, rho_bar=1.0)
+    assert (sol.extra["M"], sol.extra["rho0"], sol.extra["rho_bar"]) == (1.0, 30.0, 1.0)
+    assert sol.converged, sol.reason
+
+
+def test_smalbe_thesis_rule_not_invariant_under_rho_scaling() -> None:
+    """Why the default converts ||b|| to force units: under the printed rule ||G lambda|| <= eps ||b||,
+    rho -> 1e-6 rho (||b|| x 1e6 against forces unchanged) changes SMALBE's iteration counts; under the
+    default rule it does not."""
+    from ddsolve.presets import solver_options
+
+    options = {**solver_options("thesis", "contact", "smalbe"), "acceptance": "report"}
+    ref = _solve("contact", "smalbe", 1.0, 1.0, **options)
+    scaled = _solve("contact", "smalbe", 1e-6, 1.0, **options)
+    assert ref[2] != scaled[2]
+    _check("contact", "smalbe", 1e-6, 1.0)
 
 
 def test_cli_rho_1e170_is_not_converged_at_zero_iterations() -> None:
@@ -215,14 +270,24 @@ def test_contact_extreme_coefficients_converge_or_report(method: str, case: dict
 
 
 def test_active_set_at_rho_1e200_is_not_called_converged() -> None:
-    """At rho = 1e200 the face solves' l2 rule (forces ~ rho plus displacements ~ 1/rho) stops with
-    unresolved displacements (KKT residual ~1e-2): the KKT acceptance check must refuse it."""
+    """At rho = 1e200 the thesis's plain l2 face rule (forces ~ rho plus displacements ~ 1/rho) stops with
+    unresolved displacements (KKT residual ~1e-2): the KKT acceptance check must refuse it. The default's
+    weighted rule resolves them (KKT residual ~ rtol)."""
     import ddsolve
-    from ddsolve.contact.run import KKT_ACCEPT_FACTOR
+    from ddsolve.contact.run import (
+        KKT_ACCEPT_FACTOR,
+        contact_result_fields,
+        run_contact,
+    )
 
-    res = ddsolve.solve(ProblemSpec(problem="contact", method="active-set", subdomains=2, elements=4, rho=1e200))
-    assert res.extra["kkt_residual"] > KKT_ACCEPT_FACTOR * 1e-5
-    assert not res.converged and res.reason.startswith("not accepted") and "KKT residual" in res.reason
+    spec = ProblemSpec(problem="contact", method="active-set", subdomains=2, elements=4, rho=1e200)
+    res = ddsolve.solve(spec)
+    assert res.converged and res.extra["kkt_residual"] < 1e-5, res.reason
+    prepared = prepare(spec)
+    fields = contact_result_fields(spec, prepared.contact, run_contact("active-set", prepared, face_norm="l2"))
+    assert fields["extra"]["kkt_residual"] > KKT_ACCEPT_FACTOR * 1e-5
+    assert not fields["converged"] and fields["reason"].startswith("not accepted")
+    assert "KKT residual" in fields["reason"]
 
 
 def test_contact_gamma_overflow_solves() -> None:
@@ -259,3 +324,32 @@ def test_cli_contact_extreme_exit_0_with_json(args: str) -> None:
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     assert isinstance(out["converged"], bool) and out["reason"]
+
+
+@pytest.mark.parametrize("es", [-10, 10, -100])
+def test_active_set_m_norm_faces_invariant_under_rho_scaling(es: int) -> None:
+    """``face_norm="M"``: PCR's test for a vanishing pivot <z, A z> is a cosine in the M^{-1} / M pairing
+    (ddsolve/krylov/pcr.py), invariant under the block scaling rho -> s rho; with the l2 cosine it switched
+    to the three-term recurrence at other iterations, and the second face solve took 15 instead of 13
+    iterations at s = 1e-10."""
+    _check("contact", "active-set", 10.0 ** es, 1.0, face_norm="M")
+
+
+def test_hybrid_multiplier_weight_changes_only_the_stopping_test() -> None:
+    """multiplier_weight c: PCR on D A D (D = diag(I, c I)) has the iterates of A; with c = 1 bit-identical."""
+    spec = ProblemSpec.from_mapping(SPECS["multibody"])
+    prepared = prepare(spec)
+    sub = prepared.sub
+    gi = GlobalInterface(sub)
+    active = gi.contact_mask(spec.contact)
+    hyb = HybridSolver(sub, gi)
+    ref = hyb.solve(active, rtol=1e-10, maxiter=MAXITER)
+    same = hyb.solve(active, rtol=1e-10, maxiter=MAXITER, multiplier_weight=1.0)
+    np.testing.assert_array_equal(ref.u, same.u)
+    for c in (1e-3, 1e3):
+        out = hyb.solve(active, rtol=1e-10, maxiter=MAXITER, multiplier_weight=c)
+        assert out.krylov.converged
+        assert np.linalg.norm(out.u - ref.u) / np.linalg.norm(ref.u) < 1e-8
+        assert np.linalg.norm(out.extra["lambda"] - ref.extra["lambda"]) / np.linalg.norm(ref.extra["lambda"]) < 1e-6
+    with pytest.raises(ValueError, match="multiplier_weight"):
+        hyb.solve(active, multiplier_weight=0.0)

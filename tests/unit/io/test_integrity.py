@@ -105,6 +105,107 @@ def test_full_disk_is_one_line_and_leaves_no_temporary_file(tmp_path, monkeypatc
     assert validate_result(write_result(target, SPEC, _Result()))["iterations"] == 2
 
 
+class _FullDiskFile:
+    """A file object whose disk fills up after ``room`` bytes: a short write, then ENOSPC."""
+
+    def __init__(self, fh, room: int):
+        self.fh, self.room = fh, room
+
+    def write(self, data):
+        if self.room <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), self.fh.name)
+        n = self.fh.write(bytes(data[:self.room]))
+        self.room -= n
+        return n
+
+    def __getattr__(self, name):
+        return getattr(self.fh, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.fh.close()
+
+
+def test_enospc_at_the_byte_write_is_one_line_and_keeps_the_previous_file(tmp_path, monkeypatch):
+    """The HDF5 file is built in memory and written by plain file I/O: a full disk during the byte write
+    (after a short write) is an ordinary OSError -> NoSpaceError, the temporary file is removed and the
+    previous result stays intact."""
+    target = write_result(tmp_path / "case.h5", SPEC, _Result())
+    before = target.read_bytes()
+    monkeypatch.setattr(hdf5, "open", lambda path, mode: _FullDiskFile(open(path, mode), 100), raising=False)
+    with pytest.raises(NoSpaceError) as err:
+        write_result(target, {**SPEC, "rtol": 1e-8}, _Result())
+    assert str(err.value) == f"no space left on device writing {target}"
+    assert isinstance(err.value.__cause__, OSError) and err.value.__cause__.errno == errno.ENOSPC
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["case.h5"] and target.read_bytes() == before
+    with pytest.raises(SystemExit), job_log(tmp_path / "job.log"):
+        write_result(tmp_path / "other.h5", SPEC, _Result())
+    assert (tmp_path / "job.log").read_text().splitlines() == [
+        f"ddsolve: error: no space left on device writing {tmp_path / 'other.h5'}"]
+    monkeypatch.undo()
+    assert validate_result(target)["reason"] == "ok"
+
+
+def test_in_memory_image_reads_back_like_a_file_written_by_hdf5(tmp_path):
+    """The file image of the core driver is a complete HDF5 file: its size is the superblock's end of
+    file, and every attribute and dataset reads back as h5py wrote it."""
+    import h5py
+    import numpy as np
+
+    target = write_result(tmp_path / "case.h5", SPEC, _Result())
+    assert quick_check(target) is None
+    with h5py.File(target, "r") as h5:
+        assert h5.attrs["format"] == hdf5.FORMAT and h5.attrs["format_version"] == hdf5.FORMAT_VERSION
+        assert dict(h5["params"].attrs) == {**SPEC}
+        np.testing.assert_array_equal(h5["result/residuals"][()], _Result.residuals)
+        assert list(h5["result"].attrs) == list(_Result().to_dict())       # insertion order kept
+        assert math.isnan(h5["result"].attrs["cond"]) and h5["result"].attrs["reason"] == "ok"
+
+
+_TMPFS_SCRIPT = """
+import os, sys
+import numpy as np
+from ddsolve.io.hdf5 import NoSpaceError, validate_result, write_result
+sys.path.insert(0, sys.argv[2])
+from test_integrity import SPEC, _Result
+mnt = sys.argv[1]
+small = write_result(os.path.join(mnt, "small.h5"), SPEC, _Result())
+assert validate_result(small)["iterations"] == 2
+big = _Result()
+big.u = np.arange(200_000, dtype=float)                   # 1.6 MB on a 256 KiB tmpfs
+try:
+    write_result(os.path.join(mnt, "big.h5"), SPEC, big, store_solution=True)
+except NoSpaceError as exc:
+    print(exc)
+    print(sorted(os.listdir(mnt)))
+    sys.exit(0)
+sys.exit(3)
+"""
+
+
+def test_full_tmpfs_is_one_line_and_leaves_no_temporary_file(tmp_path):
+    """A real full disk: a 256 KiB tmpfs in a private mount namespace (skipped where mounting is not
+    permitted)."""
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    probe = subprocess.run(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o size=256k tmpfs {mnt}"],
+                           capture_output=True, text=True, check=False)
+    if probe.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {probe.stderr.strip()[:80]}")
+    script = tmp_path / "tmpfs_write.py"
+    script.write_text(_TMPFS_SCRIPT)
+    proc = subprocess.run(["unshare", "-rm", "sh", "-c",
+                           f'mount -t tmpfs -o size=256k tmpfs {mnt} && exec "$0" "$@"',
+                           sys.executable, str(script), str(mnt), os.path.dirname(__file__)],
+                          capture_output=True, text=True, timeout=120, check=False,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr and "HDF5" not in proc.stderr, proc.stderr
+    assert proc.stdout.splitlines() == [f"no space left on device writing {mnt / 'big.h5'}", "['small.h5']"]
+
+
 def test_any_error_removes_the_temporary_file(tmp_path):
     with pytest.raises(RuntimeError):
         with hdf5.atomic_target(tmp_path / "x.csv") as tmp:
