@@ -156,3 +156,25 @@ def test_edges_lower_the_condition_number(method):
     # milder growth in H/h: from H/h = 4 to 16 the edges add 0.33, the vertices alone 1.32
     assert edge[-1] - edge[0] < 0.3 * (vert[-1] - vert[0])
     assert edge[-1] / edge[0] < 1.35 < 1.65 < vert[-1] / vert[0]
+
+
+# ------------------------------------------------------------------ refusals
+@pytest.mark.parametrize("problem,method", [("poisson", "feti"), ("poisson", "direct"), ("multibody", "feti-feti"),
+                                            ("multibody", "hybrid"), ("contact", "active-set"),
+                                            ("contact", "smalbe")])
+def test_other_methods_refuse_edges(problem, method):
+    from ddsolve.errors import InputError
+    with pytest.raises(InputError) as info:
+        ProblemSpec.from_mapping(dict(problem=problem, method=method, primal="vertices+edges"))
+    assert info.value.field == "primal" and "fetidp and bddc only" in str(info.value)
+    for ok in ("fetidp", "bddc"):
+        assert ProblemSpec.from_mapping(dict(method=ok, primal="Vertices+Edges")).primal == "vertices+edges"
+
+
+def test_mpiexec_refuses_edges():
+    pytest.importorskip("mpi4py")
+    from ddsolve.errors import InputError
+    from ddsolve.parallel.run import check_supported
+    with pytest.raises(InputError) as info:
+        check_supported(ProblemSpec(method="bddc", subdomains=4, primal="vertices+edges"), 2)
+    assert info.value.field == "primal"
