@@ -87,8 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="mesh file, contact: name of the contact interface (default 'contact')")
     s.add_argument("--bodies-materials", dest="bodies_materials",
                    help="mesh file: comma-separated material names in body order (default: all, in mesh order)")
-    s.add_argument("--primal", help="FETI-DP/BDDC primal constraints: vertices (default; edge averages are "
-                                    "not available yet)")
+    s.add_argument("--primal", help="FETI-DP/BDDC primal constraints: vertices (default) or vertices+edges "
+                                    "(also the edge averages)")
     s.add_argument("--output", help="write the solution, subdomain ids and contact multipliers/gap to a "
                                     ".vtu file for ParaView")
     s.add_argument("--max-memory", dest="max_memory",

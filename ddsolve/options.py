@@ -36,11 +36,13 @@ MESHES: tuple[str, ...] = ("structured", "unstructured")
 #: Built-in unstructured geometries of each problem (the first is the default; ddsolve.scene.unstructured).
 GEOMETRIES: dict[str, tuple[str, ...]] = {"poisson": ("square", "lshape", "hole"), "multibody": ("square",),
                                           "contact": ("membranes",)}
-#: Primal (coarse) constraints of FETI-DP/BDDC: subdomain vertices (edge averages are not available yet).
-PRIMALS: tuple[str, ...] = ("vertices",)
+#: Primal (coarse) constraints of FETI-DP/BDDC: subdomain vertices, or vertices and edge averages.
+PRIMALS: tuple[str, ...] = ("vertices", "vertices+edges")
+#: Methods that take ``primal`` other than the default.
+PRIMAL_METHODS: tuple[str, ...] = ("fetidp", "bddc")
 #: All method names, in a stable order.
 ALL_METHODS: tuple[str, ...] = tuple(dict.fromkeys(m for ms in METHODS.values() for m in ms))
 
 __all__ = ["METHODS", "DEFAULT_F", "DEFAULT_RTOL", "CONTACTS", "SCALINGS", "NORMS", "PROJECTIONS",
            "PCR_METHODS", "PRESETS", "ALL_METHODS",
-           "MESHES", "GEOMETRIES", "PRIMALS"]
+           "MESHES", "GEOMETRIES", "PRIMALS", "PRIMAL_METHODS"]

@@ -55,6 +55,7 @@ from .options import (
     NORMS,
     PCR_METHODS,
     PRESETS,
+    PRIMAL_METHODS,
     PRIMALS,
     PROJECTIONS,
     SCALINGS,
@@ -397,11 +398,11 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
             raise _inapplicable(field, value, "it names parts of a mesh_file")
     if contact_boundary != "contact" and problem != "contact":
         raise _inapplicable("contact_boundary", contact_boundary, "problem 'contact' only")
-    primal = _plain(raw["primal"])
-    if isinstance(primal, str) and primal.strip().lower() in ("vertices+edges", "edges"):
-        raise InputError("primal", f"{primal.strip()!r}: edge averages are not available yet "
-                                   f"(choose from {', '.join(PRIMALS)})")
-    primal = _choice("primal", primal, PRIMALS, what="primal constraints")
+    primal = _choice("primal", raw["primal"], PRIMALS, what="primal constraints")
+    method = METHODS[problem][0] if raw["method"] is None else _choice("method", raw["method"], METHODS[problem])
+    if primal != PRIMALS[0] and method not in PRIMAL_METHODS:
+        raise _inapplicable("primal", primal, f"method {method!r} has no primal constraints "
+                                              f"({' and '.join(PRIMAL_METHODS)} only)")
     output = _path_text("output", raw["output"])
     if output:
         if not output.lower().endswith(".vtu"):

@@ -1,4 +1,4 @@
-"""BDDC with primal subdomain vertices (Section 2.7)."""
+"""BDDC with primal subdomain vertices (Section 2.7), optionally edge averages (:mod:`.edges`)."""
 from __future__ import annotations
 
 import time
@@ -58,6 +58,10 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
       (weights of the copies of a primal node sum to one);
     * interior values by discrete harmonic extension u_I = A_II^{-1}(f_I - A_IG u_G).
 
+    With ``sub.primal == "vertices+edges"`` all of this runs in the basis of
+    :meth:`Substructures.primal_space` (edge averages primal): f^ = T^T f,
+    u = T u^ (the interface values u_Gamma are then in the new basis).
+
     Parameters
     ----------
     sub : Substructures
@@ -72,10 +76,13 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     """
     t0 = time.perf_counter()
     cache: dict = {}
-    gamma_mask = sub.interface
-    schur = DirichletSchur(sub, gamma_mask, cache)
-    primal_solver = PrimalConstrainedSolver(sub, sub.vertex, cache)
-    iface = InterfaceMap(sub, gamma_mask)
+    space = sub.primal_space()
+    hat = space.sub                  # sub itself, or its copy in the edge-average basis
+    f_W = space.to_primal(sub.f_W)
+    gamma_mask = hat.interface
+    schur = DirichletSchur(hat, gamma_mask, cache)
+    primal_solver = PrimalConstrainedSolver(hat, hat.vertex, cache)
+    iface = InterfaceMap(hat, gamma_mask)
     scatter, gather, delta_g, n_g = iface.scatter, iface.gather, iface.delta, iface.n
     def S_hat(u_g: np.ndarray) -> np.ndarray:
         return gather(schur.matvec(scatter(u_g)))
@@ -84,11 +91,11 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
         x = primal_solver.solve(scatter(r_g, delta_g))
         return gather(x, delta_g)
 
-    g = gather(schur.harmonic_extension_rhs(sub.f_W))
+    g = gather(schur.harmonic_extension_rhs(f_W))
     setup = time.perf_counter() - t0
     kr = pcg(linear_operator(n_g, S_hat), g, None, rtol=rtol, maxiter=maxiter,
              M=linear_operator(n_g, M), cond=cond)
-    u_W = schur.interior_solution(sub.f_W, scatter(kr.x))
+    u_W = space.from_primal(schur.interior_solution(f_W, scatter(kr.x)))
     return MethodOutput(u=sub.average(u_W), krylov=kr, nlambda=0,
                         n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
                         setup_seconds=setup, extra={"n_primal": primal_solver.n_primal, "n_interface": int(n_g)})

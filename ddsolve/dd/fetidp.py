@@ -1,4 +1,4 @@
-"""FETI-DP with primal subdomain vertices (Section 2.6)."""
+"""FETI-DP with primal subdomain vertices (Section 2.6), optionally edge averages (:mod:`.edges`)."""
 from __future__ import annotations
 
 import time
@@ -20,6 +20,10 @@ def solve_fetidp(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000,
     * preconditioner M^{-1} = B~_D S~ B~_D^T (Section 2.6);
     * u = A~^{-1} (f~ - B~^T lambda).
 
+    With ``sub.primal == "vertices+edges"`` all of this runs in the basis of
+    :meth:`Substructures.primal_space` (edge averages primal): f^ = T^T f,
+    u = T u^.
+
     Parameters
     ----------
     sub : Substructures
@@ -34,18 +38,21 @@ def solve_fetidp(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000,
     """
     t0 = time.perf_counter()
     cache: dict = {}
-    dual = sub.interface & ~sub.vertex
-    B, B_D = sub.jump_operators(dual)
-    primal_solver = PrimalConstrainedSolver(sub, sub.vertex, cache)
-    schur = DirichletSchur(sub, sub.interface, cache)
+    space = sub.primal_space()
+    hat = space.sub                  # sub itself, or its copy in the edge-average basis
+    f_W = space.to_primal(sub.f_W)
+    dual = hat.interface & ~hat.vertex
+    B, B_D = hat.jump_operators(dual)
+    primal_solver = PrimalConstrainedSolver(hat, hat.vertex, cache)
+    schur = DirichletSchur(hat, hat.interface, cache)
     n_lam = B.shape[0]
 
     F, M = dual_operators(B, B_D, primal_solver.solve, schur.matvec)
-    d = B @ primal_solver.solve(sub.f_W)
+    d = B @ primal_solver.solve(f_W)
     setup = time.perf_counter() - t0
     kr = pcg(linear_operator(n_lam, F), d, None, rtol=rtol, maxiter=maxiter,
              M=linear_operator(n_lam, M), cond=cond)
-    u_W = primal_solver.solve(sub.f_W - B.T @ kr.x)
+    u_W = space.from_primal(primal_solver.solve(f_W - B.T @ kr.x))
     return MethodOutput(u=sub.average(u_W), krylov=kr, nlambda=n_lam,
                         n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
                         setup_seconds=setup, extra={"n_primal": primal_solver.n_primal})

@@ -13,6 +13,10 @@ One application is then one GEMM per group of the size of the local
 interface (O(H/h) unknowns) instead of interior solves with O((H/h)^2)
 unknowns and products with K_W. ``space_matvec`` / ``space_solve`` apply them
 directly between compact spaces of interface values (no W vectors).
+
+This module holds the Dirichlet Schur complement and the jump operators; the
+primal-constrained solver and its interface restrictions live in
+:mod:`ddsolve.dd.primal` and are re-exported here.
 """
 from __future__ import annotations
 
@@ -23,7 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .local import BatchedSolver, DenseBlocks, _Group, solve_many
+from .local import BatchedSolver, DenseBlocks, solve_many
 from .substructure import Substructures
 
 log = logging.getLogger(__name__)
@@ -336,481 +340,12 @@ class DirichletSchur:
         return w + self.II.solve(f - self.sub.K_W @ w)
 
 
-class PrimalConstrainedSolver:
-    """Solves with A~ of (2.17): subdomains coupled only at the primal vertices.
-
-    The primal unknowns W_Pi (global vertex dofs) are eliminated through the
-    coarse matrix
-        S_PiPi = sum_i R_Pi^(i)T (A_PiPi^(i) - A_Pir^(i) A_rr^(i)^{-1} A_rPi^(i)) R_Pi^(i),
-    with r = I + Delta. With Psi^(i) = A_rr^(i)^{-1} A_rPi^(i) (precomputed per
-    shared factorization), one application of A~^{-1} costs one batched
-    A_rr solve and one coarse solve:
-        x_r0 = A_rr^{-1} b_r,   u_Pi = S_PiPi^{-1} (b_Pi - sum_i R_Pi^T Psi^T b_r),
-        x_r  = x_r0 - Psi R_Pi u_Pi.
-
-    Parameters
-    ----------
-    sub : Substructures
-    primal_mask : ndarray of bool, shape (n_W,)
-        Primal W entries (subdomain copies of the vertex dofs).
-    cache : dict
-        Shared factorization cache.
-    exclude : ndarray of bool, shape (n_W,), optional
-        Entries treated as Dirichlet nodes (zero in the solution).
-    fixed_bodies : sequence of int, optional
-        Floating bodies: one primal dof of each is pinned to zero, which turns
-        the singular A~ of such a body into a generalized inverse A~^+
-        (A~ A~^+ A~ = A~), as needed for S~^dagger in (4.11) and F in (3.35).
-    """
-
-    def __init__(self, sub: Substructures, primal_mask: np.ndarray, cache: dict,
-                 exclude: np.ndarray | None = None, fixed_bodies=()) -> None:
-        self.sub = sub
-        if exclude is not None:
-            primal_mask = primal_mask & ~exclude
-        self.primal = primal_mask
-        self.r = ~primal_mask if exclude is None else ~primal_mask & ~exclude
-        self.rr = BatchedSolver(sub, self.r, cache)
-        # global primal numbering
-        prim_dofs = self._primal_dofs(sub, primal_mask)
-        self.n_primal = prim_dofs.size
-        coarse_of_W = np.full(sub.n_W, -1)
-        coarse_of_W[primal_mask] = np.searchsorted(prim_dofs, sub.l2g[primal_mask])
-        self.coarse_of_W = coarse_of_W
-        # primal entries of each subdomain, padded: (n_sub, p_max)
-        pw = np.flatnonzero(primal_mask)
-        psub = sub.sub_of_W[pw]
-        counts = np.bincount(psub, minlength=sub.n_sub)
-        p_max = int(counts.max()) if pw.size else 0
-        rank = np.arange(pw.size) - np.concatenate([[0], np.cumsum(counts)])[psub]
-        table = np.full((sub.n_sub, max(p_max, 1)), -1)
-        table[psub, rank] = pw
-        self.table = table[:, :p_max]
-        self.p_max = p_max
-        valid = self.table >= 0
-        # Psi = A_rr^{-1} A_rPi and the local coarse matrices A_PiPi - A_Pir Psi. A^(i) = rho_i K_t, so
-        # Psi^(i) = K_t,rr^{-1} K_t,rPi is shared by all members of a factorization group with the same
-        # primal local set: one solve with p columns per group, not per subdomain.
-        self.Psi = np.zeros((sub.n_W, p_max))
-        S_loc = np.zeros((sub.n_sub, p_max, p_max))
-        done = np.zeros(sub.n_sub, dtype=bool)
-        # all solves K_rr^{-1} K_rPi first (the batched subdomains share multi-column solves), then Psi, S
-        work: list[tuple[_Group, list[int], np.ndarray, np.ndarray, np.ndarray | None]] = []
-        for g in self.rr.groups:
-            members = g.members
-            by_primal: dict[bytes, list[int]] = {}
-            for j, s_ in enumerate(members):
-                loc_p = sub.local_index[self.table[s_][valid[s_]]]
-                by_primal.setdefault(loc_p.astype(np.int64).tobytes(), []).append(j)
-            for js in by_primal.values():
-                s0 = members[js[0]]
-                loc_p = sub.local_index[self.table[s0][valid[s0]]]
-                K = sub.stiffness[int(sub.template[s0])]
-                KpP = K[loc_p][:, loc_p].toarray()
-                KrP_t = K[g.loc][:, loc_p].toarray() if loc_p.size else None
-                work.append((g, js, loc_p, KpP, KrP_t))
-        solved = iter(solve_many([(g.factor, KrP_t) for g, _, _, _, KrP_t in work if KrP_t is not None]))
-        for g, js, loc_p, KpP, KrP_t in work:
-            p = loc_p.size
-            if p:
-                Psi_t = next(solved)
-                S_t = KpP - KrP_t.T @ Psi_t
-                idx = g.index[:, js]                                    # (n_r, n_js)
-                for c in range(p):
-                    self.Psi[idx, c] = Psi_t[:, c][:, None]
-            else:
-                S_t = KpP
-            sel = np.asarray(g.members)[js]
-            S_loc[sel, :p, :p] = sub.rho[sel][:, None, None] * S_t[None]
-            done[sel] = True
-        for s_ in np.flatnonzero(~done & (valid.sum(axis=1) > 0)):      # no r entries: S = A_PiPi
-            loc_p = sub.local_index[self.table[s_][valid[s_]]]
-            p = loc_p.size
-            S_loc[s_, :p, :p] = sub.rho[s_] * sub.stiffness[int(sub.template[s_])][loc_p][:, loc_p].toarray()
-        # Psi columns of entry e belong to its subdomain's primal c; coarse index per (W entry, c)
-        self.coarse_cols = np.where(valid, coarse_of_W[np.maximum(self.table, 0)], -1)  # (n_sub, p_max)
-        rows = np.broadcast_to(self.coarse_cols[:, :, None], S_loc.shape)
-        cols = np.broadcast_to(self.coarse_cols[:, None, :], S_loc.shape)
-        ok = (rows >= 0) & (cols >= 0)
-        S_PiPi = sp.csr_matrix((S_loc[ok], (rows[ok], cols[ok])), shape=(self.n_primal, self.n_primal))
-        S_PiPi = self._assemble_coarse(S_PiPi)
-        pinned = []
-        for body in fixed_bodies:
-            cand = np.flatnonzero(primal_mask & (sub.body_of_sub[sub.sub_of_W] == body))
-            if cand.size == 0:
-                raise ValueError(f"floating body {body} has no primal vertex to pin")
-            pinned.append(coarse_of_W[cand[0]])
-        self.pinned = np.asarray(pinned, dtype=np.int64)
-        if self.pinned.size:
-            keep = np.ones(self.n_primal)
-            keep[self.pinned] = 0.0
-            D = sp.diags(keep)
-            S_PiPi = D @ S_PiPi @ D + sp.diags(1.0 - keep)
-        self.S_PiPi = S_PiPi.tocsc()
-        self.coarse = spla.splu(self.S_PiPi, permc_spec="MMD_AT_PLUS_A") if self.n_primal else None
-        self.n_factorizations = self.rr.n_new_factorizations + (1 if self.n_primal else 0)
-        self._psi_global: sp.csr_matrix | None = None      # Psi as sparse (n_W, n_primal), on first use
-        self._psi_global_T: sp.csr_matrix | None = None
-        self._interfaces: dict[tuple, InterfaceSolve] = {}  # by (mask bytes, n_W, explicit option)
-
-    def _primal_dofs(self, sub: Substructures, primal_mask: np.ndarray) -> np.ndarray:
-        """Sorted global dofs of the primal unknowns (hook: a rank-local ``sub`` sees only its own)."""
-        return np.unique(sub.l2g[primal_mask])
-
-    def _assemble_coarse(self, S_PiPi: sp.csr_matrix) -> sp.csr_matrix:
-        """The coarse matrix from the subdomains' contributions (hook: summed over ranks in parallel)."""
-        return S_PiPi
-
-    @property
-    def Psi_global(self) -> sp.csr_matrix:
-        """Psi as one sparse (n_W, n_primal) matrix: column c of entry e goes to its coarse dof."""
-        if self._psi_global is None:
-            sub = self.sub
-            entry_cols = self.coarse_cols[sub.sub_of_W] if self.p_max else np.zeros((sub.n_W, 0), dtype=int)
-            ok = entry_cols >= 0
-            rows = np.broadcast_to(np.arange(sub.n_W)[:, None], ok.shape)[ok]
-            P = sp.csr_matrix((self.Psi[ok], (rows, entry_cols[ok])), shape=(sub.n_W, self.n_primal))
-            self._psi_global, self._psi_global_T = P, P.T.tocsr()
-        return self._psi_global
-
-    @property
-    def Psi_global_T(self) -> sp.csr_matrix:
-        """Psi^T as sparse (n_primal, n_W)."""
-        if self._psi_global_T is None:
-            self._psi_global_T = self.Psi_global.T.tocsr()
-        return self._psi_global_T
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        """x = A~^{-1} b for a W vector b; primal copies of b are summed (assembled).
-
-        Returns a W vector whose primal entries all hold the (continuous) primal value.
-        """
-        br = np.where(self.r, b, 0.0)
-        x = self.rr.solve(br)
-        if self.n_primal == 0:
-            return x
-        b_pi = np.bincount(self.coarse_of_W[self.primal], weights=b[self.primal], minlength=self.n_primal)
-        b_pi -= self.Psi_global_T @ br                 # assembled Psi^T b_r
-        b_pi[self.pinned] = 0.0
-        u_pi = self.coarse.solve(b_pi)
-        x -= self.Psi_global @ u_pi
-        x[self.primal] = u_pi[self.coarse_of_W[self.primal]]
-        return x
-
-    def _explicit_pays_off(self, mask: np.ndarray) -> bool:
-        """Whether the dense interface blocks of ``mask`` pay off (the rule of ``DirichletSchur``).
-
-        Forming them costs one local solve per interface unknown of each distinct
-        (template, r set, interface pattern); one implicit :meth:`solve` costs one per
-        subdomain. Explicit when the former is at most ``EXPLICIT_SETUP_MATVECS`` of the
-        latter and no block exceeds ``EXPLICIT_MAX_BLOCK``. With few, large subdomains
-        (H/h = 128 or more) the implicit solve is cheaper over a solve.
-        """
-        cols, biggest = 0, 0
-        for g in self.rr.groups:
-            pattern = np.ascontiguousarray(np.packbits(mask[g.index], axis=0).T)   # one row per member
-            rows = pattern.view(np.dtype((np.void, pattern.shape[1]))).ravel()
-            _, first = np.unique(rows, return_index=True)                           # distinct patterns
-            n_d = np.count_nonzero(mask[g.index][:, first], axis=0)
-            cols, biggest = cols + int(n_d.sum()), max(biggest, int(n_d.max(initial=0)))
-        explicit = cols <= EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1) and biggest <= EXPLICIT_MAX_BLOCK
-        log.debug("PrimalConstrainedSolver: %s interface blocks (%d setup columns, largest %d)",
-                  "explicit" if explicit else "implicit", cols, biggest)
-        return explicit
-
-    def interface(self, mask: np.ndarray, explicit: bool | None = None) -> InterfaceSolve:
-        """A~^{-1} restricted to the interface ``mask`` (explicit dense blocks or implicit solves).
-
-        ``mask`` (an interface: every interior entry of the subdomains is outside it).
-        ``explicit=None`` decides by :meth:`_explicit_pays_off`. Cached on this solver by the
-        mask's bytes and ``explicit``.
-        """
-        key = (np.packbits(mask).tobytes(), mask.size, explicit)
-        hit = self._interfaces.get(key)
-        if hit is None:
-            use_explicit = self._explicit_pays_off(mask) if explicit is None else bool(explicit)
-            hit = (ExplicitInterfaceSolve if use_explicit else ImplicitInterfaceSolve)(self, mask.copy())
-            self._interfaces[key] = hit
-        return hit
-
-    def space_solve(self, r: np.ndarray, space, weights: np.ndarray, mask: np.ndarray,
-                    explicit: bool | None = None) -> np.ndarray:
-        """gather_w(A~^{-1} scatter_w(r)) in a space of continuous values on an interface.
-
-        Convenience for ``interface(mask, explicit).space_operator(space, weights).apply(r)``
-        (the operator cached by the space's ``key`` and the weights' bytes); hold the
-        operator of :meth:`InterfaceSolve.space_operator` where it is applied repeatedly.
-        """
-        iface = self.interface(mask, explicit)
-        key = (space_key(space), np.asarray(weights).tobytes())
-        op = iface.space_operators.get(key)
-        if op is None:
-            op = iface.space_operators[key] = iface.space_operator(space, weights)
-        return op.apply(r)
-
-    def solve_interface(self, b: np.ndarray, mask: np.ndarray, explicit: bool | None = None) -> np.ndarray:
-        """:meth:`solve` for a right-hand side supported on ``mask`` (zero on every other entry),
-        returning the solution on ``mask`` only (zero elsewhere); see :meth:`interface`."""
-        return self.interface(mask, explicit).solve(b)
-
-
 def space_key(space) -> tuple:
     """Cache key of a space (``idx``, ``pos``, ``n``): its ``key`` attribute, else its index bytes."""
     key = getattr(space, "key", None)
     if key is not None:
         return key
     return (np.asarray(space.idx).tobytes(), np.asarray(space.pos).tobytes(), int(space.n))
-
-
-class InterfaceSolve:
-    """A~^{-1} of a :class:`PrimalConstrainedSolver` on an interface ``mask`` (base class).
-
-    Attributes
-    ----------
-    solver : PrimalConstrainedSolver
-    mask : ndarray of bool, shape (n_W,)
-    explicit : bool
-    space_operators : dict
-        Space operators handed out by :meth:`PrimalConstrainedSolver.space_solve`.
-    """
-
-    explicit = False
-
-    def __init__(self, solver: PrimalConstrainedSolver, mask: np.ndarray) -> None:
-        self.solver = solver
-        self.mask = mask
-        self.space_operators: dict = {}
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        """A~^{-1} b for b supported on the mask, returned on the mask (zero elsewhere)."""
-        raise NotImplementedError
-
-    def space_operator(self, space, weights: np.ndarray):
-        """An object whose ``apply(r)`` is gather_w(A~^{-1} scatter_w(r)) in ``space``.
-
-        scatter_w puts ``weights * r[pos]`` on the W positions ``space.idx``, gather_w
-        sums ``weights`` times the copies (R_D^T A~^{-1} R_D of BDDC when ``weights`` are
-        the delta-dagger scalings). ``space`` (with ``idx``, ``pos``, ``n``, see
-        :meth:`DirichletSchur.space_matvec`) must lie in the mask; no W vector is formed
-        by the explicit variant.
-        """
-        raise NotImplementedError
-
-
-class ImplicitInterfaceSolve(InterfaceSolve):
-    """Interface solves through the full batched :meth:`PrimalConstrainedSolver.solve`."""
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        return np.where(self.mask, self.solver.solve(np.where(self.mask, b, 0.0)), 0.0)
-
-    def space_operator(self, space, weights: np.ndarray) -> ImplicitSpaceSolve:
-        return ImplicitSpaceSolve(self.solver, space, weights)
-
-
-class ImplicitSpaceSolve:
-    """Scatter, the implicit solve, gather (see :meth:`InterfaceSolve.space_operator`)."""
-
-    def __init__(self, solver: PrimalConstrainedSolver, space, weights: np.ndarray) -> None:
-        self.solver, self.space, self.weights = solver, space, weights
-
-    def apply(self, r: np.ndarray) -> np.ndarray:
-        space, weights = self.space, self.weights
-        w = np.zeros(self.solver.sub.n_W)
-        w[space.idx] = weights * r[space.pos]
-        x = self.solver.solve(w)
-        return np.bincount(space.pos, weights=weights * x[space.idx], minlength=space.n)
-
-
-@dataclass
-class CoarseBlock:
-    """Psi on the interface entries D of one block group, shared by its members.
-
-    ``psi`` (n_d, p_max): the rows of Psi = A_rr^{-1} A_rPi on D; ``coarse_index``
-    (p_max, n_members): coarse dof of each member's primal column (n_primal: none).
-    """
-
-    psi: np.ndarray
-    coarse_index: np.ndarray
-
-
-@dataclass
-class InterfaceBlocks:
-    """The dense interface blocks (A_rr^{-1})_{DD} on D = r & mask and the coarse coupling on D.
-
-    Either ``coarse`` (one :class:`CoarseBlock` per group of ``blocks``, when Psi on D is shared by
-    the members of each group) or the sparse ``psi`` / ``psi_T`` rows of Psi on D; neither
-    without primal unknowns.
-    """
-
-    blocks: DenseBlocks
-    psi: sp.csr_matrix | None = None
-    psi_T: sp.csr_matrix | None = None
-    coarse: list[CoarseBlock] | None = None
-    coarse_flat: np.ndarray | None = None           # all coarse indices of ``coarse``, group by group
-
-
-class ExplicitInterfaceSolve(InterfaceSolve):
-    """Interface solves with dense blocks (A_rr^{-1})_{DD} = S_DD^{-1} on D = r & mask.
-
-    Formed on first use from the existing factorizations (no new factorization), so one
-    application costs one GEMM per group of the interface size plus the coarse solve.
-    """
-
-    explicit = True
-
-    def __init__(self, solver: PrimalConstrainedSolver, mask: np.ndarray) -> None:
-        super().__init__(solver, mask)
-        self._blocks: InterfaceBlocks | None = None
-
-    @property
-    def blocks(self) -> InterfaceBlocks:
-        """The dense interface blocks (formed on first use)."""
-        if self._blocks is None:
-            self._blocks = self._build_blocks()
-        return self._blocks
-
-    def _build_blocks(self) -> InterfaceBlocks:
-        solver, mask = self.solver, self.mask
-        blocks = []
-        coarse: list[CoarseBlock] | None = [] if solver.n_primal else None
-        work: list[tuple[_Group, list[int], np.ndarray]] = []
-        for g in solver.rr.groups:
-            pattern = mask[g.index]                             # (n_loc, n_members)
-            by_pattern: dict[bytes, list[int]] = {}
-            for j in range(pattern.shape[1]):
-                by_pattern.setdefault(pattern[:, j].tobytes(), []).append(j)
-            for members in by_pattern.values():
-                d = np.flatnonzero(pattern[:, members[0]])
-                if d.size:
-                    work.append((g, members, d))
-        # unit columns on the interface entries D; one multi-column solve for all batched subdomains
-        rhs = [(g.factor, sp.csc_matrix((np.ones(d.size), (d, np.arange(d.size))),
-                                        shape=(g.index.shape[0], d.size)), d) for g, _, d in work]
-        for (g, members, d), X in zip(work, solve_many(rhs)):
-            blocks.append((0.5 * (X + X.T), g.index[d][:, members], g.inv_rho[members]))
-            # Psi on D: shared by the members (same template, r set and primal set), with the
-            # coarse dof of each member's primal column (n_primal: none)
-            if coarse is not None:
-                psi = solver.Psi[g.index[d][:, members]]               # (n_d, n_members, p_max)
-                if np.array_equal(psi, np.broadcast_to(psi[:, :1], psi.shape)):
-                    cc = solver.coarse_cols[g.members[members]].T        # (p_max, n_members)
-                    coarse.append(CoarseBlock(np.ascontiguousarray(psi[:, 0]),
-                                              np.where(cc >= 0, cc, solver.n_primal)))
-                else:
-                    coarse = None
-        dense = DenseBlocks(blocks)
-        if not solver.n_primal:
-            return InterfaceBlocks(dense)
-        if coarse is not None:
-            flat = (np.concatenate([c.coarse_index.ravel() for c in coarse]) if coarse
-                    else np.zeros(0, dtype=np.int64))
-            return InterfaceBlocks(dense, coarse=coarse, coarse_flat=flat)
-        psi_rows = solver.Psi_global[dense.flat].tocsr()
-        return InterfaceBlocks(dense, psi=psi_rows, psi_T=psi_rows.T.tocsr())
-
-    def coarse_step(self, bs: np.ndarray, xs: np.ndarray, b_pi: np.ndarray) -> np.ndarray:
-        """The coarse part of A~^{-1} on the interface blocks (shared by the two interface solves).
-
-        ``bs``: the right-hand side on the blocks' entries; ``xs``: A_rr^{-1} of it there, corrected
-        in place by -Psi u_Pi; ``b_pi`` (n_primal + 1,): the primal right-hand side (last slot a
-        sink). Returns u_Pi with a trailing zero (``u_ext``).
-        """
-        solver, iface_blocks = self.solver, self.blocks
-        dense = iface_blocks.blocks
-        if iface_blocks.coarse is not None:       # b_pi -= sum_i R_Pi^T Psi_D^T bs (dense per group)
-            parts = []
-            for (A, off, n, n_m, _), coarse_block in zip(dense.parts, iface_blocks.coarse):
-                parts.append((coarse_block.psi.T @ bs[off:off + n * n_m].reshape(n, n_m)).ravel())
-            if parts:
-                b_pi -= np.bincount(iface_blocks.coarse_flat, weights=np.concatenate(parts), minlength=b_pi.size)
-        else:
-            b_pi[:-1] -= iface_blocks.psi_T @ bs
-        b_pi = b_pi[:-1]
-        b_pi[solver.pinned] = 0.0
-        u_ext = np.append(solver.coarse.solve(b_pi), 0.0)
-        if iface_blocks.coarse is not None:       # xs -= Psi_D u_Pi (dense per group)
-            for (A, off, n, n_m, _), coarse_block in zip(dense.parts, iface_blocks.coarse):
-                out = xs[off:off + n * n_m].reshape(n, n_m)
-                out -= coarse_block.psi @ u_ext[coarse_block.coarse_index]
-        else:
-            xs -= iface_blocks.psi @ u_ext[:-1]
-        return u_ext
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        solver = self.solver
-        dense = self.blocks.blocks
-        bs = b[dense.flat]
-        xs = dense.apply(bs)
-        x = np.zeros(solver.sub.n_W)
-        if solver.n_primal:
-            b_pi = np.bincount(solver.coarse_of_W[solver.primal], weights=b[solver.primal],
-                               minlength=solver.n_primal + 1)
-            u_ext = self.coarse_step(bs, xs, b_pi)
-            x[solver.primal] = u_ext[solver.coarse_of_W[solver.primal]]
-        x[dense.flat] = xs
-        return np.where(self.mask, x, 0.0)
-
-    def space_operator(self, space, weights: np.ndarray) -> ExplicitSpaceSolve:
-        solver = self.solver
-        dense = self.blocks.blocks
-        look = np.full(solver.sub.n_W, -1, dtype=np.int64)
-        look[space.idx] = np.arange(space.idx.size)
-        ent = look[dense.flat]
-        sel = np.flatnonzero(ent >= 0)
-        index_in = np.full(dense.flat.size, space.n, dtype=np.int64)
-        index_in[sel] = space.pos[ent[sel]]
-        weight_in = np.zeros(dense.flat.size)
-        weight_in[sel] = weights[ent[sel]]
-        primal_entries = look[np.flatnonzero(solver.primal)]
-        primal_entries = primal_entries[primal_entries >= 0]
-        # entries outside the space carry weight 0 and land in the extra slot space.n
-        return ExplicitSpaceSolve(interface=self, n=space.n, index_in=index_in, weight_in=weight_in,
-                                  primal_pos=space.pos[primal_entries], primal_weight=weights[primal_entries],
-                                  primal_coarse=solver.coarse_of_W[space.idx[primal_entries]])
-
-
-@dataclass
-class ExplicitSpaceSolve:
-    """gather_w(A~^{-1} scatter_w(r)) on compact index maps (see :meth:`InterfaceSolve.space_operator`).
-
-    Attributes
-    ----------
-    interface : ExplicitInterfaceSolve
-    n : int
-        Dimension of the space.
-    index_in : ndarray of int, shape (blocks.size,)
-        Space index of every block entry (``n`` outside the space).
-    weight_in : ndarray, shape (blocks.size,)
-        Weight of every block entry (0 outside the space).
-    primal_pos, primal_weight, primal_coarse : ndarray, shape (n_primal_entries,)
-        Space index, weight and coarse dof of the primal entries in the space.
-    """
-
-    interface: ExplicitInterfaceSolve
-    n: int
-    index_in: np.ndarray
-    weight_in: np.ndarray
-    primal_pos: np.ndarray
-    primal_weight: np.ndarray
-    primal_coarse: np.ndarray
-
-    def apply(self, r: np.ndarray) -> np.ndarray:
-        iface = self.interface
-        solver = iface.solver
-        r_ext = np.concatenate([r, np.zeros(1)])
-        xs = r_ext[self.index_in]
-        xs *= self.weight_in
-        ys = iface.blocks.blocks.apply(xs)
-        out = None
-        if solver.n_primal:
-            b_pi = np.bincount(self.primal_coarse, weights=r[self.primal_pos] * self.primal_weight,
-                               minlength=solver.n_primal + 1)
-            u_ext = iface.coarse_step(xs, ys, b_pi)
-            out = np.bincount(self.primal_pos, weights=u_ext[self.primal_coarse] * self.primal_weight,
-                              minlength=self.n)
-        ys *= self.weight_in
-        y = np.bincount(self.index_in, weights=ys, minlength=self.n + 1)[:-1]      # slot n: outside
-        return y if out is None else y + out
 
 
 class PairJump:
@@ -885,3 +420,39 @@ def scaled_jump(B_D, schur):
 def linear_operator(n: int, matvec) -> spla.LinearOperator:
     """Wrap a matvec as a symmetric scipy LinearOperator of shape (n, n)."""
     return spla.LinearOperator((n, n), matvec=matvec, rmatvec=matvec, dtype=float)
+
+
+# The primal-constrained solver lives in ddsolve.dd.primal (imported last: it reads this module's
+# thresholds); its names stay importable from here.
+from .primal import (
+    CoarseBlock,
+    ExplicitInterfaceSolve,
+    ExplicitSpaceSolve,
+    ImplicitInterfaceSolve,
+    ImplicitSpaceSolve,
+    InterfaceBlocks,
+    InterfaceSolve,
+    PrimalConstrainedSolver,
+)
+
+__all__ = [
+    "EXPLICIT_EXTENSION_BYTES",
+    "EXPLICIT_MAX_BLOCK",
+    "EXPLICIT_SETUP_MATVECS",
+    "CoarseBlock",
+    "DirichletSchur",
+    "ExplicitInterfaceSolve",
+    "ExplicitSpaceSolve",
+    "ExtensionBlock",
+    "HarmonicExtensions",
+    "ImplicitInterfaceSolve",
+    "ImplicitSpaceSolve",
+    "InterfaceBlocks",
+    "InterfaceSolve",
+    "PairJump",
+    "PrimalConstrainedSolver",
+    "SchurSpaceMatvec",
+    "linear_operator",
+    "scaled_jump",
+    "space_key",
+]

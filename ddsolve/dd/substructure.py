@@ -24,12 +24,13 @@ from scipy.sparse import csgraph
 import numpy as np
 import scipy.sparse as sp
 
+from ..options import PRIMALS
 from ..scene.assembly import LocalProblems
 
 log = logging.getLogger(__name__)
 
 #: Primal constraints of FETI-DP / BDDC (``Substructures(primal=...)``).
-PRIMAL_KINDS = ("vertices",)
+PRIMAL_KINDS = PRIMALS
 
 
 class Substructures:
@@ -50,11 +51,12 @@ class Substructures:
         factor all subdomains together, one block-diagonal factorization per
         kind (:class:`ddsolve.dd.local.BatchedSolver`). Same operators, same
         iterates up to rounding.
-    primal : {"vertices"}
+    primal : {"vertices", "vertices+edges"}
         Primal constraints of FETI-DP and BDDC: the cross points, completed by
         the rule of :meth:`_anchor_floating` where a floating subdomain would
-        keep a kernel (irregular partitions). Edge averages are not
-        implemented yet.
+        keep a kernel (irregular partitions); with ``"vertices+edges"`` also
+        the average over every edge (:mod:`ddsolve.dd.edges`, a change of
+        basis: the solvers work on :meth:`primal_space`).
 
     Attributes
     ----------
@@ -74,7 +76,8 @@ class Substructures:
         body boundary (Section 3.4); ``vertex`` is this set plus the nodes
         added by :meth:`_anchor_floating`.
     n_primal : int
-        Number of primal dofs (distinct global dofs of ``vertex``).
+        Number of primal dofs: distinct global dofs of ``vertex``, plus the
+        number of edges with ``primal="vertices+edges"``.
     delta : ndarray, shape (n_W,)
         delta-dagger_i(x) = rho_i^gamma / sum_{j in N_x} rho_j^gamma.
     K_W : scipy.sparse.csr_matrix, shape (n_W, n_W)
@@ -101,6 +104,10 @@ class Substructures:
             self.stiffness = [local.stiffness[t] for t in local.template]
             self.batch_local = True
         full_off, keep = self._layout(scene, local.nodes, primal)
+        self._full_offsets, self._kept = full_off, keep
+        self._edges = None
+        self._primal_space = None
+        self._edges_in_vertex = False       # True on the transformed copy: the representatives are in ``vertex``
         self.scaling = scaling
         self.gamma = float(gamma)
         self.delta = self.scaling_weights(scaling, gamma)
@@ -231,8 +238,33 @@ class Substructures:
 
     @property
     def n_primal(self) -> int:
-        """Number of primal constraints (distinct primal global dofs)."""
-        return int(np.unique(self.l2g[self.vertex]).size)
+        """Number of primal constraints (distinct primal global dofs, plus the edges if primal)."""
+        n_vertices = int(np.unique(self.l2g[self.vertex]).size)
+        if self.primal == "vertices+edges" and not self._edges_in_vertex:
+            return n_vertices + self.edges.n_edges
+        return n_vertices
+
+    @property
+    def edges(self):
+        """The edges of the decomposition (:func:`ddsolve.dd.edges.find_edges`), found on first use."""
+        if self._edges is None:
+            from .edges import find_edges
+            self._edges = find_edges(self)
+        return self._edges
+
+    def primal_space(self):
+        """The space FETI-DP and BDDC solve in (:class:`ddsolve.dd.edges.PrimalSpace`), built on first use.
+
+        ``primal="vertices"``: these substructures. ``"vertices+edges"``: the
+        change of basis that makes every edge average a primal unknown. Build it
+        after the last change of ``delta`` or ``f_W`` (the copy shares them as
+        they are then; loads passed to :meth:`PrimalSpace.to_primal` are mapped
+        at each call).
+        """
+        if self._primal_space is None:
+            from .edges import PrimalSpace
+            self._primal_space = PrimalSpace(self, self.edges if self.primal == "vertices+edges" else None)
+        return self._primal_space
 
     # ------------------------------------------------------------------ layout
     def _block_diagonal(self, full_off: np.ndarray, keep: np.ndarray) -> sp.csr_matrix:

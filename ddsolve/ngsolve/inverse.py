@@ -15,6 +15,7 @@ from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from ..dd.projection import Projection
 from ..errors import InputError
+from ..options import PRIMAL_METHODS, PRIMALS
 from ..krylov import KrylovResult, pcg
 from ..scene.scene import sorted_unique
 from .dofs import (
@@ -188,7 +189,8 @@ class DDInverse(ngsolve.BaseMatrix):
     parts : int
         METIS parts (ignored when ``partition`` is given).
     partition : None, "materials" or array of int, shape (n_elements,)
-    primal : {"vertices"}
+    primal : {"vertices", "vertices+edges"}
+        Primal constraints; edge averages for bddc and fetidp only.
     rtol, maxiter : float, int
         Krylov stopping rule ||r_k|| <= rtol ||r_0|| on the interface / dual problem.
     freedofs : BitArray or array of bool, optional
@@ -221,8 +223,9 @@ class DDInverse(ngsolve.BaseMatrix):
             raise InputError("method", f"expected one of {METHODS}, got {method!r}")
         if scaling not in SCALINGS:
             raise InputError("scaling", f"expected one of {SCALINGS}, got {scaling!r}")
-        if primal != "vertices":
-            raise InputError("primal", f"only 'vertices' is implemented, got {primal!r}")
+        if primal not in PRIMALS or (primal != "vertices" and method not in PRIMAL_METHODS):
+            raise InputError("primal", f"expected one of {PRIMALS} ('vertices' only for method 'feti'), "
+                                       f"got {primal!r}")
         if not (isinstance(rtol, (int, float)) and 0 < rtol < 1):
             raise InputError("rtol", f"must be in (0, 1), got {rtol!r}")
         if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
@@ -270,14 +273,15 @@ class DDInverse(ngsolve.BaseMatrix):
             total = np.bincount(sub.node_of_W, weights=d, minlength=sub.scene.n_nodes)
             sub.delta = d / total[sub.node_of_W]
         self.sub = sub
+        self.space = sub.primal_space()         # primal "vertices+edges": the edge-average basis (ddsolve.dd.edges)
         # global dof (of ddsolve: free nodes) -> H1 dof
         free_nodes = np.flatnonzero(~pm.local.scene.dirichlet)
         self.h1_of_gdof = pm.node_dof[free_nodes]
         self.timings["substructures"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        self._bddc = _BDDC(sub)
-        self._fetidp = _FETIDP(sub, self._bddc) if method == "fetidp" else None
+        self._bddc = _BDDC(self.space.sub)
+        self._fetidp = _FETIDP(self.space.sub, self._bddc) if method == "fetidp" else None
         self._feti: _FETI | None = None
         if method == "feti":
             # the constants are 1 on the vertex dofs and 0 on the edge/bubble dofs of a hierarchical basis;
@@ -332,11 +336,11 @@ class DDInverse(ngsolve.BaseMatrix):
             g = np.einsum("ebw,eb->ew", c.E, fb)
             f = f - np.bincount(self.T_w.ravel(), weights=g.ravel(), minlength=f.size)
         sub = self.sub
-        return sub.delta * f[self.h1_of_gdof][sub.l2g], fb
+        return self.space.to_primal(sub.delta * f[self.h1_of_gdof][sub.l2g]), fb
 
     def _expand(self, u_W: np.ndarray, fb: np.ndarray | None) -> np.ndarray:
         u = np.zeros(self.fes.ndof)
-        u[self.h1_of_gdof] = self.sub.average(u_W)
+        u[self.h1_of_gdof] = self.sub.average(self.space.from_primal(u_W))
         c = self.cond_data
         if c.b.size:
             uw = u[self.T_w]

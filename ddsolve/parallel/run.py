@@ -62,6 +62,9 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
                                    f"(run without mpiexec for the others)")
     if spec.output:
         raise InputError("output", "writing a .vtu file is not available under mpiexec yet (run without mpiexec)")
+    if spec.primal != "vertices":
+        raise InputError("primal", f"{spec.primal!r}: edge averages have no distributed (mpiexec) implementation "
+                                   f"(run without mpiexec, or use 'vertices')")
     n_sub = spec.parts if spec.mesh == "unstructured" else spec.bodies ** 2 * spec.subdomains ** 2
     if spec.mesh_file and spec.mesh == "unstructured":
         return                          # the parts of a mesh file are counted once it is read (in solve)

@@ -87,7 +87,7 @@ BAD = [
     (["--maxh", "0.2"], "maxh"),
     (["--geometry", "hole"], "geometry"),
     (["--mesh", "triangles"], "mesh"),
-    (["--primal", "vertices+edges"], "primal"),
+    (["--method", "feti", "--primal", "vertices+edges"], "primal"),    # fetidp and bddc only
     (["--primal", "faces"], "primal"),
     (["--dirichlet", "left"], "dirichlet"),
     (U + ["--parts", "1"], "parts"),                                    # fetidp on one subdomain
