@@ -70,10 +70,8 @@ def test_case_spec_is_a_valid_problem_spec():
     ps = ProblemSpec.from_mapping(spec)
     assert (ps.mesh, ps.maxh, ps.refine, ps.parts, ps.method, ps.cond, ps.rtol) == (
         "unstructured", 0.1, 1, 8, "bddc", True, 1e-9)
-    from ddsolve.errors import InputError
-
-    with pytest.raises(InputError, match="primal"):   # edge averages: refused until ddsolve has them
-        ProblemSpec.from_mapping(case_spec(CondCase(0.1, 1, 8, "bddc", "vertices+edges")))
+    edges = ProblemSpec.from_mapping(case_spec(CondCase(0.1, 1, 8, "bddc", "vertices+edges")))
+    assert (edges.primal, edges.method, edges.parts) == ("vertices+edges", "bddc", 8)
 
 
 def _collected() -> pd.DataFrame:

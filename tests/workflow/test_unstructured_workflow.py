@@ -31,9 +31,9 @@ def test_config_reaches_a_million_dofs_and_a_thousand_subdomains():
     ({"problems": {"poisson": {"maxh": 0.1, "refine": [0], "parts": 4, "methods": ["cg"]}}}, "methods/0"),
     ({"problems": {"heat": {"maxh": 0.1, "refine": [0], "parts": 4, "methods": ["fetidp"]}}}, "heat"),
     ({"extra": 1}, "extra"),
-    ({"cond_law": {"methods": ["fetidp"], "primals": ["vertices+edges"],
+    ({"cond_law": {"methods": ["fetidp"], "primals": ["edges"],
                    "fixed_P": {"maxh": 0.1, "refine": [0, 1], "parts": 4}}},
-     r"cond_law/primals/0: 'vertices\+edges' is not one of \['vertices'\]"),
+     r"cond_law/primals/0: 'edges' is not one of \['vertices', 'vertices\+edges'\]"),
     ({"cond_law": {"methods": ["feti"], "fixed_P": {"maxh": 0.1, "refine": [0, 1], "parts": 4}}},
      "cond_law/methods/0"),
     ({"cond_law": {"methods": ["fetidp"]}}, "cond_law"),
@@ -60,8 +60,8 @@ def test_dry_run_plans_one_job_per_problem_and_refinement(workdir):
                                                       flags=re.MULTILINE)}
     assert counts["unstructured_case"] == 10 and counts["unstructured_summary"] == 1
     assert counts["unstructured_plot"] == 1
-    # cond_law: fixed_Hh (5 points) and fixed_P (5 points) share (refine 1, P 16), x 2 methods
-    assert counts["unstructured_cond_case"] == 2 * (5 + 5 - 1) and counts["unstructured_cond_aggregate"] == 1
+    # cond_law: fixed_Hh (5 points) and fixed_P (5 points) share (refine 1, P 16), x 2 methods x 2 primal sets
+    assert counts["unstructured_cond_case"] == 2 * 2 * (5 + 5 - 1) and counts["unstructured_cond_aggregate"] == 1
     assert counts["unstructured_cond_law"] == 1 and counts["unstructured_contact_figure"] == 1
 
 
