@@ -16,6 +16,7 @@ factorization grow with P) is what the performance model of
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -37,6 +38,9 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
     comm : CountingComm
     primal_dofs : ndarray of int
         Sorted global dofs of all primal unknowns (from the topology).
+    pinned : sequence of int, optional
+        Coarse dofs pinned to zero (one primal vertex per floating body, chosen from the global
+        topology as the serial ``fixed_bodies`` does): A~^+ of FETI-FETI.
 
     Attributes
     ----------
@@ -46,12 +50,14 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
     """
 
     def __init__(self, sub, primal_mask: np.ndarray, cache: dict, comm: CountingComm,
-                 primal_dofs: np.ndarray) -> None:
+                 primal_dofs: np.ndarray, pinned: Sequence[int] = ()) -> None:
         self.comm = comm
         self._all_primal = np.asarray(primal_dofs, dtype=np.int64)
+        self._pinned = np.asarray(pinned, dtype=np.int64)
         self.coarse_seconds = 0.0
         t0 = time.perf_counter()
-        super().__init__(sub, primal_mask, cache)
+        super().__init__(sub, primal_mask, cache)       # no fixed_bodies: a rank may not hold the pinned entry
+        self.pinned = self._pinned
         self.coarse_setup_seconds = time.perf_counter() - t0
 
     def _primal_dofs(self, sub, primal_mask: np.ndarray) -> np.ndarray:
@@ -65,6 +71,11 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
         cols = np.concatenate([p[1] for p in parts])
         vals = np.concatenate([p[2] for p in parts])
         S = sp.csr_matrix((vals, (rows, cols)), shape=S_PiPi.shape)
+        if self._pinned.size:                           # as PrimalConstrainedSolver with fixed_bodies
+            keep = np.ones(S.shape[0])
+            keep[self._pinned] = 0.0
+            D = sp.diags(keep)
+            S = D @ S @ D + sp.diags(1.0 - keep)
         self.coarse_seconds += time.perf_counter() - t0
         return S
 

@@ -24,10 +24,12 @@ from .comm import CountingComm
 
 log = logging.getLogger(__name__)
 
-__all__ = ["METHODS", "MPI_ENV", "check_supported", "mpi_world_size", "solve", "main"]
+__all__ = ["DISTRIBUTED", "METHODS", "MPI_ENV", "check_supported", "mpi_world_size", "solve", "main"]
 
-#: Methods with a distributed implementation (problem poisson).
+#: Methods with a distributed implementation (problem poisson); ``mpiexec -n 1`` runs these distributed.
 METHODS = ("fetidp", "bddc", "feti")
+#: Distributed methods of every problem (``mpiexec -n P``, P >= 2; the others are refused).
+DISTRIBUTED: dict[str, tuple[str, ...]] = {"poisson": METHODS, "multibody": ("feti-feti",)}
 #: Environment variables that mark a process started by mpiexec (MPICH/Hydra, Open MPI, PMIx).
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")
 #: Test hook: a rank number; that rank raises once its setup is done (tests of the abort path only).
@@ -56,10 +58,12 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
         ``method`` outside :data:`METHODS` or a problem other than poisson; ``subdomains``
         (``parts``) when there are fewer subdomains than ranks; ``output`` (not written under mpiexec).
     """
-    if spec.problem != "poisson" or spec.method not in METHODS:
+    if spec.method not in DISTRIBUTED.get(spec.problem, ()):
+        listed = "; ".join(f"{p} with {', '.join(ms)}" for p, ms in DISTRIBUTED.items())
         raise InputError("method", f"{spec.problem}/{spec.method} has no distributed (mpiexec) implementation; "
-                                   f"distributed methods: poisson with {', '.join(METHODS)} "
-                                   f"(run without mpiexec for the others)")
+                                   f"distributed methods: {listed} (run without mpiexec for the others)")
+    from ..prepared import check_decomposition
+    check_decomposition(spec)
     if spec.output:
         raise InputError("output", "writing a .vtu file is not available under mpiexec yet (run without mpiexec)")
     n_sub = spec.parts if spec.mesh == "unstructured" else spec.bodies ** 2 * spec.subdomains ** 2
@@ -82,6 +86,7 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
     solve_seconds = comm.comm.allreduce(solve_seconds, op=comm.MPI.MAX)
     krylov_seconds = comm.comm.allreduce(info["krylov_seconds"], op=comm.MPI.MAX)
     n_fact = comm.comm.allreduce(int(out.n_factorizations))
+    n_templates = comm.comm.allreduce(int(prob.sub.local.n_templates))
     rank_timings = {k: comm.comm.allreduce(float(v), op=comm.MPI.MAX) for k, v in sorted(prob.timings.items())}
     from ..api import peak_rss_mb
     peak = comm.comm.allreduce(peak_rss_mb(), op=comm.MPI.MAX)
@@ -108,16 +113,24 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
         fields.update(converged=False, reason=f"non-finite solution after {reason}")
     if spec.check and out.u is not None:       # the direct reference, on rank 0 only (serial assembly)
         from ..api import checked_error
-        from ..dd import solve_direct
         from ..prepared import prepare
-        ref_sub = prepare(spec).sub
-        error, why = checked_error(ref_sub.global_matrix(), out.u, solve_direct(ref_sub))
+        ref_sub = prepare(spec, prob.topo.scene).sub
+        if spec.problem == "multibody":
+            from ..multibody import GlobalInterface
+            from ..multibody.direct import solve_constrained_direct
+            gi = GlobalInterface(ref_sub)
+            reference = solve_constrained_direct(ref_sub, gi, gi.contact_mask(spec.contact))
+        else:
+            from ..dd import solve_direct
+            reference = solve_direct(ref_sub)
+        error, why = checked_error(ref_sub.global_matrix(), out.u, reference)
         fields["error_vs_direct"] = error
         if why:
             extra["check_reason"] = why
     from ..api import _sizes
     n_sub = prob.topo.n_sub
-    extra["timings"] = {"mesh": rank_timings.get("scene", 0.0), "partition": 0.0,
+    extra["n_templates"] = n_templates                            # summed over ranks (each factors its own)
+    extra["timings"] = {"mesh": rank_timings.get("mesh", 0.0), "partition": rank_timings.get("partition", 0.0),
                         "assembly": rank_timings.get("assembly", 0.0),
                         "setup": max(setup_seconds - rank_timings.get("scene", 0.0) - rank_timings.get("assembly", 0.0),
                                      0.0),
@@ -134,7 +147,7 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
 
 
 def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: bool = True) -> SolveResult | None:
-    """Distributed solve of ``spec`` (poisson: fetidp, bddc or feti) over the ranks of ``comm``.
+    """Distributed solve of ``spec`` (a method of :data:`DISTRIBUTED`) over the ranks of ``comm``.
 
     Parameters
     ----------
@@ -156,6 +169,7 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
     from .bddc import solve_bddc_mpi
     from .feti import solve_feti_mpi
     from .fetidp import solve_fetidp_mpi
+    from .fetifeti import solve_fetifeti_mpi
     from .setup import prepare_rank
 
     if not isinstance(spec, ProblemSpec):
@@ -172,7 +186,8 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         fail = os.environ.get(FAIL_ENV)
         if fail is not None and fail == str(comm.rank):
             raise RuntimeError(f"injected failure ({FAIL_ENV}={fail})")
-        method = {"fetidp": solve_fetidp_mpi, "bddc": solve_bddc_mpi, "feti": solve_feti_mpi}[spec.method]
+        method = {"fetidp": solve_fetidp_mpi, "bddc": solve_bddc_mpi, "feti": solve_feti_mpi,
+                  "feti-feti": solve_fetifeti_mpi}[spec.method]
         t1 = time.perf_counter()
         from ..presets import solver_options
         if prob.topo.n_sub < comm.size:

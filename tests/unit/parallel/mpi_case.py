@@ -1,6 +1,6 @@
 """Run under mpiexec by test_mpi.py: one distributed solve, rank 0 writes an npz.
 
-Usage: mpi_case.py METHOD {structured,unstructured} OUT.npz
+Usage: mpi_case.py METHOD {structured,unstructured,middle} OUT.npz
 """
 import sys
 
@@ -11,6 +11,18 @@ from ddsolve.parallel import solve
 
 def case(method: str, kind: str):
     """The spec and scene (None: the spec's structured scene) of a test case; shared with the serial side."""
+    if method == "feti-feti":          # multibody (4.32): 3 x 3 bodies, the middle one floats
+        spec = dict(problem="multibody", method=method, bodies=3, subdomains=2, elements=4,
+                    rho="checkerboard:100", f="random:2", cond=True, contact="full")
+        if kind == "middle":
+            return {**spec, "contact": "middle"}, None
+        if kind == "structured":
+            return spec, None
+        from ddsolve.scene import unstructured_scene
+        scene = unstructured_scene("multibody", maxh=0.12, parts=3, bodies=3, rho=np.geomspace(1.0, 1e3, 27),
+                                   seed=0)
+        scene.f = np.random.default_rng(3).uniform(-1.0, 1.0, scene.elements.shape[0])
+        return dict(problem="multibody", method=method, cond=True, contact="full"), scene
     if kind == "structured":
         return dict(method=method, subdomains=4, elements=5, rho="checkerboard:100", f="random:1", cond=True), None
     from ddsolve.scene import unstructured_scene

@@ -51,13 +51,15 @@ def _mpiexec(n: int, args: list[str], **env: str) -> subprocess.CompletedProcess
 
 def _serial(method: str, kind: str):
     spec, scene = case(method, kind)
-    out = SOLVERS["poisson"][method](prepare(spec, scene)).output
+    out = SOLVERS[spec.get("problem", "poisson")][method](prepare(spec, scene)).output
     return out
 
 
 @pytest.mark.parametrize("method,kind,n", [("fetidp", "structured", 2), ("bddc", "structured", 2),
                                            ("fetidp", "unstructured", 2), ("bddc", "unstructured", 3),
-                                           ("feti", "structured", 3)])
+                                           ("feti", "structured", 3),
+                                           ("feti-feti", "structured", 2), ("feti-feti", "middle", 4),
+                                           ("feti-feti", "unstructured", 3)])
 def test_distributed_equals_serial(tmp_path, method, kind, n):
     out_file = tmp_path / "u.npz"
     proc = _mpiexec(n, [str(HERE / "mpi_case.py"), method, kind, str(out_file)])
@@ -92,10 +94,27 @@ def test_cli_json_contract():
     assert summary["comm"]["messages_per_iteration"] == 4.0
     assert summary["comm"]["bytes_per_iteration"] == 2 * 2 * 12 * 8
     assert 2 * messages_bytes(2, 8, 4)[1] == summary["comm"]["bytes_per_iteration"]      # the model's count
+    assert summary["n_templates"] == 2 * ref["n_templates"]      # summed over ranks: each detects its own
 
 
-def test_failure_on_one_rank_aborts_all():
-    proc = _mpiexec(3, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4", "--json"],
+def test_cli_multibody_metis_json():
+    args = ["-m", "ddsolve", "solve", "--problem", "multibody", "--method", "feti-feti", "--mesh", "unstructured",
+            "--bodies", "2", "--parts", "3", "--maxh", "0.15", "--contact", "middle", "--json"]
+    proc = _mpiexec(2, args)
+    assert proc.returncode == 0, proc.stderr
+    import json
+    summary = json.loads(proc.stdout)
+    ref = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
+                                    env=_env(), cwd=ROOT).stdout)
+    assert summary["n_ranks"] == 2 and summary["iterations"] == ref["iterations"]
+    assert summary["n_active"] == ref["n_active"] and summary["nlambda"] == ref["nlambda"]
+    assert summary["timings"]["partition"] > 0.0                  # METIS timed apart from the mesh
+    assert summary["n_templates"] == ref["n_templates"] == 12     # METIS parts: one template each
+
+
+@pytest.mark.parametrize("problem", [[], ["--problem", "multibody", "--method", "feti-feti", "--bodies", "2"]])
+def test_failure_on_one_rank_aborts_all(problem):
+    proc = _mpiexec(3, ["-m", "ddsolve", "solve", *problem, "--subdomains", "3", "--elements", "4", "--json"],
                     DDSOLVE_TEST_FAIL_RANK="1")
     assert proc.returncode != 0
     errors = [line for line in proc.stderr.splitlines() if line.startswith("ddsolve: error:")]
@@ -104,7 +123,10 @@ def test_failure_on_one_rank_aborts_all():
 
 
 @pytest.mark.parametrize("args,field", [(["--subdomains", "0"], "subdomains"),
-                                        (["--method", "direct"], "method")])
+                                        (["--method", "direct"], "method"),
+                                        (["--problem", "multibody", "--method", "hybrid"], "method"),
+                                        (["--problem", "multibody", "--method", "feti-feti", "--bodies", "3",
+                                          "--subdomains", "1"], "subdomains")])
 def test_bad_input_exits_2_on_every_rank(args, field):
     proc = _mpiexec(2, ["-m", "ddsolve", "solve", *args])
     assert proc.returncode == 2, proc.stderr
