@@ -24,7 +24,7 @@ import scipy.sparse as sp
 from ..dd.operators import PrimalConstrainedSolver
 from .comm import CountingComm
 
-__all__ = ["DistributedPrimalSolver"]
+__all__ = ["DistributedPrimalSolver", "pinned_vertices"]
 
 
 class DistributedPrimalSolver(PrimalConstrainedSolver):
@@ -40,7 +40,10 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
         Sorted global dofs of all primal unknowns (from the topology).
     pinned : sequence of int, optional
         Coarse dofs pinned to zero (one primal vertex per floating body, chosen from the global
-        topology as the serial ``fixed_bodies`` does): A~^+ of FETI-FETI.
+        topology as the serial ``fixed_bodies`` does, :func:`pinned_vertices`): A~^+ of FETI-FETI and
+        of the hybrid method.
+    exclude : ndarray of bool, shape (sub.n_W,), optional
+        As for :class:`PrimalConstrainedSolver` (``primal_dofs`` then lists the primal dofs outside it).
 
     Attributes
     ----------
@@ -50,13 +53,14 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
     """
 
     def __init__(self, sub, primal_mask: np.ndarray, cache: dict, comm: CountingComm,
-                 primal_dofs: np.ndarray, pinned: Sequence[int] = ()) -> None:
+                 primal_dofs: np.ndarray, pinned: Sequence[int] = (), exclude: np.ndarray | None = None) -> None:
         self.comm = comm
         self._all_primal = np.asarray(primal_dofs, dtype=np.int64)
         self._pinned = np.asarray(pinned, dtype=np.int64)
         self.coarse_seconds = 0.0
         t0 = time.perf_counter()
-        super().__init__(sub, primal_mask, cache)       # no fixed_bodies: a rank may not hold the pinned entry
+        # no fixed_bodies: a rank may not hold the pinned entry (see pinned_vertices)
+        super().__init__(sub, primal_mask, cache, exclude=exclude)
         self.pinned = self._pinned
         self.coarse_setup_seconds = time.perf_counter() - t0
 
@@ -95,3 +99,29 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
         x -= self.Psi_global @ u_pi
         x[self.primal] = u_pi[self.coarse_of_W[self.primal]]
         return x
+
+
+def pinned_vertices(topo, floating_bodies, primal_dofs: np.ndarray) -> list[int]:
+    """Coarse index of the pinned vertex of every floating body: its first primal W entry (the serial choice).
+
+    Parameters
+    ----------
+    topo : Substructures
+        Global topology.
+    floating_bodies : sequence of int
+    primal_dofs : ndarray of int
+        Sorted global dofs of the primal unknowns.
+
+    Raises
+    ------
+    ValueError
+        A floating body without a primal vertex.
+    """
+    body_W = topo.body_of_sub[topo.sub_of_W]
+    pinned = []
+    for body in floating_bodies:
+        cand = np.flatnonzero(topo.vertex & (body_W == body))
+        if cand.size == 0:
+            raise ValueError(f"floating body {body} has no primal vertex to pin")
+        pinned.append(int(np.searchsorted(primal_dofs, topo.l2g[cand[0]])))
+    return pinned

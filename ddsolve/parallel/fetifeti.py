@@ -47,7 +47,7 @@ import scipy.sparse as sp
 from ..dd.common import MethodOutput
 from ..dd.dual import DUAL_PROJECTIONS, dual_operators
 from ..dd.operators import DirichletSchur
-from .coarse import DistributedPrimalSolver
+from .coarse import DistributedPrimalSolver, pinned_vertices
 from .comm import NeighbourSum, SharedIndex
 from .dual import distributed_solve_dual
 from .fetidp import jump_pairs, pair_rows
@@ -118,13 +118,8 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
     cache: dict = {}
     primal_dofs = np.unique(topo.l2g[topo.vertex])
     body_W = topo.body_of_sub[topo.sub_of_W]
-    pinned = []
-    for body in floating:                    # the serial choice: the first primal W entry of the body
-        cand = np.flatnonzero(topo.vertex & (body_W == body))
-        if cand.size == 0:
-            raise ValueError(f"floating body {body} has no primal vertex to pin")
-        pinned.append(int(np.searchsorted(primal_dofs, topo.l2g[cand[0]])))
-    primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, primal_dofs, pinned=pinned)
+    primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, primal_dofs,
+                                            pinned=pinned_vertices(topo, floating, primal_dofs))
     sl = slice(sub.w0, sub.w1)
     schur = DirichletSchur(sub, sub.interface | gi.mask[sl], cache)
     tilde = _TildeSchur(prob, schur, topo.vertex & gi.mask)

@@ -38,7 +38,8 @@ class RankProblem:
         of the scene build ``"mesh"`` and ``"partition"`` (METIS; 0 on a structured scene or a given
         scene), as :attr:`ddsolve.prepared.Prepared.scene_timings`.
     gi : GlobalInterface or None
-        The inter-body multipliers (problem multibody), built from the global topology.
+        The inter-body multipliers (problem multibody; contact: the contact pairs), built from the
+        global topology.
     """
 
     spec: ProblemSpec
@@ -68,7 +69,7 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
         scene_timings["mesh"] = t1 - t0
     topo = topology(scene, spec.scaling, spec.gamma)
     gi = None
-    if spec.problem == "multibody":
+    if spec.problem in ("multibody", "contact"):
         from ..multibody import GlobalInterface
         gi = GlobalInterface(topo)
     t2 = time.perf_counter()
