@@ -303,7 +303,8 @@ class DistributedHybrid:
                               shape=(rows.size, k))
             projection = DistributedProjection(G, shared.owned, comm)
         a = DistributedActiveSet(active=active.copy(), rows=rows, shared=shared, jump=jump,
-                                 scaled_jump_gamma=scaled_gamma, scaled_jump_global=scaled, projection=projection, n_active=int(n_act))
+                                 scaled_jump_gamma=scaled_gamma, scaled_jump_global=scaled,
+                                 projection=projection, n_active=int(n_act))
         if len(self._cache) > 16:
             self._cache.clear()
         self._cache[key] = a

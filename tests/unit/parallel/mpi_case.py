@@ -39,7 +39,14 @@ def case(method: str, kind: str):
 if __name__ == "__main__":
     method, kind, out = sys.argv[1:4]
     spec, scene = case(method, kind)
-    result = solve(spec, scene=scene)
+    try:
+        result = solve(spec, scene=scene)
+    except Exception:                   # noqa: BLE001 - one failing rank ends the job (no hang until the timeout)
+        import traceback
+
+        from mpi4py import MPI
+        traceback.print_exc()
+        MPI.COMM_WORLD.Abort(1)
     if result is not None and method == "active-set":
         e = result.extra
         np.savez(out, u=result.u, n_ranks=e["n_ranks"], messages=e["comm"]["messages_per_iteration"],
