@@ -213,6 +213,7 @@ class DistributedHybrid:
         self._inc_dof, self._inc_rank = np.divmod(key, base)
         self.g_hat = self.gamma.exchange.sum(g.gather(self.schur.harmonic_extension_rhs(sub.f_W)))
         self._cache: dict[bytes, DistributedActiveSet] = {}
+        self._bddc_op = self._local_op = None       # interface operators of the two solvers, on first use
         self.setup_seconds = time.perf_counter() - t0
 
     # ----------------------------------------------------------- operators
@@ -224,8 +225,9 @@ class DistributedHybrid:
     def M_bddc(self, r: np.ndarray) -> np.ndarray:
         """R_D^T S~^dagger R_D r (every body; primal copies summed in the coarse problem)."""
         g = self.gamma
-        x = self.body_solver.solve(g.space.scatter(r, self.delta_gamma))
-        return g.exchange.sum(g.space.gather(x, self.delta_gamma))
+        if self._bddc_op is None:            # the serial operator (explicit interface blocks where they pay)
+            self._bddc_op = self.body_solver.interface(self.schur.gamma).space_operator(g.space, self.delta_gamma)
+        return g.exchange.sum(self._bddc_op.apply(r))
 
     def P_R(self, u: np.ndarray) -> np.ndarray:
         """Remove the mean on every floating body (one Allreduce of k doubles)."""
@@ -250,8 +252,9 @@ class DistributedHybrid:
         """S~_OL v on this rank's global-interface dofs, as :meth:`HybridSolver.S_ol`."""
         gl, lc = self.glob, self.loc
         r0 = lc.exchange.sum(self.schur.space_matvec(v, gl.space, lc.space))
-        x0 = lc.exchange.sum(lc.space.gather(self.local_solver.solve(lc.space.scatter(r0, self.delta_local)),
-                                             self.delta_local))
+        if self._local_op is None:
+            self._local_op = self.local_solver.interface(self.schur.gamma).space_operator(lc.space, self.delta_local)
+        x0 = lc.exchange.sum(self._local_op.apply(r0))
         return gl.exchange.sum(self.schur.space_matvec((v, -x0), (gl.space, lc.space), gl.space))
 
     def M_D(self, a: DistributedActiveSet, lam: np.ndarray) -> np.ndarray:
