@@ -59,18 +59,20 @@ _ROUNDING = 64 * float(np.finfo(float).eps)
 _SWITCH = "switch"
 
 
-def _m_norm(r: np.ndarray, z: np.ndarray, rz: float | None = None) -> float:
+def _m_norm(r: np.ndarray, z: np.ndarray, rz: float | None = None, inner: Any = None, norm: Any = None) -> float:
     """``<r, z>^{1/2}`` with ``z = M r``: the ``M``-norm of the residual.
 
     NaN when ``<r, z>`` (``rz`` if given) is negative beyond rounding (``M``
     not positive definite) or not finite; a negative value at rounding level
-    counts by its modulus.
+    counts by its modulus. ``inner``, ``norm``: the solver's reduction hooks
+    (default ``np.dot`` and ``norm2``; a distributed solver passes its own).
     """
     if rz is None:
-        rz = float(np.dot(r, z))
+        rz = float(np.dot(r, z)) if inner is None else inner(r, z)
     if rz >= 0.0:
         return math.sqrt(rz)
-    if -rz <= _ROUNDING * norm2(r) * norm2(z):
+    norm = norm2 if norm is None else norm
+    if -rz <= _ROUNDING * norm(r) * norm(z):
         return math.sqrt(-rz)
     return math.nan
 
@@ -120,14 +122,14 @@ class PCR(KrylovSolver):
     # ------------------------------------------------------------ hooks
     def initial_norm(self, r: np.ndarray) -> float:
         if self.norm != "M":
-            return norm2(r)
+            return self.l2norm(r)
         self.z = self.precondition(r)
-        return _m_norm(r, self.z)
+        return _m_norm(r, self.z, inner=self.inner, norm=self.l2norm)
 
     def initial_failure(self, rnorm0: float) -> tuple[str, float]:
         if self.norm != "M":
             return super().initial_failure(rnorm0)
-        rz = float(np.dot(self.r, self.z))
+        rz = self.inner(self.r, self.z)
         what = (f"<r0, M r0> = {rz:.3e} < 0 (M not positive definite)" if math.isfinite(rz)
                 else "non-finite <r0, M r0> (NaN/inf in A, b, x0, M or P)")
         return f"breakdown: {what}", (math.sqrt(-rz) if math.isfinite(rz) else rnorm0)
@@ -141,7 +143,7 @@ class PCR(KrylovSolver):
         r = self.b - apply(self.A, x)
         if self.P is not None:
             r = apply(self.P, r)
-        return _m_norm(r, self.precondition(r))
+        return _m_norm(r, self.precondition(r), inner=self.inner, norm=self.l2norm)
 
     def label(self, reason: str) -> str:
         """Name the ``M``-norm in a stopping reason (``||r||`` -> ``||r||_M``)."""
@@ -177,8 +179,8 @@ class PCR(KrylovSolver):
             np.multiply(map_, step, out=tmp)
             self.z -= tmp
         if self.norm == "M":
-            rz = float(np.dot(self.r, self.z))
-            rnorm = _m_norm(self.r, self.z, rz)
+            rz = self.inner(self.r, self.z)
+            rnorm = _m_norm(self.r, self.z, rz, inner=self.inner, norm=self.l2norm)
             if math.isnan(rnorm) and math.isfinite(rz):
                 # clearly negative <r, M r>: recorded by its modulus (a non-finite one is caught below)
                 self.iterations += 1
@@ -186,7 +188,7 @@ class PCR(KrylovSolver):
                 return self.breakdown(f"breakdown: <r, M r> = {rz:.3e} < 0 at iteration "
                                       f"{self.iterations} (M not positive definite)")
         else:
-            rnorm = norm2(self.r)
+            rnorm = self.l2norm(self.r)
         return self.advance(rnorm)
 
     def breakdown_denominator(self, value: float) -> str:
@@ -205,8 +207,8 @@ def _pivot_vanishes(st: PCR, rho: float, z: np.ndarray, az: np.ndarray, maz: np.
     point system with rho -> s rho would switch recurrences at other iterations.
     """
     if maz is None:
-        return abs(rho) <= _CR_PIVOT_TOL * norm2(z) * norm2(az)
-    rz, am = float(np.dot(st.r, z)), float(np.dot(az, maz))
+        return abs(rho) <= _CR_PIVOT_TOL * st.l2norm(z) * st.l2norm(az)
+    rz, am = st.inner(st.r, z), st.inner(az, maz)
     return abs(rho) <= _CR_PIVOT_TOL * math.sqrt(abs(rz)) * math.sqrt(abs(am))
 
 
@@ -231,7 +233,7 @@ def _two_term(st: PCR) -> str:
         st.z = st.precondition(st.r)
     z = st.z
     az = st.op(z)
-    rho = float(np.dot(z, az))
+    rho = st.inner(z, az)
     if not math.isfinite(rho):
         st.reason = f"breakdown: non-finite <z, A z> at iteration {st.iterations + 1}"
         return BREAKDOWN
@@ -243,7 +245,7 @@ def _two_term(st: PCR) -> str:
     ap = az
     map_ = maz if m_geometry else st.precondition(ap)
     while True:
-        den = float(np.dot(ap, map_))
+        den = st.inner(ap, map_)
         if not (den > 0.0 and math.isfinite(den)):
             return st.breakdown_denominator(den)
         alpha = rho / den
@@ -254,7 +256,7 @@ def _two_term(st: PCR) -> str:
         if outcome is not None:
             return outcome
         az = st.op(z)
-        rho_new = float(np.dot(z, az))
+        rho_new = st.inner(z, az)
         if not math.isfinite(rho_new):
             st.reason = f"breakdown: non-finite <z, A z> at iteration {st.iterations + 1}"
             return BREAKDOWN
@@ -296,7 +298,7 @@ def _three_term(st: PCR) -> str:
     st.z = p.copy() if st.norm == "M" else None
     w = st.op(p)
     v = st.precondition(w)
-    d = float(np.dot(w, v))
+    d = st.inner(w, v)
     if not (d > 0.0 and math.isfinite(d)):
         return st.breakdown_denominator(d)
     scale = 1.0 / math.sqrt(d)
@@ -307,7 +309,7 @@ def _three_term(st: PCR) -> str:
     w_prev: np.ndarray | None = None
     v_prev: np.ndarray | None = None
     while True:
-        lam = float(np.dot(st.r, v))  # <w, v> = 1 after normalisation
+        lam = st.inner(st.r, v)  # <w, v> = 1 after normalisation
         if not math.isfinite(lam):
             st.reason = f"breakdown: non-finite step length at iteration {st.iterations + 1}"
             return BREAKDOWN
@@ -315,8 +317,8 @@ def _three_term(st: PCR) -> str:
         if outcome is not None:
             return outcome
         t = st.op(v)
-        a0 = float(np.dot(t, v))
-        a1 = float(np.dot(t, v_prev)) if v_prev is not None else 0.0
+        a0 = st.inner(t, v)
+        a1 = st.inner(t, v_prev) if v_prev is not None else 0.0
         if not (math.isfinite(a0) and math.isfinite(a1)):
             st.reason = ("breakdown: non-finite orthogonalisation coefficient at "
                          f"iteration {st.iterations + 1}")
@@ -331,7 +333,7 @@ def _three_term(st: PCR) -> str:
             np.multiply(w_prev, a1, out=tmp)
             t -= tmp
         v_new = st.precondition(t)
-        d = float(np.dot(t, v_new))
+        d = st.inner(t, v_new)
         if not (d > 0.0 and math.isfinite(d)):
             return st.breakdown_denominator(d)
         scale = 1.0 / math.sqrt(d)

@@ -1,7 +1,8 @@
-"""Subdomain-parallel FETI-DP and BDDC over MPI (mpi4py); see docs/parallel.md.
+"""Subdomain-parallel solves over MPI (mpi4py): FETI-DP, BDDC, FETI, FETI-FETI, the hybrid and the
+active set method (:data:`~ddsolve.parallel.run.DISTRIBUTED`); see docs/parallel.md.
 
 Nothing here imports mpi4py at import time: serial runs never load it.
 """
-from .run import METHODS, check_supported, mpi_world_size, solve
+from .run import DISTRIBUTED, METHODS, check_supported, mpi_world_size, solve
 
-__all__ = ["METHODS", "check_supported", "mpi_world_size", "solve"]
+__all__ = ["DISTRIBUTED", "METHODS", "check_supported", "mpi_world_size", "solve"]

@@ -16,6 +16,7 @@ factorization grow with P) is what the performance model of
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -23,7 +24,7 @@ import scipy.sparse as sp
 from ..dd.operators import PrimalConstrainedSolver
 from .comm import CountingComm
 
-__all__ = ["DistributedPrimalSolver"]
+__all__ = ["DistributedPrimalSolver", "pinned_vertices"]
 
 
 class DistributedPrimalSolver(PrimalConstrainedSolver):
@@ -37,6 +38,12 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
     comm : CountingComm
     primal_dofs : ndarray of int
         Sorted global dofs of all primal unknowns (from the topology).
+    pinned : sequence of int, optional
+        Coarse dofs pinned to zero (one primal vertex per floating body, chosen from the global
+        topology as the serial ``fixed_bodies`` does, :func:`pinned_vertices`): A~^+ of FETI-FETI and
+        of the hybrid method.
+    exclude : ndarray of bool, shape (sub.n_W,), optional
+        As for :class:`PrimalConstrainedSolver` (``primal_dofs`` then lists the primal dofs outside it).
 
     Attributes
     ----------
@@ -46,12 +53,17 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
     """
 
     def __init__(self, sub, primal_mask: np.ndarray, cache: dict, comm: CountingComm,
-                 primal_dofs: np.ndarray) -> None:
+                 primal_dofs: np.ndarray, pinned: Sequence[int] = (), exclude: np.ndarray | None = None) -> None:
         self.comm = comm
         self._all_primal = np.asarray(primal_dofs, dtype=np.int64)
+        self._pinned = np.asarray(pinned, dtype=np.int64)
         self.coarse_seconds = 0.0
         t0 = time.perf_counter()
-        super().__init__(sub, primal_mask, cache)
+        # no fixed_bodies: a rank may not hold the pinned entry (see pinned_vertices)
+        super().__init__(sub, primal_mask, cache, exclude=exclude)
+        self.pinned = self._pinned
+        if self.coarse is not None:
+            self.coarse = _SummedCoarse(self.coarse, self)
         self.coarse_setup_seconds = time.perf_counter() - t0
 
     def _primal_dofs(self, sub, primal_mask: np.ndarray) -> np.ndarray:
@@ -65,22 +77,58 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
         cols = np.concatenate([p[1] for p in parts])
         vals = np.concatenate([p[2] for p in parts])
         S = sp.csr_matrix((vals, (rows, cols)), shape=S_PiPi.shape)
+        if self._pinned.size:                           # as PrimalConstrainedSolver with fixed_bodies
+            keep = np.ones(S.shape[0])
+            keep[self._pinned] = 0.0
+            D = sp.diags(keep)
+            S = D @ S @ D + sp.diags(1.0 - keep)
         self.coarse_seconds += time.perf_counter() - t0
         return S
 
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        """x = A~^{-1} b on this rank's W entries (the primal rhs summed over ranks, one Allreduce)."""
-        br = np.where(self.r, b, 0.0)
-        x = self.rr.solve(br)
-        if self.n_primal == 0:
-            return x
-        b_pi = np.bincount(self.coarse_of_W[self.primal], weights=b[self.primal], minlength=self.n_primal)
-        b_pi -= self.Psi_global_T @ br
+
+class _SummedCoarse:
+    """The coarse factor of a :class:`DistributedPrimalSolver`: sums the coarse right-hand side over
+    ranks (one Allreduce of n_primal doubles) before the redundant solve.
+
+    Every path of :class:`PrimalConstrainedSolver` (the W-level ``solve`` and the explicit
+    interface blocks of ``interface(...)``) calls ``coarse.solve`` once per application, on its
+    partial coarse right-hand side, so all of them run distributed unchanged.
+    """
+
+    def __init__(self, factor, owner: "DistributedPrimalSolver") -> None:
+        self.factor = factor
+        self.owner = owner
+
+    def solve(self, b_pi: np.ndarray) -> np.ndarray:
         t0 = time.perf_counter()
-        b_pi = self.comm.allreduce_sum(b_pi)
-        b_pi[self.pinned] = 0.0
-        u_pi = self.coarse.solve(b_pi)
-        self.coarse_seconds += time.perf_counter() - t0
-        x -= self.Psi_global @ u_pi
-        x[self.primal] = u_pi[self.coarse_of_W[self.primal]]
-        return x
+        b_pi = self.owner.comm.allreduce_sum(b_pi)
+        b_pi[self.owner.pinned] = 0.0
+        u_pi = self.factor.solve(b_pi)
+        self.owner.coarse_seconds += time.perf_counter() - t0
+        return u_pi
+
+
+def pinned_vertices(topo, floating_bodies, primal_dofs: np.ndarray) -> list[int]:
+    """Coarse index of the pinned vertex of every floating body: its first primal W entry (the serial choice).
+
+    Parameters
+    ----------
+    topo : Substructures
+        Global topology.
+    floating_bodies : sequence of int
+    primal_dofs : ndarray of int
+        Sorted global dofs of the primal unknowns.
+
+    Raises
+    ------
+    ValueError
+        A floating body without a primal vertex.
+    """
+    body_W = topo.body_of_sub[topo.sub_of_W]
+    pinned = []
+    for body in floating_bodies:
+        cand = np.flatnonzero(topo.vertex & (body_W == body))
+        if cand.size == 0:
+            raise ValueError(f"floating body {body} has no primal vertex to pin")
+        pinned.append(int(np.searchsorted(primal_dofs, topo.l2g[cand[0]])))
+    return pinned

@@ -167,6 +167,7 @@ class NeighbourSum:
 
     def sum(self, partial: np.ndarray) -> np.ndarray:
         """Total of ``partial`` (shape (n,)) over all ranks sharing each index."""
+        partial = np.asarray(partial, dtype=np.float64)      # np.bincount of nothing is int64
         if not self.shared.neighbours:
             return partial
         sends = {q: partial[idx] for q, idx in self.shared.neighbours.items()}

@@ -21,69 +21,17 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ..dd.common import MethodOutput
 from ..dd.dual import dual_operators
 from ..dd.local import BatchedSolver
-from ..dd.operators import DirichletSchur, linear_operator
-from .comm import CountingComm, NeighbourSum
+from ..dd.operators import DirichletSchur
+from .comm import NeighbourSum
+from .dual import DistributedProjection, distributed_solve_dual
 from .fetidp import local_jump
-from .krylov import distributed_pcg
 from .setup import RankProblem, gather_solution
 
-__all__ = ["DistributedProjection", "solve_feti_mpi"]
-
-
-class DistributedProjection:
-    """P = I - G (G^T G)^{-1} G^T for G given by the local rows of every rank (see the module docstring).
-
-    Parameters
-    ----------
-    G : scipy.sparse matrix, shape (n_local, k)
-        Full rows of this rank's multipliers (k global columns).
-    owned : ndarray of bool, shape (n_local,)
-    comm : CountingComm
-    """
-
-    def __init__(self, G: sp.spmatrix, owned: np.ndarray, comm: CountingComm) -> None:
-        self.G = G.tocsr()
-        self.GT_owned = sp.csr_matrix(G[owned]).T.tocsr()
-        self.owned = owned
-        self.comm = comm
-        self.coarse_seconds = 0.0
-        t0 = time.perf_counter()
-        Go = sp.csr_matrix(G[owned])
-        GtG = (Go.T @ Go).tocoo()
-        parts = comm.allgather((GtG.row.astype(np.int64), GtG.col.astype(np.int64), GtG.data))
-        k = G.shape[1]
-        GtG = sp.csc_matrix((np.concatenate([p[2] for p in parts]),
-                             (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))),
-                            shape=(k, k))
-        self.factor = spla.splu(GtG)
-        self.coarse_seconds += time.perf_counter() - t0
-
-    def coarse_solve(self, x: np.ndarray) -> np.ndarray:
-        return self.factor.solve(x)
-
-    def reduce(self, v: np.ndarray) -> np.ndarray:
-        """G^T v over all ranks (owned rows only, one Allreduce)."""
-        t0 = time.perf_counter()
-        out = self.comm.allreduce_sum(self.GT_owned @ v[self.owned])
-        self.coarse_seconds += time.perf_counter() - t0
-        return out
-
-    def apply(self, v: np.ndarray) -> np.ndarray:
-        t0 = time.perf_counter()
-        y = self.coarse_solve(self.reduce(v))
-        self.coarse_seconds += time.perf_counter() - t0
-        return v - self.G @ y
-
-    def particular(self, e: np.ndarray) -> np.ndarray:
-        return self.G @ self.coarse_solve(e)
-
-    def coefficients(self, r: np.ndarray) -> np.ndarray:
-        return self.coarse_solve(self.reduce(r))
+__all__ = ["DistributedProjection", "solve_feti_mpi"]   # DistributedProjection lives in .dual
 
 
 def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
@@ -142,36 +90,15 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
         delta, rho = topo.delta, topo.rho
         q = delta[pb] ** 2 * rho[sa] + delta[pa] ** 2 * rho[sb]
     setup = time.perf_counter() - t0
-
-    # solve_dual of ddsolve.dd.dual, distributed: the system in mu = Q^{-1/2} lambda
-    sq = np.ones(n_loc) if q is None else np.sqrt(q)
-
-    def F_scaled(mu: np.ndarray) -> np.ndarray:
-        return sq * F(sq * mu)
-
-    def M_scaled(mu: np.ndarray) -> np.ndarray:
-        return M(mu / sq) / sq
-
-    d_scaled = sq * F_d
-    mu0 = np.zeros(n_loc)
-    proj = None
-    if k:
-        proj = DistributedProjection((sp.diags(sq) @ G).tocsr(), shared.owned, comm)
-        mu0 = proj.apply(mu0) + proj.particular(e)
-    t1 = time.perf_counter()
-    kr, per_iteration = distributed_pcg(
-        linear_operator(n_loc, F_scaled), d_scaled, mu0, comm=comm, owned=shared.owned, rtol=rtol,
-        maxiter=maxiter, M=linear_operator(n_loc, M_scaled),
-        P=None if proj is None else linear_operator(n_loc, proj.apply), cond=cond)
-    krylov_seconds = time.perf_counter() - t1
-    alpha = proj.coefficients(F_scaled(kr.x) - d_scaled) if proj is not None else None
-    lam = sq * kr.x
-    u_W = Kplus.solve(sub.f_W - B.T @ lam)
-    if alpha is not None:
-        u_W = u_W + R_loc @ alpha
+    sol = distributed_solve_dual(F, M, F_d, G if k else None, e, q, comm=comm, owned=shared.owned, rtol=rtol,
+                                 maxiter=maxiter, cond=cond)
+    kr = sol.krylov
+    u_W = Kplus.solve(sub.f_W - B.T @ sol.lam)
+    if sol.alpha is not None:
+        u_W = u_W + R_loc @ sol.alpha
     u = gather_solution(prob, u_W) if gather else None
     out = MethodOutput(u=u, krylov=kr, nlambda=n_lam, n_factorizations=n_fact, setup_seconds=setup,
                        extra={"n_floating": k})
-    info = {"coarse_seconds": 0.0 if proj is None else proj.coarse_seconds,
-            "krylov_seconds": krylov_seconds, "per_iteration": per_iteration}
+    info = {"coarse_seconds": sol.coarse_seconds, "krylov_seconds": sol.krylov_seconds,
+            "per_iteration": sol.per_iteration}
     return out, info

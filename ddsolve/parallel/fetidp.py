@@ -32,25 +32,34 @@ from .setup import RankProblem, gather_solution
 __all__ = ["solve_fetidp_mpi"]
 
 
-def local_jump(prob: RankProblem, mask_global: np.ndarray, with_pairs: bool = False):
-    """B_loc, B_D_loc (rows: this rank's multipliers, columns: its W entries), sharing, n_lambda.
+def pair_rows(prob: RankProblem, pa: np.ndarray, pb: np.ndarray, coef_a: np.ndarray, coef_b: np.ndarray):
+    """This rank's rows of a jump operator given by pairs of global W entries.
 
-    With ``with_pairs``, also the global W entries (pa, pb) of the two copies of each local row.
+    Row k of the global operators: B = e_pa[k] - e_pb[k], B_D = coef_a[k] e_pa[k] + coef_b[k] e_pb[k].
+    A rank holds the rows with an entry on one of its subdomains.
+
+    Parameters
+    ----------
+    prob : RankProblem
+    pa, pb : ndarray of int, shape (n_lambda,)
+        Global W entries of the two copies of every multiplier.
+    coef_a, coef_b : ndarray, shape (n_lambda,)
+        Entries of B_D.
+
+    Returns
+    -------
+    B_loc, B_D_loc : csr_matrix, shape (n_local, sub.n_W)
+    shared : SharedIndex
+    rows : ndarray of int, shape (n_local,)
+        Global row numbers of the local rows (sorted).
     """
     topo, sub, rank = prob.topo, prob.sub, prob.comm.rank
-    B, _ = topo.jump_operators(mask_global)
-    n_lam = B.shape[0]
-    coo = B.tocoo()
-    pa = np.empty(n_lam, dtype=np.int64)
-    pb = np.empty(n_lam, dtype=np.int64)
-    pa[coo.row[coo.data > 0]] = coo.col[coo.data > 0]
-    pb[coo.row[coo.data < 0]] = coo.col[coo.data < 0]
+    n_lam = pa.size
     ra = prob.rank_of_sub[topo.sub_of_W[pa]]
     rb = prob.rank_of_sub[topo.sub_of_W[pb]]
     rows = np.flatnonzero((ra == rank) | (rb == rank))           # sorted global rows
     shared = SharedIndex.build(rank, rows, np.r_[np.arange(n_lam), np.arange(n_lam)], np.r_[ra, rb], n_lam)
     n_loc = rows.size
-    delta = topo.delta
     a_mine = ra[rows] == rank
     b_mine = rb[rows] == rank
     k = np.arange(n_loc)
@@ -58,11 +67,36 @@ def local_jump(prob: RankProblem, mask_global: np.ndarray, with_pairs: bool = Fa
     c_idx = np.r_[pa[rows][a_mine], pb[rows][b_mine]] - sub.w0
     B_loc = sp.csr_matrix((np.r_[np.ones(a_mine.sum()), -np.ones(b_mine.sum())], (r_idx, c_idx)),
                           shape=(n_loc, sub.n_W))
-    B_D_loc = sp.csr_matrix((np.r_[delta[pb[rows][a_mine]], -delta[pa[rows][b_mine]]], (r_idx, c_idx)),
+    B_D_loc = sp.csr_matrix((np.r_[coef_a[rows][a_mine], coef_b[rows][b_mine]], (r_idx, c_idx)),
                             shape=(n_loc, sub.n_W))
+    return B_loc, B_D_loc, shared, rows
+
+
+def jump_pairs(topo, mask_global: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Global W entries (pa, pb) of the +1 and -1 copies of every row of ``topo.jump_operators(mask)``."""
+    B, _ = topo.jump_operators(mask_global)
+    n_lam = B.shape[0]
+    coo = B.tocoo()
+    pa = np.empty(n_lam, dtype=np.int64)
+    pb = np.empty(n_lam, dtype=np.int64)
+    pa[coo.row[coo.data > 0]] = coo.col[coo.data > 0]
+    pb[coo.row[coo.data < 0]] = coo.col[coo.data < 0]
+    return pa, pb
+
+
+def local_jump(prob: RankProblem, mask_global: np.ndarray, with_pairs: bool = False):
+    """B_loc, B_D_loc (rows: this rank's multipliers, columns: its W entries), sharing, n_lambda.
+
+    The rows of the serial fully redundant B on ``mask_global`` (same order), B_D scaled by
+    delta-dagger. With ``with_pairs``, also the global W entries (pa, pb) of the two copies of
+    each local row.
+    """
+    pa, pb = jump_pairs(prob.topo, mask_global)
+    delta = prob.topo.delta
+    B_loc, B_D_loc, shared, rows = pair_rows(prob, pa, pb, delta[pb], -delta[pa])
     if with_pairs:
-        return B_loc, B_D_loc, shared, n_lam, (pa[rows], pb[rows])
-    return B_loc, B_D_loc, shared, n_lam
+        return B_loc, B_D_loc, shared, pa.size, (pa[rows], pb[rows])
+    return B_loc, B_D_loc, shared, pa.size
 
 
 def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,

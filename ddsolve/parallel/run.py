@@ -24,10 +24,13 @@ from .comm import CountingComm
 
 log = logging.getLogger(__name__)
 
-__all__ = ["METHODS", "MPI_ENV", "check_supported", "mpi_world_size", "solve", "main"]
+__all__ = ["DISTRIBUTED", "METHODS", "MPI_ENV", "check_supported", "mpi_world_size", "solve", "main"]
 
-#: Methods with a distributed implementation (problem poisson).
+#: Methods with a distributed implementation (problem poisson); ``mpiexec -n 1`` runs these distributed.
 METHODS = ("fetidp", "bddc", "feti")
+#: Distributed methods of every problem (``mpiexec -n P``, P >= 2; the others are refused).
+DISTRIBUTED: dict[str, tuple[str, ...]] = {"poisson": METHODS, "multibody": ("feti-feti", "hybrid"),
+                                           "contact": ("active-set",)}
 #: Environment variables that mark a process started by mpiexec (MPICH/Hydra, Open MPI, PMIx).
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")
 #: Test hook: a rank number; that rank raises once its setup is done (tests of the abort path only).
@@ -56,10 +59,15 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
         ``method`` outside :data:`METHODS` or a problem other than poisson; ``subdomains``
         (``parts``) when there are fewer subdomains than ranks; ``output`` (not written under mpiexec).
     """
-    if spec.problem != "poisson" or spec.method not in METHODS:
+    if spec.method not in DISTRIBUTED.get(spec.problem, ()):
+        listed = "; ".join(f"{p} with {', '.join(ms)}" for p, ms in DISTRIBUTED.items())
         raise InputError("method", f"{spec.problem}/{spec.method} has no distributed (mpiexec) implementation; "
-                                   f"distributed methods: poisson with {', '.join(METHODS)} "
-                                   f"(run without mpiexec for the others)")
+                                   f"distributed methods: {listed} (run without mpiexec for the others)")
+    if spec.method == "hybrid" and spec.projection != "orthogonal":
+        raise InputError("projection", f"{spec.projection!r} is not distributed for the hybrid method "
+                                       f"(under mpiexec only 'orthogonal', the default)")
+    from ..prepared import check_decomposition
+    check_decomposition(spec)
     if spec.output:
         raise InputError("output", "writing a .vtu file is not available under mpiexec yet (run without mpiexec)")
     if spec.primal != "vertices":
@@ -73,36 +81,67 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
                          f"{n_sub} subdomains for {size} ranks: need at least one subdomain per rank")
 
 
+def _reduce(prob, comm: CountingComm, info: dict, setup_seconds: float, solve_seconds: float,
+            n_factorizations: int) -> dict[str, Any]:
+    """The per-rank figures of a solve reduced over ranks (collective: every rank calls it)."""
+    from ..api import peak_rss_mb
+
+    msgs, nbytes, _ = info["per_iteration"]
+    return {"totals": comm.comm.allreduce(np.array([msgs, nbytes], dtype=float)),
+            "allreduces": float(info["per_iteration"][2]),
+            "coarse": comm.comm.allreduce(info["coarse_seconds"], op=comm.MPI.MAX),
+            "setup": comm.comm.allreduce(setup_seconds, op=comm.MPI.MAX),
+            "solve": comm.comm.allreduce(solve_seconds, op=comm.MPI.MAX),
+            "krylov": comm.comm.allreduce(info["krylov_seconds"], op=comm.MPI.MAX),
+            "n_fact": comm.comm.allreduce(int(n_factorizations)),
+            "n_templates": comm.comm.allreduce(int(prob.sub.local.n_templates)),
+            "timings": {k: comm.comm.allreduce(float(v), op=comm.MPI.MAX) for k, v in sorted(prob.timings.items())},
+            "peak": comm.comm.allreduce(peak_rss_mb(), op=comm.MPI.MAX)}
+
+
+def _report(spec: ProblemSpec, prob, comm: CountingComm, red: dict[str, Any]) -> tuple[dict, dict]:
+    """``extra`` entries of every distributed result (``n_ranks``, ``comm``, timings ...) and the sizes."""
+    from ..api import _sizes
+
+    t = red["timings"]
+    extra: dict[str, Any] = {
+        "n_ranks": comm.size,
+        "comm": {"messages_per_iteration": float(red["totals"][0]), "bytes_per_iteration": float(red["totals"][1]),
+                 "allreduces_per_iteration": red["allreduces"], "coarse_seconds": float(red["coarse"]),
+                 "krylov_seconds": float(red["krylov"])},
+        "n_templates": red["n_templates"],                          # summed over ranks (each factors its own)
+        "timings": {"mesh": t.get("mesh", 0.0), "partition": t.get("partition", 0.0),
+                    "assembly": t.get("assembly", 0.0),
+                    "setup": max(red["setup"] - t.get("scene", 0.0) - t.get("assembly", 0.0), 0.0),
+                    "solve": red["solve"]},
+        "peak_rss_mb": red["peak"],                                 # the largest over ranks
+        "n_primal": int(prob.topo.n_primal),                        # as the serial mesh report
+        "mesh": spec.mesh,
+        "parts": spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2}
+    sizes = _sizes(spec) if spec.mesh == "unstructured" else {"subdomains": spec.subdomains,
+                                                               "elements": spec.elements}
+    if spec.mesh == "unstructured" and spec.mesh_file:
+        sizes["subdomains"] = prob.topo.n_sub
+    return extra, sizes
+
+
 def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solve_seconds: float,
             comm: CountingComm) -> SolveResult | None:
     """The :class:`SolveResult` on rank 0 (None elsewhere), with ``n_ranks`` and ``comm`` in ``extra``."""
+    from ..api import _scalar_extras
     from ..krylov import attained
 
-    msgs, nbytes, allreduces = info["per_iteration"]
-    totals = comm.comm.allreduce(np.array([msgs, nbytes], dtype=float))
-    coarse = comm.comm.allreduce(info["coarse_seconds"], op=comm.MPI.MAX)
-    setup_seconds = comm.comm.allreduce(setup_seconds, op=comm.MPI.MAX)
-    solve_seconds = comm.comm.allreduce(solve_seconds, op=comm.MPI.MAX)
-    krylov_seconds = comm.comm.allreduce(info["krylov_seconds"], op=comm.MPI.MAX)
-    n_fact = comm.comm.allreduce(int(out.n_factorizations))
-    rank_timings = {k: comm.comm.allreduce(float(v), op=comm.MPI.MAX) for k, v in sorted(prob.timings.items())}
-    from ..api import peak_rss_mb
-    peak = comm.comm.allreduce(peak_rss_mb(), op=comm.MPI.MAX)
+    red = _reduce(prob, comm, info, setup_seconds, solve_seconds, out.n_factorizations)
     if comm.rank != 0:
         return None
     kr = out.krylov
     converged, reason = attained(kr, spec.rtol)
-    extra: dict[str, Any] = {k: v for k, v in out.extra.items()}
+    extra: dict[str, Any] = _scalar_extras(out.extra)
     extra["restarts"] = int(getattr(kr, "restarts", 0))
     extra["preset"] = spec.preset
-    extra["n_ranks"] = comm.size
-    extra["comm"] = {"messages_per_iteration": float(totals[0]),
-                     "bytes_per_iteration": float(totals[1]),
-                     "allreduces_per_iteration": float(allreduces),
-                     "coarse_seconds": float(coarse),
-                     "krylov_seconds": float(krylov_seconds)}
-    fields: dict[str, Any] = dict(u=out.u, nlambda=out.nlambda, n_factorizations=n_fact,
-                                  setup_seconds=setup_seconds, solve_seconds=solve_seconds,
+    common, sizes = _report(spec, prob, comm, red)
+    fields: dict[str, Any] = dict(u=out.u, nlambda=out.nlambda, n_factorizations=red["n_fact"],
+                                  setup_seconds=red["setup"], solve_seconds=red["solve"],
                                   converged=converged, reason=reason, iterations=kr.iterations,
                                   residuals=np.asarray(kr.residuals, dtype=float), true_residual=kr.true_residual)
     if spec.cond and kr.cond is not None:
@@ -111,33 +150,61 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
         fields.update(converged=False, reason=f"non-finite solution after {reason}")
     if spec.check and out.u is not None:       # the direct reference, on rank 0 only (serial assembly)
         from ..api import checked_error
-        from ..dd import solve_direct
         from ..prepared import prepare
-        ref_sub = prepare(spec).sub
-        error, why = checked_error(ref_sub.global_matrix(), out.u, solve_direct(ref_sub))
+        ref_sub = prepare(spec, prob.topo.scene).sub
+        if spec.problem == "multibody":
+            from ..multibody import GlobalInterface
+            from ..multibody.direct import solve_constrained_direct
+            gi = GlobalInterface(ref_sub)
+            reference = solve_constrained_direct(ref_sub, gi, gi.contact_mask(spec.contact))
+        else:
+            from ..dd import solve_direct
+            reference = solve_direct(ref_sub)
+        error, why = checked_error(ref_sub.global_matrix(), out.u, reference)
         fields["error_vs_direct"] = error
         if why:
             extra["check_reason"] = why
-    from ..api import _sizes
-    n_sub = prob.topo.n_sub
-    extra["timings"] = {"mesh": rank_timings.get("scene", 0.0), "partition": 0.0,
-                        "assembly": rank_timings.get("assembly", 0.0),
-                        "setup": max(setup_seconds - rank_timings.get("scene", 0.0) - rank_timings.get("assembly", 0.0),
-                                     0.0),
-                        "solve": solve_seconds}
-    extra["peak_rss_mb"] = peak                                   # the largest over ranks
-    extra["mesh"] = spec.mesh
-    extra["parts"] = spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2
-    sizes = _sizes(spec) if spec.mesh == "unstructured" else {"subdomains": spec.subdomains,
-                                                               "elements": spec.elements}
-    if spec.mesh == "unstructured" and spec.mesh_file:
-        sizes["subdomains"] = n_sub
+    extra.update(common)
     return SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
                        ndof=prob.topo.ndof, **fields, extra=extra)
 
 
+def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: float,
+                   options: dict) -> SolveResult | None:
+    """The active set method over ranks; the result fields (KKT residuals) from a serial assembly on rank 0."""
+    from .active_set import DistributedActiveSetHybrid
+
+    start = comm.counters.snapshot()
+    t0 = time.perf_counter()
+    solver = DistributedActiveSetHybrid(prob)
+    setup = time.perf_counter() - t0
+    sol = solver.solve(rtol=spec.rtol, pcg_rtol=spec.rtol, maxiter=spec.maxiter, **options)
+    total = time.perf_counter() - t0
+    end = comm.counters.snapshot()
+    its = max(int(sol.total_iterations), 1)
+    faces = solver.hybrid.face_solves
+    info = {"per_iteration": tuple((b - a) / its for a, b in zip(start, end)),
+            "coarse_seconds": (solver.dh.body_solver.coarse_seconds + solver.dh.local_solver.coarse_seconds),
+            "krylov_seconds": float(sum(f["krylov_seconds"] for f in faces))}
+    red = _reduce(prob, comm, info, prep_seconds + setup, total - setup, solver.dh.n_factorizations)
+    if comm.rank != 0:
+        return None
+    from ..contact.run import contact_result_fields
+    from ..prepared import prepare
+    # the KKT residuals (5.5) and the acceptance test need the assembled K, f and B: rank 0 assembles
+    # them serially (as --check does); the solve itself never forms them
+    problem = prepare(spec, prob.topo.scene).contact
+    fields = contact_result_fields(spec, problem, sol)
+    fields["setup_seconds"], fields["solve_seconds"] = red["setup"], red["solve"]
+    fields["n_factorizations"] = red["n_fact"]
+    common, sizes = _report(spec, prob, comm, red)
+    fields["extra"].update(common)
+    return SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
+                       ndof=prob.topo.ndof, **fields)
+
+
 def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: bool = True) -> SolveResult | None:
-    """Distributed solve of ``spec`` (poisson: fetidp, bddc or feti) over the ranks of ``comm``.
+    """Distributed solve of ``spec`` (a method of :data:`DISTRIBUTED`) over the ranks of ``comm``.
 
     Parameters
     ----------
@@ -159,6 +226,8 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
     from .bddc import solve_bddc_mpi
     from .feti import solve_feti_mpi
     from .fetidp import solve_fetidp_mpi
+    from .fetifeti import solve_fetifeti_mpi
+    from .hybrid import solve_hybrid_mpi
     from .setup import prepare_rank
 
     if not isinstance(spec, ProblemSpec):
@@ -175,13 +244,19 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         fail = os.environ.get(FAIL_ENV)
         if fail is not None and fail == str(comm.rank):
             raise RuntimeError(f"injected failure ({FAIL_ENV}={fail})")
-        method = {"fetidp": solve_fetidp_mpi, "bddc": solve_bddc_mpi, "feti": solve_feti_mpi}[spec.method]
+        method = {"fetidp": solve_fetidp_mpi, "bddc": solve_bddc_mpi, "feti": solve_feti_mpi,
+                  "feti-feti": solve_fetifeti_mpi, "hybrid": solve_hybrid_mpi, "active-set": None}[spec.method]
         t1 = time.perf_counter()
         from ..presets import solver_options
         if prob.topo.n_sub < comm.size:
             raise InputError("parts", f"{prob.topo.n_sub} subdomains for {comm.size} ranks")
+        options = solver_options(spec.preset, spec.problem, spec.method)
+        if spec.problem == "contact":
+            return _solve_contact(spec, prob, comm, prep_seconds, options)
+        if spec.method == "hybrid":
+            options.update(norm=spec.norm, projection=spec.projection)
         out, info = method(prob, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
-                           gather=gather or spec.check, **solver_options(spec.preset, spec.problem, spec.method))
+                           gather=gather or spec.check, **options)
         total = time.perf_counter() - t1
         return _result(spec, prob, out, info, prep_seconds + out.setup_seconds, total - out.setup_seconds, comm)
 

@@ -34,7 +34,12 @@ class RankProblem:
         The owned subdomains.
     rank_of_sub : ndarray of int, shape (n_sub,)
     timings : dict
-        Seconds in ``"scene"``, ``"topology"``, ``"assembly"``, ``"substructures"`` on this rank.
+        Seconds in ``"scene"``, ``"topology"``, ``"assembly"``, ``"substructures"`` on this rank, and
+        of the scene build ``"mesh"`` and ``"partition"`` (METIS; 0 on a structured scene or a given
+        scene), as :attr:`ddsolve.prepared.Prepared.scene_timings`.
+    gi : GlobalInterface or None
+        The inter-body multipliers (problem multibody; contact: the contact pairs), built from the
+        global topology.
     """
 
     spec: ProblemSpec
@@ -43,6 +48,7 @@ class RankProblem:
     sub: RankSubstructures
     rank_of_sub: np.ndarray
     timings: dict[str, float] = field(default_factory=dict)
+    gi: object = None
 
 
 def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProblem:
@@ -51,10 +57,21 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     from ..scene import assemble
 
     t0 = time.perf_counter()
+    scene_timings = {"mesh": 0.0, "partition": 0.0}
     if scene is None:
         scene = scene_from_spec(spec)
+        if spec.mesh == "unstructured":          # as ddsolve.prepared.prepare: METIS reported apart
+            from ..scene.unstructured import LAST_TIMINGS
+            scene_timings = {"mesh": LAST_TIMINGS.get("mesh", 0.0),
+                             "partition": LAST_TIMINGS.get("split", 0.0) + LAST_TIMINGS.get("partition", 0.0)}
     t1 = time.perf_counter()
+    if spec.mesh != "unstructured" or scene.element_type != "P1":
+        scene_timings["mesh"] = t1 - t0
     topo = topology(scene, spec.scaling, spec.gamma)
+    gi = None
+    if spec.problem in ("multibody", "contact"):
+        from ..multibody import GlobalInterface
+        gi = GlobalInterface(topo)
     t2 = time.perf_counter()
     lo, hi = owned_range(scene.n_subdomains, comm.size, comm.rank)
     local = assemble(owned_scene(scene, lo, hi))
@@ -63,7 +80,8 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     t4 = time.perf_counter()
     return RankProblem(spec=spec, comm=comm, topo=topo, sub=sub,
                        rank_of_sub=rank_of_subdomain(scene.n_subdomains, comm.size),
-                       timings=dict(scene=t1 - t0, topology=t2 - t1, assembly=t3 - t2, substructures=t4 - t3))
+                       timings=dict(scene=t1 - t0, topology=t2 - t1, assembly=t3 - t2, substructures=t4 - t3,
+                                    **scene_timings), gi=gi)
 
 
 def gather_solution(prob: RankProblem, u_W: np.ndarray, root: int = 0) -> np.ndarray | None:

@@ -51,13 +51,35 @@ def _mpiexec(n: int, args: list[str], **env: str) -> subprocess.CompletedProcess
 
 def _serial(method: str, kind: str):
     spec, scene = case(method, kind)
-    out = SOLVERS["poisson"][method](prepare(spec, scene)).output
+    out = SOLVERS[spec.get("problem", "poisson")][method](prepare(spec, scene)).output
     return out
+
+
+def _serial_ulp_sensitivity(method: str, kind: str) -> float:
+    """||u(f (1 + 2^-52)) / (1 + 2^-52) - u(f)|| / ||u(f)|| of the serial solver: its own rounding sensitivity."""
+    spec, scene = case(method, kind)
+    prep = prepare(spec, scene)
+    u = SOLVERS[spec["problem"]][method](prep).output.u
+    s = 1.0 + 2.0 ** -52
+    prep.sub.f_W = prep.sub.f_W * s
+    u_s = SOLVERS[spec["problem"]][method](prep).output.u / s
+    return float(np.linalg.norm(u_s - u) / np.linalg.norm(u))
+
+
+def test_hybrid_middle_contact_is_rounding_sensitive_in_serial():
+    """Why the distributed hybrid on contact (II) is compared at the serial solver's own sensitivity."""
+    sensitivity = _serial_ulp_sensitivity("hybrid", "middle")
+    assert 1e-8 < sensitivity < 1e-5                      # measured 2.0e-7: far above 1e-10
+    assert _serial_ulp_sensitivity("hybrid", "structured") < 1e-10
 
 
 @pytest.mark.parametrize("method,kind,n", [("fetidp", "structured", 2), ("bddc", "structured", 2),
                                            ("fetidp", "unstructured", 2), ("bddc", "unstructured", 3),
-                                           ("feti", "structured", 3)])
+                                           ("feti", "structured", 3),
+                                           ("feti-feti", "structured", 2), ("feti-feti", "middle", 4),
+                                           ("feti-feti", "unstructured", 3),
+                                           ("hybrid", "structured", 3), ("hybrid", "middle", 2),
+                                           ("hybrid", "unstructured", 4)])
 def test_distributed_equals_serial(tmp_path, method, kind, n):
     out_file = tmp_path / "u.npz"
     proc = _mpiexec(n, [str(HERE / "mpi_case.py"), method, kind, str(out_file)])
@@ -66,9 +88,59 @@ def test_distributed_equals_serial(tmp_path, method, kind, n):
     ser = _serial(method, kind)
     assert int(par["n_ranks"]) == n
     assert int(par["iterations"]) == ser.krylov.iterations
-    assert np.linalg.norm(par["u"] - ser.u) <= 1e-10 * np.linalg.norm(ser.u)
-    assert abs(float(par["cond"]) - ser.krylov.cond) <= 1e-8 * ser.krylov.cond
+    tol = 1e-10
+    if (method, kind) == ("hybrid", "middle"):
+        # PCR on this indefinite system amplifies rounding (near-stagnating steps): the serial solver's own
+        # answer moves by ~2e-7 when the load moves by one ulp. Agreement to that level is all any
+        # implementation with another summation order can give (measured: 1.5e-7 on 1 rank, 2.0e-7 on 2).
+        tol = max(tol, 4.0 * _serial_ulp_sensitivity(method, kind))
+    assert np.linalg.norm(par["u"] - ser.u) <= tol * np.linalg.norm(ser.u)
+    if method == "hybrid":                      # PCR: no Lanczos estimate, in serial either
+        assert ser.krylov.cond is None and np.isnan(par["cond"])
+    else:
+        assert abs(float(par["cond"]) - ser.krylov.cond) <= 1e-8 * ser.krylov.cond
     assert float(par["messages"]) > 0           # interface values did travel between the ranks
+
+
+@pytest.mark.parametrize("kind,n", [("structured", 2), ("structured", 3), ("unstructured", 4)])
+def test_distributed_active_set_equals_serial(tmp_path, kind, n):
+    """Same outer steps, face-solve (PCR) and (5.4) PCG iterations, active set, solution and KKT residual."""
+    from ddsolve.contact.run import contact_result_fields
+    from ddsolve.spec import ProblemSpec
+
+    out_file = tmp_path / "u.npz"
+    proc = _mpiexec(n, [str(HERE / "mpi_case.py"), "active-set", kind, str(out_file)])
+    assert proc.returncode == 0, proc.stderr
+    par = np.load(out_file)
+    spec, scene = case("active-set", kind)
+    prep = prepare(spec, scene)
+    sol = SOLVERS["contact"]["active-set"](prep)
+    ser = contact_result_fields(ProblemSpec.from_mapping(spec), prep.contact, sol)
+    assert int(par["n_ranks"]) == n and bool(par["converged"]) and ser["converged"]
+    assert int(par["outer"]) == sol.outer_iterations >= 1
+    assert par["inner"].tolist() == list(sol.inner_iterations)
+    assert int(par["pcg"]) == sol.pcg_iterations
+    assert int(par["n_active"]) == ser["extra"]["n_active"]
+    assert np.linalg.norm(par["u"] - sol.u) <= 1e-10 * np.linalg.norm(sol.u)
+    assert abs(float(par["kkt"]) - ser["extra"]["kkt_residual"]) <= 1e-8 * ser["extra"]["kkt_residual"]
+    assert float(par["messages"]) > 0
+
+
+def test_cli_contact_json():
+    args = ["-m", "ddsolve", "solve", "--problem", "contact", "--method", "active-set", "--subdomains", "2",
+            "--elements", "4", "--check", "--json"]
+    proc = _mpiexec(2, args)
+    assert proc.returncode == 0, proc.stderr
+    import json
+    summary = json.loads(proc.stdout)
+    ref = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
+                                    env=_env(), cwd=ROOT).stdout)
+    assert set(ref) - set(summary) == set()                        # every serial key is reported
+    for key in ("converged", "iterations", "outer_iterations", "inner_iterations", "pcg_iterations", "n_active",
+                "n_contact", "nlambda"):
+        assert summary[key] == ref[key], key
+    assert abs(summary["kkt_residual"] - ref["kkt_residual"]) <= 1e-8 * ref["kkt_residual"]
+    assert summary["error_vs_direct"] <= 1e-5 and summary["n_ranks"] == 2
 
 
 def test_cli_json_contract():
@@ -92,10 +164,32 @@ def test_cli_json_contract():
     assert summary["comm"]["messages_per_iteration"] == 4.0
     assert summary["comm"]["bytes_per_iteration"] == 2 * 2 * 12 * 8
     assert 2 * messages_bytes(2, 8, 4)[1] == summary["comm"]["bytes_per_iteration"]      # the model's count
+    assert summary["n_templates"] == 2 * ref["n_templates"]      # summed over ranks: each detects its own
 
 
-def test_failure_on_one_rank_aborts_all():
-    proc = _mpiexec(3, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4", "--json"],
+@pytest.mark.parametrize("method", ["feti-feti", "hybrid"])
+def test_cli_multibody_metis_json(method):
+    args = ["-m", "ddsolve", "solve", "--problem", "multibody", "--method", method, "--mesh", "unstructured",
+            "--bodies", "2", "--parts", "3", "--maxh", "0.15", "--contact", "middle", "--json"]
+    proc = _mpiexec(2, args)
+    assert proc.returncode == 0, proc.stderr
+    import json
+    summary = json.loads(proc.stdout)
+    ref = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
+                                    env=_env(), cwd=ROOT).stdout)
+    assert summary["n_ranks"] == 2 and summary["iterations"] == ref["iterations"]
+    assert summary["n_active"] == ref["n_active"] and summary["nlambda"] == ref["nlambda"]
+    assert set(ref) - set(summary) == set()                        # every serial key is reported
+    if method == "hybrid":
+        assert summary["n_gamma"] == ref["n_gamma"] and summary["n_floating"] == ref["n_floating"]
+    assert summary["timings"]["partition"] > 0.0                  # METIS timed apart from the mesh
+    assert summary["n_templates"] == ref["n_templates"] == 12     # METIS parts: one template each
+
+
+@pytest.mark.parametrize("problem", [[], ["--problem", "multibody", "--method", "feti-feti", "--bodies", "2"],
+                                     ["--problem", "contact", "--method", "active-set"]])
+def test_failure_on_one_rank_aborts_all(problem):
+    proc = _mpiexec(3, ["-m", "ddsolve", "solve", *problem, "--subdomains", "3", "--elements", "4", "--json"],
                     DDSOLVE_TEST_FAIL_RANK="1")
     assert proc.returncode != 0
     errors = [line for line in proc.stderr.splitlines() if line.startswith("ddsolve: error:")]
@@ -104,7 +198,12 @@ def test_failure_on_one_rank_aborts_all():
 
 
 @pytest.mark.parametrize("args,field", [(["--subdomains", "0"], "subdomains"),
-                                        (["--method", "direct"], "method")])
+                                        (["--method", "direct"], "method"),
+                                        (["--problem", "contact", "--method", "smalbe"], "method"),
+                                        (["--problem", "multibody", "--method", "hybrid", "--projection",
+                                          "dirichlet"], "projection"),
+                                        (["--problem", "multibody", "--method", "feti-feti", "--bodies", "3",
+                                          "--subdomains", "1"], "subdomains")])
 def test_bad_input_exits_2_on_every_rank(args, field):
     proc = _mpiexec(2, ["-m", "ddsolve", "solve", *args])
     assert proc.returncode == 2, proc.stderr

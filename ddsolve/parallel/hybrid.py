@@ -1,0 +1,408 @@
+"""Distributed hybrid method (Section 4.2): :class:`~ddsolve.multibody.hybrid.HybridSolver` over ranks.
+
+Unknowns. u_Gamma (one value per global dof of the body interfaces) is held
+by every rank with a subdomain copy of the dof, with consistent copies
+(:class:`DistributedSpace`, as the interface dofs of the distributed BDDC);
+the lowest such rank owns it for inner products. The active multipliers
+(pairs of dofs of two bodies) are held by every rank that holds one of the
+pair's two dofs (:class:`DistributedActiveSet`).
+
+Operators. S^_c, M_BDDC (A~^+ of every body, floating bodies pinned) and the
+inexact S~_OL of (4.9)-(4.10) are the serial subdomain operators followed by
+one neighbour sum on their output space (S~_OL: three, on Gamma_0, Gamma_0 and
+Gamma_OL). The jump Z B^ u needs one neighbour sum of the multipliers (each
+dof contributes on its owner rank); its transpose needs none (every holder of
+a dof holds every multiplier that touches it). The two primal-constrained
+solvers sum their coarse right-hand sides with one Allreduce each
+(:class:`~ddsolve.parallel.coarse.DistributedPrimalSolver`).
+
+Coarse problems of the floating bodies. P_R (the mean on each floating
+body) is one Allreduce of k doubles; the projection P^k = I - G (G^T G)^{-1}
+G^T of G^k = Z B^ R_c is :class:`~ddsolve.parallel.dual.DistributedProjection`:
+G^T G (k x k) summed once and factored redundantly, G^T v one Allreduce of k
+doubles. PCR is the serial recurrence with global reductions
+(:class:`~ddsolve.parallel.krylov.DistributedPCR`), restarted as in serial.
+
+Only the orthogonal projection P^k (the default and the thesis's) is
+distributed; ``projection="dirichlet"``/``"lumped"`` are refused under mpiexec.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..dd.common import MethodOutput
+from ..dd.operators import DirichletSchur, linear_operator
+from ..krylov.result import KrylovResult
+from ..multibody.hybrid import InterfaceSpace
+from .coarse import DistributedPrimalSolver, pinned_vertices
+from .comm import NeighbourSum, SharedIndex
+from .dual import DistributedProjection
+from .krylov import DistributedPCR, IterationCounter, Reductions
+from .setup import RankProblem, gather_solution
+
+__all__ = ["DistributedActiveSet", "DistributedHybrid", "DistributedSpace", "solve_hybrid_mpi"]
+
+
+class DistributedSpace:
+    """This rank's part of a space of continuous interface values, and its sharing.
+
+    Parameters
+    ----------
+    prob : RankProblem
+    mask_global : ndarray of bool, shape (n_W_global,)
+        W entries of the space (all ranks).
+
+    Attributes
+    ----------
+    space : InterfaceSpace
+        On this rank's W entries; ``space.dofs`` the sorted global dofs it holds.
+    shared : SharedIndex
+    exchange : NeighbourSum
+    owned : ndarray of bool, shape (n,)
+    n : int
+    n_global : int
+    """
+
+    def __init__(self, prob: RankProblem, mask_global: np.ndarray) -> None:
+        topo, sub, comm = prob.topo, prob.sub, prob.comm
+        self.space = InterfaceSpace(sub, mask_global[sub.w0:sub.w1])
+        ent = np.flatnonzero(mask_global)
+        gid = topo.l2g[ent]
+        self.shared = SharedIndex.build(comm.rank, self.space.dofs, gid, prob.rank_of_sub[topo.sub_of_W[ent]],
+                                        topo.ndof)
+        self.exchange = NeighbourSum(comm, self.shared)
+        self.owned = self.shared.owned
+        self.n = self.space.n
+        self.n_global = int(np.unique(gid).size)
+
+    def local_index(self, dofs: np.ndarray) -> np.ndarray:
+        """Local index of global ``dofs`` in this space, -1 where this rank does not hold them."""
+        if self.n == 0:
+            return np.full(dofs.shape, -1, dtype=np.int64)
+        pos = np.minimum(np.searchsorted(self.space.dofs, dofs), self.n - 1)
+        return np.where(self.space.dofs[pos] == dofs, pos, -1)
+
+
+class _LocalPairs:
+    """Rows of a jump operator between pairs of dofs of a :class:`DistributedSpace` (PairJump, distributed).
+
+    Row k: c1_k u[first_k] - c2_k u[second_k]. ``first``/``second`` are local indices (-1: not held).
+    """
+
+    def __init__(self, space: DistributedSpace, first: np.ndarray, second: np.ndarray, exchange: NeighbourSum,
+                 coef_first: np.ndarray | None = None, coef_second: np.ndarray | None = None) -> None:
+        self.space, self.exchange = space, exchange
+        n_rows = first.size
+        self.coef_first = np.ones(n_rows) if coef_first is None else coef_first
+        self.coef_second = np.ones(n_rows) if coef_second is None else coef_second
+        self.plain = coef_first is None
+        ok1, ok2 = first >= 0, second >= 0
+        self.rows1, self.rows2 = np.flatnonzero(ok1), np.flatnonzero(ok2)
+        self.first, self.second = first[ok1], second[ok2]
+        # contributions to B u from the owner of each dof only (then summed over the ranks of the row)
+        own1 = space.owned[self.first]
+        own2 = space.owned[self.second]
+        self.orow1, self.oidx1 = self.rows1[own1], self.first[own1]
+        self.orow2, self.oidx2 = self.rows2[own2], self.second[own2]
+        self.n_rows = n_rows
+
+    def matvec(self, u: np.ndarray) -> np.ndarray:
+        """B u on this rank's rows (consistent), one neighbour sum."""
+        a = np.zeros(self.n_rows)
+        b = np.zeros(self.n_rows)
+        a[self.orow1] = u[self.oidx1] if self.plain else self.coef_first[self.orow1] * u[self.oidx1]
+        b[self.orow2] = u[self.oidx2] if self.plain else self.coef_second[self.orow2] * u[self.oidx2]
+        return self.exchange.sum(a - b)
+
+    def rmatvec(self, lam: np.ndarray) -> np.ndarray:
+        """B^T lam on this rank's dofs (complete: every holder of a dof holds all its rows)."""
+        n = self.space.n
+        w1 = lam[self.rows1] if self.plain else self.coef_first[self.rows1] * lam[self.rows1]
+        w2 = lam[self.rows2] if self.plain else self.coef_second[self.rows2] * lam[self.rows2]
+        return (np.bincount(self.first, weights=w1, minlength=n).astype(np.float64, copy=False)   # float if empty
+                - np.bincount(self.second, weights=w2, minlength=n))
+
+
+@dataclass
+class DistributedActiveSet:
+    """One active set Z^k on this rank: its multipliers, jumps, G^k and P^k.
+
+    Attributes
+    ----------
+    active : ndarray of bool, shape (n_gl,)
+        The (replicated) diagonal of Z^k.
+    rows : ndarray of int, shape (n_local,)
+        Positions (in the active list) of the multipliers this rank holds.
+    shared : SharedIndex
+    jump, scaled_jump_gamma, scaled_jump_global : _LocalPairs
+        Z B^_{Gamma,c} and Z B^_{Gamma,c,D} on u_Gamma, Z B_{Gamma_OL,D} on the global interface.
+    projection : DistributedProjection or None
+        P^k (None without floating bodies).
+    n_active : int
+        Active multipliers over all ranks.
+    """
+
+    active: np.ndarray
+    rows: np.ndarray
+    shared: SharedIndex
+    jump: _LocalPairs
+    scaled_jump_gamma: _LocalPairs
+    scaled_jump_global: _LocalPairs
+    projection: DistributedProjection | None
+    n_active: int
+
+    @property
+    def n(self) -> int:
+        return int(self.rows.size)
+
+
+class DistributedHybrid:
+    """The hybrid method's operators on one rank (see the module docstring).
+
+    Parameters
+    ----------
+    prob : RankProblem
+        Of a multibody problem (``prob.gi`` set).
+    """
+
+    def __init__(self, prob: RankProblem) -> None:
+        t0 = time.perf_counter()
+        topo, sub, comm, gi = prob.topo, prob.sub, prob.comm, prob.gi
+        self.prob, self.comm, self.gi = prob, comm, gi
+        sl = slice(sub.w0, sub.w1)
+        gamma_mask = topo.interface | gi.mask
+        self.gamma = DistributedSpace(prob, gamma_mask)                    # u_Gamma
+        self.glob = DistributedSpace(prob, gi.mask)                        # Gamma_OL
+        self.loc = DistributedSpace(prob, topo.interface & ~gi.mask)       # Gamma_0
+        cache: dict = {}
+        self.schur = DirichletSchur(sub, gamma_mask[sl], cache)
+        self.floating = np.asarray(gi.floating_bodies(), dtype=np.int64)
+        primal_dofs = np.unique(topo.l2g[topo.vertex])
+        self.body_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, primal_dofs,
+                                                   pinned=pinned_vertices(topo, self.floating, primal_dofs))
+        self.local_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm,
+                                                    np.unique(topo.l2g[topo.vertex & ~gi.mask]),
+                                                    exclude=gi.mask[sl])
+        self.n_factorizations = (self.schur.II.n_new_factorizations + self.body_solver.n_factorizations
+                                 + self.local_solver.n_factorizations)
+        self.delta_gamma = sub.delta[self.gamma.space.idx]
+        self.delta_local = sub.delta[self.loc.space.idx]
+        g = self.gamma.space
+        body_of_gamma = np.zeros(g.n, dtype=np.int64)
+        body_of_gamma[g.pos] = sub.body_of_sub[sub.sub_of_W[g.idx]]
+        column = np.full(topo.scene.n_bodies, -1)
+        column[self.floating] = np.arange(self.floating.size)
+        self._column_of_body = column
+        self.kernel_column = column[body_of_gamma]
+        self._kernel_on = np.flatnonzero(self.kernel_column >= 0)
+        self._kernel_owned = self._kernel_on[self.gamma.owned[self._kernel_on]]
+        self._kernel_count = comm.allreduce_sum(np.bincount(self.kernel_column[self._kernel_owned],
+                                                            minlength=self.floating.size).astype(float))
+        self.pair_dofs = topo.dof_of_node[gi.pair_nodes]                   # (n_gl, 2)
+        self.pair_weight = gi.weight[gi.pairs]                             # (n_gl, 2)
+        self.pair_body = topo.body_of_sub[topo.sub_of_W[gi.pairs]]         # (n_gl, 2)
+        # (dof, rank) incidences of u_Gamma, sorted by dof: who holds the dofs of a multiplier
+        ent = np.flatnonzero(gamma_mask)
+        base = comm.size
+        key = np.unique(topo.l2g[ent].astype(np.int64) * base + prob.rank_of_sub[topo.sub_of_W[ent]])
+        self._inc_dof, self._inc_rank = np.divmod(key, base)
+        self.g_hat = self.gamma.exchange.sum(g.gather(self.schur.harmonic_extension_rhs(sub.f_W)))
+        self._cache: dict[bytes, DistributedActiveSet] = {}
+        self._bddc_op = self._local_op = None       # interface operators of the two solvers, on first use
+        self.setup_seconds = time.perf_counter() - t0
+
+    # ----------------------------------------------------------- operators
+    def S_hat(self, u: np.ndarray) -> np.ndarray:
+        """S^_c u on this rank's u_Gamma dofs (consistent)."""
+        g = self.gamma
+        return g.exchange.sum(self.schur.space_matvec(u, g.space, g.space))
+
+    def M_bddc(self, r: np.ndarray) -> np.ndarray:
+        """R_D^T S~^dagger R_D r (every body; primal copies summed in the coarse problem)."""
+        g = self.gamma
+        if self._bddc_op is None:            # the serial operator (explicit interface blocks where they pay)
+            self._bddc_op = self.body_solver.interface(self.schur.gamma).space_operator(g.space, self.delta_gamma)
+        return g.exchange.sum(self._bddc_op.apply(r))
+
+    def P_R(self, u: np.ndarray) -> np.ndarray:
+        """Remove the mean on every floating body (one Allreduce of k doubles)."""
+        if self.floating.size == 0:
+            return u
+        o = self._kernel_owned
+        sums = self.comm.allreduce_sum(np.bincount(self.kernel_column[o], weights=u[o],
+                                                   minlength=self.floating.size))
+        mean = sums / self._kernel_count
+        out = u.copy()
+        on = self._kernel_on
+        out[on] -= mean[self.kernel_column[on]]
+        return out
+
+    def kernel_load(self) -> np.ndarray:
+        """e = R_c^T g^_c over all ranks, shape (n_float,)."""
+        o = self._kernel_owned
+        return self.comm.allreduce_sum(np.bincount(self.kernel_column[o], weights=self.g_hat[o],
+                                                   minlength=self.floating.size))
+
+    def S_ol(self, v: np.ndarray) -> np.ndarray:
+        """S~_OL v on this rank's global-interface dofs, as :meth:`HybridSolver.S_ol`."""
+        gl, lc = self.glob, self.loc
+        r0 = lc.exchange.sum(self.schur.space_matvec(v, gl.space, lc.space))
+        if self._local_op is None:
+            self._local_op = self.local_solver.interface(self.schur.gamma).space_operator(lc.space, self.delta_local)
+        x0 = lc.exchange.sum(self._local_op.apply(r0))
+        return gl.exchange.sum(self.schur.space_matvec((v, -x0), (gl.space, lc.space), gl.space))
+
+    def M_D(self, a: DistributedActiveSet, lam: np.ndarray) -> np.ndarray:
+        """Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z lam."""
+        return a.scaled_jump_global.matvec(self.S_ol(a.scaled_jump_global.rmatvec(lam)))
+
+    # ------------------------------------------------------------ active set
+    def active_set(self, active: np.ndarray) -> DistributedActiveSet:
+        """This rank's part of Z^k (cached by the mask bytes)."""
+        active = np.asarray(active, dtype=bool)
+        if active.shape != (self.gi.n_gl,):
+            raise ValueError(f"active must have shape ({self.gi.n_gl},), got {active.shape}")
+        key = np.packbits(active).tobytes()
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        comm = self.comm
+        dofs = self.pair_dofs[active]
+        n_act = dofs.shape[0]
+        # every (row, rank) incidence: the ranks holding the first or the second dof of the row
+        inc_rows, inc_ranks = [], []
+        for side in (0, 1):
+            lo = np.searchsorted(self._inc_dof, dofs[:, side], "left")
+            hi = np.searchsorted(self._inc_dof, dofs[:, side], "right")
+            cnt = hi - lo
+            idx = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(lo, cnt)
+            inc_rows.append(np.repeat(np.arange(n_act), cnt))
+            inc_ranks.append(self._inc_rank[idx])
+        inc_rows, inc_ranks = np.concatenate(inc_rows), np.concatenate(inc_ranks)
+        rows = np.unique(inc_rows[inc_ranks == comm.rank])
+        shared = SharedIndex.build(comm.rank, rows, inc_rows, inc_ranks, n_act)
+        exchange = NeighbourSum(comm, shared)
+        d = dofs[rows]
+        w = self.pair_weight[active][rows]
+        ga, gb = self.gamma.local_index(d[:, 0]), self.gamma.local_index(d[:, 1])
+        jump = _LocalPairs(self.gamma, ga, gb, exchange)
+        scaled_gamma = _LocalPairs(self.gamma, ga, gb, exchange, w[:, 1], w[:, 0])
+        # B_D: the entry of copy a is multiplied by the weight of b and vice versa
+        scaled = _LocalPairs(self.glob, self.glob.local_index(d[:, 0]), self.glob.local_index(d[:, 1]), exchange,
+                             w[:, 1], w[:, 0])
+        projection = None
+        k = self.floating.size
+        if k:
+            bodies = self.pair_body[active][rows]
+            c1, c2 = self._column_of_body[bodies[:, 0]], self._column_of_body[bodies[:, 1]]
+            r = np.arange(rows.size)
+            G = sp.csr_matrix((np.r_[np.ones(int((c1 >= 0).sum())), -np.ones(int((c2 >= 0).sum()))],
+                               (np.r_[r[c1 >= 0], r[c2 >= 0]], np.r_[c1[c1 >= 0], c2[c2 >= 0]])),
+                              shape=(rows.size, k))
+            projection = DistributedProjection(G, shared.owned, comm)
+        a = DistributedActiveSet(active=active.copy(), rows=rows, shared=shared, jump=jump,
+                                 scaled_jump_gamma=scaled_gamma, scaled_jump_global=scaled,
+                                 projection=projection, n_active=int(n_act))
+        if len(self._cache) > 16:
+            self._cache.clear()
+        self._cache[key] = a
+        return a
+
+    # ---------------------------------------------------------------- solve
+    def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000, restart: int = 100,
+              norm: str = "l2", rtol_rule: str = "max", gather: bool = True,
+              x0: dict | None = None) -> tuple[MethodOutput, dict]:
+        """PCR on (4.5) with (4.11) for Z^k = ``active``, as :meth:`HybridSolver.solve` (orthogonal P^k).
+
+        ``x0``: warm start ``{"u_gamma": (n,) this rank's u_Gamma, "lambda": (n_gl,) replicated
+        multipliers of all pairs}`` (as the serial ``extra["state"]``; kept on active pairs).
+
+        Returns ``(output, info)`` as :func:`ddsolve.parallel.fetidp.solve_fetidp_mpi`; ``output.u``
+        is the global solution on rank 0 when ``gather``; ``output.extra`` also holds this rank's
+        ``lambda`` (its active rows) and ``u_gamma``.
+        """
+        t0 = time.perf_counter()
+        a = self.active_set(active)
+        n_g, n_act = self.gamma.n, a.n
+        nf = self.floating.size
+        P = a.projection
+        lam0 = P.particular(self.kernel_load()) if P is not None else np.zeros(n_act)
+
+        def proj(v: np.ndarray) -> np.ndarray:
+            return v if P is None else P.apply(v)
+
+        def A_op(x: np.ndarray) -> np.ndarray:                  # (4.13)
+            u, mu = x[:n_g], x[n_g:]
+            return np.concatenate([self.S_hat(u) + a.jump.rmatvec(proj(mu)), proj(a.jump.matvec(u))])
+
+        def M_op(r: np.ndarray) -> np.ndarray:                  # (4.11)
+            zu = self.P_R(self.M_bddc(self.P_R(r[:n_g])))
+            zl = proj(self.M_D(a, proj(r[n_g:])))
+            return np.concatenate([zu, zl])
+
+        b = np.concatenate([self.g_hat - a.jump.rmatvec(lam0), np.zeros(n_act)])
+        owned = np.concatenate([self.gamma.owned, a.shared.owned])
+        n = n_g + n_act
+        A, M = linear_operator(n, A_op), linear_operator(n, M_op)
+        xs = None
+        if x0 is not None:                   # HybridSolver._initial_guess: range(P_R) x V^k
+            lam = np.asarray(x0["lambda"], dtype=float)[a.active][a.rows]
+            xs = np.concatenate([self.P_R(np.asarray(x0["u_gamma"], dtype=float)), proj(lam - lam0)])
+        setup = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        reductions = Reductions(self.comm, owned)
+        atol = rtol * _rhs_norm(b, M_op, norm, reductions) if rtol_rule == "max" else 0.0
+        counter = IterationCounter(self.comm)
+        kr: KrylovResult = DistributedPCR.restarted(A, b, xs, rtol=rtol, atol=atol, maxiter=maxiter,
+                                                    restart=restart, M=M, norm=norm, comm=self.comm, owned=owned,
+                                                    callback=counter)
+        krylov_seconds = time.perf_counter() - t1
+        u_g = kr.x[:n_g]
+        lam = lam0 + proj(kr.x[n_g:])
+        if P is not None:                    # u_Gamma - R_c (G^T G)^{-1} G^T Z B^ u_Gamma
+            beta = P.coefficients(a.jump.matvec(u_g))
+            u_g = u_g - np.where(self.kernel_column >= 0, beta[np.maximum(self.kernel_column, 0)], 0.0)
+        sub = self.prob.sub
+        u_W = self.schur.interior_solution(sub.f_W, self.gamma.space.scatter(u_g))
+        u = gather_solution(self.prob, u_W) if gather else None
+        jump = self.comm.allreduce_scalar(float(np.abs(a.jump.matvec(u_g)).max()) if n_act else 0.0, op="max")
+        coarse = self.body_solver.coarse_seconds + self.local_solver.coarse_seconds + (
+            P.coarse_seconds if P is not None else 0.0)
+        out = MethodOutput(u=u, krylov=kr, nlambda=a.n_active, n_factorizations=self.n_factorizations,
+                           setup_seconds=self.setup_seconds + setup,
+                           extra={"n_gamma": self.gamma.n_global, "n_floating": int(nf), "n_active": a.n_active,
+                                  "constraint_residual": jump, "lambda": lam, "u_gamma": u_g})
+        info = {"coarse_seconds": coarse, "krylov_seconds": krylov_seconds,
+                "per_iteration": counter.per_iteration(kr.iterations)}
+        return out, info
+
+
+def _rhs_norm(b: np.ndarray, M, norm: str, red: Reductions) -> float:
+    """:meth:`ddsolve.krylov.pcr.PCR.rhs_norm` over ranks: ||b||_2, or |<b, M b>|^{1/2} for ``norm="M"``."""
+    if norm != "M":
+        return red.l2norm(b)
+    amax = red.absmax(b)
+    scale = 1.0
+    if 0.0 < amax < math.inf and not -64 <= math.frexp(amax)[1] <= 64:
+        scale = math.ldexp(1.0, max(-1000, min(1000, -math.frexp(amax)[1])))
+    bs = b * scale if scale != 1.0 else b
+    return math.sqrt(abs(red.inner(bs, M(bs)))) / scale
+
+
+def solve_hybrid_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
+                     gather: bool = True, norm: str = "l2", projection: str = "orthogonal",
+                     restart: int = 100, rtol_rule: str = "max") -> tuple[MethodOutput, dict]:
+    """The hybrid method on the ranks of ``prob.comm`` for the active set of ``prob.spec.contact``.
+
+    ``cond`` is ignored (PCR has no Lanczos estimate, as in serial). Only ``projection="orthogonal"``.
+    """
+    if projection != "orthogonal":
+        raise ValueError(f"projection {projection!r} is not distributed (only 'orthogonal')")
+    hyb = DistributedHybrid(prob)
+    return hyb.solve(hyb.gi.contact_mask(prob.spec.contact), rtol=rtol, maxiter=maxiter, restart=restart,
+                     norm=norm, rtol_rule=rtol_rule, gather=gather)
