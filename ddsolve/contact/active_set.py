@@ -142,9 +142,13 @@ class ActiveSetHybrid:
             return {"norm": "M"}
         if face_norm == "l2":
             return {"norm": "l2"}
-        rho = np.asarray(self.problem.sub.rho, dtype=float)
-        c = float(rho.max()) if rho.size else 1.0
+        c = self.coefficient_scale()
         return {"norm": "l2", "multiplier_weight": c if c > 0.0 and np.isfinite(c) else 1.0}
+
+    def coefficient_scale(self) -> float:
+        """max_i rho_i over all subdomains (1 without subdomains): c of ``face_norm="scaled"``."""
+        rho = np.asarray(self.problem.sub.rho, dtype=float)
+        return float(rho.max()) if rho.size else 1.0
 
     # ---------------------------------------------------------- initial guess
     def initial_multipliers(self, rtol: float = 1e-5, maxiter: int = 1000

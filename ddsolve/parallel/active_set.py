@@ -166,6 +166,11 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
         self.all_pairs = rep.active_set(np.ones(n_c, dtype=bool))
         self._pairs = self.dh.active_set(np.ones(n_c, dtype=bool))     # this rank's rows of all pairs
 
+    def coefficient_scale(self) -> float:
+        """max_i rho_i over the subdomains of all ranks (one Allreduce)."""
+        rho = np.asarray(self.dh.prob.sub.rho, dtype=float)
+        return self.dh.comm.allreduce_scalar(float(rho.max()) if rho.size else 0.0, op="max") or 1.0
+
     def S_dagger(self, r: np.ndarray) -> np.ndarray:
         """P_R M_BDDC^{-1} P_R r on a replicated u_Gamma (replicated result)."""
         h = self.hybrid

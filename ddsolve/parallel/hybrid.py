@@ -316,8 +316,11 @@ class DistributedHybrid:
     # ---------------------------------------------------------------- solve
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000, restart: int = 100,
               norm: str = "l2", rtol_rule: str = "max", gather: bool = True,
-              x0: dict | None = None) -> tuple[MethodOutput, dict]:
+              x0: dict | None = None, multiplier_weight: float = 1.0) -> tuple[MethodOutput, dict]:
         """PCR on (4.5) with (4.11) for Z^k = ``active``, as :meth:`HybridSolver.solve` (orthogonal P^k).
+
+        ``multiplier_weight`` c: PCR runs on D A D with D = diag(I, c I), as in the serial solver
+        (the face-solve stopping rule of the active set's ``face_norm="scaled"``).
 
         ``x0``: warm start ``{"u_gamma": (n,) this rank's u_Gamma, "lambda": (n_gl,) replicated
         multipliers of all pairs}`` (as the serial ``extra["state"]``; kept on active pairs).
@@ -353,17 +356,27 @@ class DistributedHybrid:
         if x0 is not None:                   # HybridSolver._initial_guess: range(P_R) x V^k
             lam = np.asarray(x0["lambda"], dtype=float)[a.active][a.rows]
             xs = np.concatenate([self.P_R(np.asarray(x0["u_gamma"], dtype=float)), proj(lam - lam0)])
+        c = float(multiplier_weight)
+        if not (c > 0.0 and math.isfinite(c)):
+            raise ValueError(f"multiplier_weight must be positive and finite, got {multiplier_weight!r}")
+        if c != 1.0:                         # D A D y = D b, x = D y (HybridSolver.solve)
+            d = np.r_[np.ones(n_g), np.full(n_act, c)]
+            A_c, M_c = A, M
+            A = linear_operator(n, lambda x: d * (A_c @ (d * x)))
+            M = linear_operator(n, lambda r: (M_c @ (r / d)) / d)
+            b = d * b
+            xs = None if xs is None else xs / d
         setup = time.perf_counter() - t0
         t1 = time.perf_counter()
         reductions = Reductions(self.comm, owned)
-        atol = rtol * _rhs_norm(b, M_op, norm, reductions) if rtol_rule == "max" else 0.0
+        atol = rtol * _rhs_norm(b, M.matvec, norm, reductions) if rtol_rule == "max" else 0.0
         counter = IterationCounter(self.comm)
         kr: KrylovResult = DistributedPCR.restarted(A, b, xs, rtol=rtol, atol=atol, maxiter=maxiter,
                                                     restart=restart, M=M, norm=norm, comm=self.comm, owned=owned,
                                                     callback=counter)
         krylov_seconds = time.perf_counter() - t1
         u_g = kr.x[:n_g]
-        lam = lam0 + proj(kr.x[n_g:])
+        lam = lam0 + proj(kr.x[n_g:] * c if c != 1.0 else kr.x[n_g:])
         if P is not None:                    # u_Gamma - R_c (G^T G)^{-1} G^T Z B^ u_Gamma
             beta = P.coefficients(a.jump.matvec(u_g))
             u_g = u_g - np.where(self.kernel_column >= 0, beta[np.maximum(self.kernel_column, 0)], 0.0)

@@ -126,9 +126,10 @@ def test_distributed_active_set_equals_serial(tmp_path, kind, n):
     assert float(par["messages"]) > 0
 
 
-def test_cli_contact_json():
+@pytest.mark.parametrize("rho", [[], ["--rho", "checkerboard:100"]])   # rho != 1: face_norm "scaled", c = 100
+def test_cli_contact_json(rho):
     args = ["-m", "ddsolve", "solve", "--problem", "contact", "--method", "active-set", "--subdomains", "2",
-            "--elements", "4", "--check", "--json"]
+            "--elements", "4", "--check", "--json", *rho]
     proc = _mpiexec(2, args)
     assert proc.returncode == 0, proc.stderr
     import json
@@ -139,7 +140,10 @@ def test_cli_contact_json():
     for key in ("converged", "iterations", "outer_iterations", "inner_iterations", "pcg_iterations", "n_active",
                 "n_contact", "nlambda"):
         assert summary[key] == ref[key], key
-    assert abs(summary["kkt_residual"] - ref["kkt_residual"]) <= 1e-8 * ref["kkt_residual"]
+    # The KKT residual is what the face solve (rtol 1e-5) left over: with rho = 1 it agrees to 1e-8;
+    # with a rho jump of 100 PCR amplifies the other summation order to ~1.5e-6 of it (measured).
+    tol = 1e-8 if not rho else 1e-5
+    assert abs(summary["kkt_residual"] - ref["kkt_residual"]) <= tol * ref["kkt_residual"]
     assert summary["error_vs_direct"] <= 1e-5 and summary["n_ranks"] == 2
 
 
