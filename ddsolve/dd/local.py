@@ -51,8 +51,53 @@ BATCH_MIN_SUBDOMAINS = 16
 #: wheel loads, else SuperLU), ``"pardiso"`` (error without MKL) or ``"superlu"`` (the literal
 #: variant). Measured on the block-diagonal K_rr of 1,094,241 dofs / 1,024 METIS subdomains
 #: (1,160,813 unknowns, one thread, CPU seconds): SuperLU factor 5.8 s, solve 0.17 s; PARDISO
-#: (METIS ordering) 4.1 s and 0.08-0.13 s, with less memory (docs/performance.md).
+#: (its METIS ordering) 4.0 s and 0.07-0.13 s. FETI-DP there, CPU in one process: SuperLU
+#: 21.8 s, PARDISO 14.3 s, PARDISO with :data:`BATCH_ORDERING` "subdomain" 11.3 s
+#: (docs/performance.md).
 SPARSE_BACKEND = "auto"
+
+
+#: Ordering of the batched PARDISO factorizations: ``"subdomain"`` (one METIS nested dissection of
+#: each subdomain's matrix, computed once per cache and restricted to every index set J, so that
+#: K_rr, K_II and K^+ share it) or ``"pardiso"`` (PARDISO's own ordering of each whole matrix).
+BATCH_ORDERING = "subdomain"
+
+
+def _subdomain_ordering(layout: Any, cache: dict) -> np.ndarray:
+    """Nested-dissection order of the W entries, subdomain by subdomain (cached).
+
+    Returns
+    -------
+    ndarray of int, shape (n_W,)
+        W positions in elimination order: those of subdomain 0 first (METIS
+        ``NodeND`` of the graph of K^(0)), then subdomain 1, ...
+    """
+    key = b"subdomain-nd-ordering"
+    if key not in cache:
+        import pymetis
+
+        G = sp.csr_matrix(layout.K_W)
+        rows = np.repeat(np.arange(G.shape[0]), np.diff(G.indptr))
+        off = G.indices != rows                                   # the graph: no self loops
+        indptr = np.r_[0, np.cumsum(np.bincount(rows[off], minlength=G.shape[0]))]
+        indices = G.indices[off].astype(np.int64)
+        order = np.arange(G.shape[0], dtype=np.int64)
+        offsets = np.asarray(layout.offsets, dtype=np.int64)
+        for lo, hi in zip(offsets[:-1], offsets[1:]):            # setup: one METIS call per subdomain block
+            a, b = indptr[lo], indptr[hi]
+            if hi - lo > 2 and b > a:
+                perm, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(indptr[lo:hi + 1] - a, indices[a:b] - lo))
+                order[lo:hi] = lo + np.asarray(perm, dtype=np.int64)
+        cache[key] = order
+    return cache[key]
+
+
+def _restricted_order(order_W: np.ndarray, entries: np.ndarray, n_W: int) -> np.ndarray:
+    """The order of ``order_W`` restricted to ``entries``, as indices into ``entries``."""
+    position = np.full(n_W, -1, dtype=np.int64)
+    position[entries] = np.arange(entries.size)
+    kept = position[order_W]
+    return kept[kept >= 0]
 
 
 def _sparse_backend(K: sp.spmatrix) -> str:
@@ -86,6 +131,8 @@ class _Factor:
     #: K is the block-diagonal matrix of many subdomains (:class:`_BatchedFactor`): a sparse K
     #: is factored by the backend :data:`SPARSE_BACKEND` chooses; else SuperLU.
     batched = False
+    #: A fill-reducing ordering for the batched backend (None: the backend's own).
+    order: np.ndarray | None = None
 
     def __init__(self, K: sp.spmatrix) -> None:
         self.n = K.shape[0]
@@ -100,7 +147,7 @@ class _Factor:
             from .pardiso import PardisoCholesky
 
             self.kind, self.backend = "sparse", "pardiso"
-            self._f = PardisoCholesky(K)
+            self._f = PardisoCholesky(K, order=self.order)
         else:
             self.kind, self.backend = "sparse", "superlu"
             # SPD: diagonal pivots only (DiagPivotThresh 0); threshold pivoting off the diagonal destroys
@@ -170,9 +217,16 @@ class _Factor:
 
 
 class _BatchedFactor(_Factor):
-    """The factorization of a block-diagonal matrix of many subdomains (backend :data:`SPARSE_BACKEND`)."""
+    """The factorization of a block-diagonal matrix of many subdomains (backend :data:`SPARSE_BACKEND`).
+
+    ``order`` (optional, shape (n,)): the fill-reducing ordering handed to PARDISO.
+    """
 
     batched = True
+
+    def __init__(self, K: sp.spmatrix, order: np.ndarray | None = None) -> None:
+        self.order = order
+        super().__init__(K)
 
 
 #: Columns per multi-right-hand-side solve of :func:`solve_many` (bounds its work array to
@@ -359,7 +413,10 @@ class BatchedSolver:
             inv_rho_e = 1.0 / layout.rho[layout.sub_of_W[entries]]
             K = layout.K_W[entries][:, entries]
             K = sp.csc_matrix(sp.diags(inv_rho_e) @ K)                   # rho_i K_t -> K_t, block by block
-            factor = _BatchedFactor(K)
+            order = None
+            if BATCH_ORDERING == "subdomain" and K.shape[0] > DENSE_LIMIT and _sparse_backend(K) == "pardiso":
+                order = _restricted_order(_subdomain_ordering(layout, cache), entries, layout.n_W)
+            factor = _BatchedFactor(K, order)
             factor.set_blocks(offsets)
             cache[key] = factor
             self.n_new_factorizations += 1

@@ -67,6 +67,9 @@ class PardisoCholesky:
     ----------
     K : sparse matrix, shape (n, n)
         Symmetric positive definite; only its upper triangle is read.
+    order : ndarray of int, shape (n,), optional
+        A fill-reducing ordering (unknown ``order[k]`` is eliminated k-th;
+        PARDISO's user permutation, iparm[4] = 1) instead of :data:`ORDERING`.
 
     Raises
     ------
@@ -76,7 +79,7 @@ class PardisoCholesky:
         PARDISO reports an error (e.g. -4: the matrix is not positive definite).
     """
 
-    def __init__(self, K: sp.spmatrix) -> None:
+    def __init__(self, K: sp.spmatrix, order: np.ndarray | None = None) -> None:
         lib = _library()
         if lib is None:
             raise ImportError("MKL PARDISO needs the mkl wheel (pip install mkl)")
@@ -90,13 +93,19 @@ class PardisoCholesky:
         self._iparm = np.zeros(64, dtype=np.int32)
         # own iparm; ordering; pivot perturbation 1e-8 (unused for SPD); 0-based indices
         self._iparm[[0, 1, 9, 34]] = 1, ORDERING, 8, 1
+        self._perm = np.zeros(1, dtype=np.int32)
+        if order is not None:
+            self._perm = np.ascontiguousarray(order, dtype=np.int32)
+            if self._perm.shape != (self.n,):
+                raise ValueError(f"order: need shape ({self.n},), got {self._perm.shape}")
+            self._iparm[4] = 1
         self._lib = lib
         self._call(12, np.zeros(1), np.zeros(1), 1)             # analysis and numerical factorization
         weakref.finalize(self, _release, lib, self._handle, self._iparm, self.n)
 
     def _call(self, phase: int, b: np.ndarray, x: np.ndarray, nrhs: int) -> None:
         _pardiso(self._lib, self._handle, self._iparm, phase, self.n, self._data, self._indptr, self._indices,
-                 b, x, nrhs)
+                 b, x, nrhs, self._perm)
 
     def solve(self, B: np.ndarray) -> np.ndarray:
         """K^{-1} B for B of shape (n,) or (n, k)."""
@@ -111,7 +120,8 @@ class PardisoCholesky:
 
 
 def _pardiso(lib: Any, handle: np.ndarray, iparm: np.ndarray, phase: int, n: int, data: np.ndarray,
-             indptr: np.ndarray, indices: np.ndarray, b: np.ndarray, x: np.ndarray, nrhs: int) -> None:
+             indptr: np.ndarray, indices: np.ndarray, b: np.ndarray, x: np.ndarray, nrhs: int,
+             perm: np.ndarray | None = None) -> None:
     error = ctypes.c_int32(0)
     set_threads = getattr(lib, "MKL_Set_Num_Threads_Local", None)
     old = set_threads(ctypes.c_int(THREADS)) if set_threads else None
@@ -119,7 +129,8 @@ def _pardiso(lib: Any, handle: np.ndarray, iparm: np.ndarray, phase: int, n: int
     c32 = ctypes.c_int32
     try:
         lib.pardiso(ptr(handle), ctypes.byref(c32(1)), ctypes.byref(c32(1)), ctypes.byref(c32(2)),
-                    ctypes.byref(c32(phase)), ctypes.byref(c32(n)), ptr(data), ptr(indptr), ptr(indices), None,
+                    ctypes.byref(c32(phase)), ctypes.byref(c32(n)), ptr(data), ptr(indptr), ptr(indices),
+                    None if perm is None else ptr(perm),
                     ctypes.byref(c32(nrhs)), ptr(iparm), ctypes.byref(c32(0)),
                     b.ctypes.data_as(ctypes.c_void_p), x.ctypes.data_as(ctypes.c_void_p), ctypes.byref(error))
     finally:

@@ -95,3 +95,31 @@ def test_backend_choice(monkeypatch):
     # factorizations of one subdomain's template stay SuperLU (structured scenes, the tables)
     monkeypatch.setattr(local, "SPARSE_BACKEND", "auto")
     assert local._Factor(K).backend == "superlu"
+
+
+def test_subdomain_ordering_is_a_permutation_within_each_subdomain():
+    pytest.importorskip("pymetis")
+    sub = _sub()
+    order = local._subdomain_ordering(sub, {})
+    offsets = np.asarray(sub.offsets)
+    block = np.searchsorted(offsets, np.arange(sub.n_W), side="right") - 1
+    np.testing.assert_array_equal(np.sort(order), np.arange(sub.n_W))
+    np.testing.assert_array_equal(block[order], block)             # subdomain after subdomain
+    entries = np.flatnonzero(~sub.interface)
+    restricted = local._restricted_order(order, entries, sub.n_W)
+    np.testing.assert_array_equal(np.sort(restricted), np.arange(entries.size))
+    np.testing.assert_array_equal(entries[restricted], order[np.isin(order, entries)])
+
+
+@needs_mkl
+def test_subdomain_ordering_and_pardiso_ordering_agree(monkeypatch):
+    sub = _sub()
+    monkeypatch.setattr(local, "BATCH_ORDERING", "subdomain")
+    a = _batched(sub, "pardiso", monkeypatch)
+    assert a._batch[0]._f._iparm[4] == 1                          # the user ordering was handed over
+    monkeypatch.setattr(local, "BATCH_ORDERING", "pardiso")
+    b = _batched(sub, "pardiso", monkeypatch)
+    assert b._batch[0]._f._iparm[4] == 0
+    rhs = np.random.default_rng(8).standard_normal((sub.n_W, 2))
+    xa, xb = a.solve(rhs), b.solve(rhs)
+    assert np.linalg.norm(xb - xa) <= 1e-12 * np.linalg.norm(xa)
