@@ -14,10 +14,11 @@ factored one by one: all their blocks K^(i)_{JJ} are put into one sparse
 block-diagonal matrix with a single sparse factorization, and
 :meth:`BatchedSolver.solve` applies it with one call for all of them. The
 batched factorization uses MKL PARDISO (:mod:`ddsolve.dd.pardiso`: SPD
-Cholesky, METIS ordering, one thread) when the ``mkl`` wheel loads, else scipy
-SuperLU (symmetric mode, diagonal pivots, minimum degree on A^T + A), the
-backend of every other sparse local factorization; :data:`SPARSE_BACKEND`
-selects it. Setup solves of many blocks share multi-column solves
+Cholesky, one thread, the elimination order of one METIS nested dissection per
+subdomain shared by all index sets, :data:`BATCH_ORDERING`) when the ``mkl``
+wheel loads, else scipy SuperLU (symmetric mode, diagonal pivots, minimum
+degree on A^T + A), the backend of every other sparse local factorization;
+:data:`SPARSE_BACKEND` selects it. Setup solves of many blocks share multi-column solves
 (:func:`solve_many`); a solve with one block alone (:class:`_BlockView`) reads
 the block's own rows of SuperLU's triangular factors, whose cost is that of the
 block, not of the whole matrix (PARDISO: one solve of the whole matrix).
@@ -72,7 +73,10 @@ def _subdomain_ordering(layout: Any, cache: dict) -> np.ndarray:
         W positions in elimination order: those of subdomain 0 first (METIS
         ``NodeND`` of the graph of K^(0)), then subdomain 1, ...
     """
-    key = b"subdomain-nd-ordering"
+    import hashlib
+
+    offsets = np.asarray(layout.offsets, dtype=np.int64)
+    key = b"subdomain-nd-ordering" + hashlib.sha1(offsets.tobytes()).digest()     # of this layout
     if key not in cache:
         import pymetis
 
@@ -82,7 +86,6 @@ def _subdomain_ordering(layout: Any, cache: dict) -> np.ndarray:
         indptr = np.r_[0, np.cumsum(np.bincount(rows[off], minlength=G.shape[0]))]
         indices = G.indices[off].astype(np.int64)
         order = np.arange(G.shape[0], dtype=np.int64)
-        offsets = np.asarray(layout.offsets, dtype=np.int64)
         for lo, hi in zip(offsets[:-1], offsets[1:]):            # setup: one METIS call per subdomain block
             a, b = indptr[lo], indptr[hi]
             if hi - lo > 2 and b > a:
