@@ -300,3 +300,53 @@ def test_contact_active_set_matches_direct_on_unstructured_membranes():
     np.testing.assert_array_equal(sol.active, ref.active)
     assert problem.kkt(sol.u, sol.lam).max < 1e-7
     assert np.abs(sol.u - ref.u).max() < 1e-7 * np.abs(ref.u).max()
+
+
+@pytest.mark.parametrize("problem,kw", [("poisson", dict(geometry="hole")), ("contact", {}),
+                                        ("multibody", dict(bodies=2))])
+def test_split_shares_its_edge_sort_with_the_element_graph(problem, kw, monkeypatch):
+    from ddsolve.scene import unstructured as U
+
+    ngmesh = mesh_geometry(problem, maxh=0.1, **kw)
+    data = U.netgen_arrays(ngmesh)
+    body_of_material = np.array([int(name[4:]) for name in data.material_names])
+    dirichlet = ["clamp"] if problem == "contact" else "boundary"
+    contact = "contact" if problem == "contact" else None
+    split = U.split_bodies(data, body_of_material, dirichlet=dirichlet, contact=contact)
+    # the element pairs of each body are exactly the edge-adjacency graph of its elements
+    first, second = split.adjacent
+    assert np.all(first < second)
+    assert np.all(split.element_body[first] == split.element_body[second])
+    got = np.sort(first * split.elements.shape[0] + second)
+    expected = []
+    for b in range(int(split.element_body.max()) + 1):
+        members = np.flatnonzero(split.element_body == b)
+        f, s = element_graph(split.elements[members])
+        expected.append(members[f] * split.elements.shape[0] + members[s])
+    np.testing.assert_array_equal(got, np.sort(np.concatenate(expected)))
+    # node copies numbered through the dense marker equal those of the sort
+    monkeypatch.setattr(U, "DENSE_COPY_FACTOR", 0)
+    by_sort = U.split_bodies(data, body_of_material, dirichlet=dirichlet, contact=contact)
+    for x, y in zip(split[:5], by_sort[:5]):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_repair_reads_the_inner_graph_off_the_full_graph():
+    from ddsolve.scene.partition import _adjacency, _inner_graph
+
+    sc = unstructured_scene("poisson", geometry="lshape", maxh=0.05, parts=1)
+    first, second = element_graph(sc.elements)
+    n = sc.elements.shape[0]
+    label = np.minimum((sc.coords[sc.elements].mean(axis=1)[:, 0] * 5).astype(np.int64), 4)   # stripes
+    flip = np.random.default_rng(4).choice(n, size=30, replace=False)
+    label[flip] = (label[flip] + 2) % 5                                  # stray elements
+    inner = label[first] == label[second]
+    a = _inner_graph(n, first, second, inner, label, _adjacency(n, first, second))
+    b = _adjacency(n, first[inner], second[inner])
+    for x, y in ((a.indptr, b.indptr), (a.indices, b.indices), (a.data, b.data)):
+        np.testing.assert_array_equal(x, y)
+    # the repair gives the same labels with and without the prebuilt graph
+    fixed = repair_partition(label, first, second, 5)
+    assert is_connected_partition(sc.elements, fixed) and not is_connected_partition(sc.elements, label)
+    np.testing.assert_array_equal(fixed, repair_partition(label, first, second, 5,
+                                                          graph=_adjacency(n, first, second)))

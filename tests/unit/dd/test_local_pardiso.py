@@ -1,0 +1,125 @@
+"""The MKL PARDISO backend of the batched block-diagonal factorization against SuperLU."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ddsolve.dd import Substructures, local, pardiso
+from ddsolve.dd.bddc import solve_bddc
+from ddsolve.dd.fetidp import solve_fetidp
+from ddsolve.scene import assemble
+from ddsolve.scene.unstructured import unstructured_scene
+
+needs_mkl = pytest.mark.skipif(not pardiso.available(), reason="MKL PARDISO needs the mkl wheel (pip install mkl)")
+
+
+def _laplacian(m: int, shift: float) -> sp.csr_matrix:
+    """5-point Laplacian of an m x m grid plus shift * I (SPD)."""
+    T = sp.diags([-np.ones(m - 1), 2 * np.ones(m), -np.ones(m - 1)], [-1, 0, 1])
+    return sp.csr_matrix(sp.kron(sp.eye(m), T) + sp.kron(T, sp.eye(m)) + shift * sp.eye(m * m))
+
+
+@needs_mkl
+def test_pardiso_cholesky_solves_like_superlu():
+    K = sp.block_diag([_laplacian(30, 0.0), _laplacian(25, 1e-3), _laplacian(40, 1.0)], format="csr")
+    rng = np.random.default_rng(11)
+    B = rng.standard_normal((K.shape[0], 5))
+    ref = spla.splu(sp.csc_matrix(K)).solve(B)
+    f = pardiso.PardisoCholesky(K)
+    for X, R in ((f.solve(B[:, 0]), ref[:, 0]), (f.solve(B), ref)):
+        assert X.shape == R.shape
+        assert np.linalg.norm(X - R) <= 1e-12 * np.linalg.norm(R)
+    assert f.solve(np.zeros((K.shape[0], 0))).shape == (K.shape[0], 0)
+
+
+@needs_mkl
+def test_pardiso_rejects_an_indefinite_matrix():
+    K = _laplacian(40, -0.5)            # eigenvalues below 0.5 turn negative
+    with pytest.raises(RuntimeError, match="PARDISO"):
+        pardiso.PardisoCholesky(K)
+
+
+def _sub():
+    sc = unstructured_scene("poisson", geometry="hole", maxh=0.015, parts=24,
+                            rho=10.0 ** np.random.default_rng(5).integers(-2, 3, size=24))
+    return Substructures(assemble(sc))
+
+
+def _batched(sub, backend, monkeypatch):
+    monkeypatch.setattr(local, "SPARSE_BACKEND", backend)
+    return local.BatchedSolver(sub, ~sub.interface, {})
+
+
+@needs_mkl
+def test_batched_pardiso_equals_superlu(monkeypatch):
+    sub = _sub()
+    a, b = _batched(sub, "superlu", monkeypatch), _batched(sub, "pardiso", monkeypatch)
+    assert a._batch[0].backend == "superlu" and b._batch[0].backend == "pardiso"
+    assert b._batch[1].size > local.DENSE_LIMIT
+    rng = np.random.default_rng(2)
+    for rhs in (rng.standard_normal(sub.n_W), rng.standard_normal((sub.n_W, 4))):
+        xa, xb = a.solve(rhs), b.solve(rhs)
+        assert np.linalg.norm(xb - xa) <= 1e-12 * np.linalg.norm(xa)
+    # one block alone and the multi-column setup solves
+    g = b.groups[3]
+    B = rng.standard_normal((g.index.shape[0], 3))
+    ya, yb = a.groups[3].factor.solve(B), g.factor.solve(B)
+    assert np.linalg.norm(yb - ya) <= 1e-12 * np.linalg.norm(ya)
+    tasks = [(gr.factor, rng.standard_normal((gr.index.shape[0], 1 + k % 3))) for k, gr in enumerate(b.groups)]
+    ref = local.solve_many([(ga.factor, B) for ga, (_, B) in zip(a.groups, tasks)])
+    for Xb, Xa in zip(local.solve_many(tasks), ref):
+        assert np.linalg.norm(Xb - Xa) <= 1e-12 * np.linalg.norm(Xa)
+
+
+@needs_mkl
+@pytest.mark.parametrize("method", [solve_fetidp, solve_bddc])
+def test_methods_with_pardiso_match_superlu(method, monkeypatch):
+    sub = _sub()
+    monkeypatch.setattr(local, "SPARSE_BACKEND", "superlu")
+    a = method(sub, rtol=1e-10)
+    monkeypatch.setattr(local, "SPARSE_BACKEND", "pardiso")
+    b = method(sub, rtol=1e-10)
+    assert abs(a.krylov.iterations - b.krylov.iterations) <= 1
+    assert np.linalg.norm(b.u - a.u) <= 1e-9 * np.linalg.norm(a.u)
+
+
+def test_backend_choice(monkeypatch):
+    K = sp.csc_matrix(_laplacian(40, 0.0))
+    monkeypatch.setattr(local, "SPARSE_BACKEND", "superlu")
+    assert local._sparse_backend(K) == "superlu"
+    monkeypatch.setattr(local, "SPARSE_BACKEND", "auto")
+    assert local._sparse_backend(K) == ("pardiso" if pardiso.available() else "superlu")
+    monkeypatch.setattr(local, "SPARSE_BACKEND", "umfpack")
+    with pytest.raises(ValueError, match="SPARSE_BACKEND"):
+        local._sparse_backend(K)
+    # factorizations of one subdomain's template stay SuperLU (structured scenes, the tables)
+    monkeypatch.setattr(local, "SPARSE_BACKEND", "auto")
+    assert local._Factor(K).backend == "superlu"
+
+
+def test_subdomain_ordering_is_a_permutation_within_each_subdomain():
+    pytest.importorskip("pymetis")
+    sub = _sub()
+    order = local._subdomain_ordering(sub, {})
+    offsets = np.asarray(sub.offsets)
+    block = np.searchsorted(offsets, np.arange(sub.n_W), side="right") - 1
+    np.testing.assert_array_equal(np.sort(order), np.arange(sub.n_W))
+    np.testing.assert_array_equal(block[order], block)             # subdomain after subdomain
+    entries = np.flatnonzero(~sub.interface)
+    restricted = local._restricted_order(order, entries, sub.n_W)
+    np.testing.assert_array_equal(np.sort(restricted), np.arange(entries.size))
+    np.testing.assert_array_equal(entries[restricted], order[np.isin(order, entries)])
+
+
+@needs_mkl
+def test_subdomain_ordering_and_pardiso_ordering_agree(monkeypatch):
+    sub = _sub()
+    monkeypatch.setattr(local, "BATCH_ORDERING", "subdomain")
+    a = _batched(sub, "pardiso", monkeypatch)
+    assert a._batch[0]._f._iparm[4] == 1                          # the user ordering was handed over
+    monkeypatch.setattr(local, "BATCH_ORDERING", "pardiso")
+    b = _batched(sub, "pardiso", monkeypatch)
+    assert b._batch[0]._f._iparm[4] == 0
+    rhs = np.random.default_rng(8).standard_normal((sub.n_W, 2))
+    xa, xb = a.solve(rhs), b.solve(rhs)
+    assert np.linalg.norm(xb - xa) <= 1e-12 * np.linalg.norm(xa)
