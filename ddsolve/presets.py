@@ -20,7 +20,9 @@ method, and :mod:`ddsolve.api`'s runners pass them on.
       ``initial_active="positive"``) and the removal of Figure 6.3, one blocking pair
       per outer iteration (default: all negative multipliers at once, ``removal="blocking"``),
       face solves stopped in the plain ||.||_2 of Section 4.4 (default: the gaps weighted
-      by max rho, invariant under rho -> s rho and equal to it for rho = 1, ``face_norm="l2"``);
+      by max rho, invariant under rho -> s rho and equal to it for rho = 1, ``face_norm="l2"``),
+      and no redo of a face solve that broke down on the indefinite S~_OL of (4.9)-(4.10)
+      (default: redone with the PSD energy form, ``s_ol_fallback=False``);
     - SMALBE (Section 6.4): the stopping rule ||g^P|| <= eps ||b||, ||G lambda|| <= eps ||b||
       (default: ||G lambda|| <= eps min(||b||, ||e||), ``equality_rule="section-6.4"``),
       rho_bar = ||P F P|| (default 1, ``rho_bar=None``), no FETI-FETI polish
@@ -43,7 +45,7 @@ THESIS_OPTIONS: dict[tuple[str, str], dict[str, Any]] = {
     ("poisson", "feti"): {"projection": "orthogonal"},
     ("multibody", "feti-feti"): {"projection": "orthogonal"},
     ("contact", "active-set"): {"face_rtol_rule": "initial", "initial_active": "positive",
-                                "removal": "blocking", "face_norm": "l2"},
+                                "removal": "blocking", "face_norm": "l2", "s_ol_fallback": False},
     ("contact", "smalbe"): {"equality_rule": "section-6.4", "rho_bar": None, "polish": False},
 }
 

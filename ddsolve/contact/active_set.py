@@ -60,7 +60,7 @@ import numpy as np
 from ..dd.operators import linear_operator, scaled_jump
 from ..krylov import pcg
 from ..krylov.result import KrylovResult
-from ..multibody.hybrid import RTOL_RULES, HybridSolver
+from ..multibody.hybrid import RTOL_RULES, S_OL_FORMS, HybridSolver
 from ..qp import mprgp
 from ..qp.result import QPResult
 from .direct import ContactSolution
@@ -186,7 +186,8 @@ class ActiveSetHybrid:
     def solve(self, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5, maxiter: int = 1000, max_outer: int = 50,
               feasibility_tol: float | None = None, removal: str = "all",
               forcing: float | None = None, face_rtol_rule: str = "max",
-              initial_active: str = "relative", face_norm: str = "scaled") -> ContactSolution:
+              initial_active: str = "relative", face_norm: str = "scaled",
+              s_ol: str = "thesis", s_ol_fallback: bool = True) -> ContactSolution:
         """Run the active set method.
 
         Parameters
@@ -236,6 +237,17 @@ class ActiveSetHybrid:
             {lambda^_i > feasibility_tol max lambda^} (the projection by MPRGP
             to 1e-10 leaves round-off-sized positive entries off the contact
             zone); ``"positive"`` {lambda^_i > 0} (Chapter 5 as printed).
+        s_ol : {"thesis", "energy"}
+            Form of S~_OL in the hybrid's preconditioner (4.11) (:meth:`HybridSolver.solve`):
+            ``"thesis"`` (default) S_GG - S_G0 M_0 S_0G of (4.9)-(4.10), ``"energy"`` the
+            positive semidefinite E^T S E.
+        s_ol_fallback : bool
+            With ``s_ol="thesis"``: when a face solve breaks down because the
+            preconditioner is not positive definite (S~_OL indefinite), solve that
+            face again (same warm start) with ``s_ol="energy"`` and keep the energy
+            form for the remaining faces; ``extra["s_ol_fallback"]`` lists the face
+            solves (1-based) redone. True by default; False (the thesis preset):
+            the breakdown ends the run with ``converged=False``.
 
         Returns
         -------
@@ -243,7 +255,10 @@ class ActiveSetHybrid:
             ``inner_iterations``: PCR iterations of each face solve;
             ``pcg_iterations``: PCG iterations on (5.4); ``extra`` holds
             ``lambda_star``, ``lambda_hat``, ``initial_active``,
-            ``projection_iterations``, ``active_history``.
+            ``projection_iterations``, ``active_history``, ``s_ol`` (the form in use at
+            the end), ``s_ol_fallback`` (face solves redone with the energy form) and
+            ``s_ol_breakdown_iterations`` (PCR iterations of their broken-down first attempts,
+            not in ``inner_iterations``).
         """
         t0 = time.perf_counter()
         if removal not in ("all", "blocking"):
@@ -254,6 +269,10 @@ class ActiveSetHybrid:
             raise ValueError(f"initial_active must be one of {', '.join(INITIAL_ACTIVE)}, got {initial_active!r}")
         if face_norm not in FACE_NORMS:
             raise ValueError(f"face_norm must be one of {', '.join(FACE_NORMS)}, got {face_norm!r}")
+        if s_ol not in S_OL_FORMS:
+            raise ValueError(f"s_ol must be one of {', '.join(S_OL_FORMS)}, got {s_ol!r}")
+        fallback_faces: list[int] = []
+        broken_iterations: list[int] = []
         face_norm_options = self.face_norm_options(face_norm)
         tol = 10.0 * rtol if feasibility_tol is None else float(feasibility_tol)
         h, n = self.hybrid, self.n_contact
@@ -277,13 +296,24 @@ class ActiveSetHybrid:
         for _ in range(max_outer):
             face_rtol = float(forcing) if loose else rtol
             sign_tol = max(tol, face_rtol) if loose else tol
-            out = h.solve(active, rtol=face_rtol, maxiter=maxiter,
-                                        x0={"u_gamma": u_k, "lambda": lam_k}, rtol_rule=face_rtol_rule,
-                          **face_norm_options)
+            face = {"rtol": face_rtol, "maxiter": maxiter, "x0": {"u_gamma": u_k, "lambda": lam_k},
+                    "rtol_rule": face_rtol_rule, **face_norm_options}
+            out = h.solve(active, s_ol=s_ol, **face)
+            if (s_ol_fallback and s_ol == "thesis" and not out.krylov.converged
+                    and out.krylov.reason.startswith("breakdown") and "M not positive definite" in out.krylov.reason):
+                # S~_OL of (4.9)-(4.10) indefinite: redo the face with the PSD energy form (docs/methods.md)
+                log.warning("active set: face solve %d broke down (%s); solving it again with s_ol='energy'",
+                            len(inner) + 1, out.krylov.reason)
+                fallback_faces.append(len(inner) + 1)
+                broken_iterations.append(int(out.krylov.iterations))
+                s_ol = "energy"
+                out = h.solve(active, s_ol=s_ol, **face)
             inner.append(int(out.krylov.iterations))
             face_tols.append(face_rtol)
             if not out.krylov.converged:
                 reason = f"face solve {len(inner)} did not converge: {out.krylov.reason}"
+                if fallback_faces and fallback_faces[-1] == len(inner):
+                    reason += " (after a breakdown with s_ol='thesis', solved again with s_ol='energy')"
                 break
             lam_y = np.zeros(n)
             lam_y[active] = out.extra["lambda"]
@@ -324,6 +354,9 @@ class ActiveSetHybrid:
                 active = active | penetrating
             seen.add(np.packbits(active).tobytes())
             history.append(int(active.sum()))
+        if fallback_faces and converged:
+            reason += (f"; face solve(s) {', '.join(map(str, fallback_faces))} redone with s_ol='energy' after "
+                       "a breakdown with the indefinite S~_OL of (4.9)-(4.10)")
         u = out.u if out is not None else np.zeros(self.problem.ndof)
         lam = lam_k if converged else np.where(active, lam_k, 0.0)
         seconds = time.perf_counter() - t0
@@ -335,20 +368,23 @@ class ActiveSetHybrid:
             extra={"lambda_star": lam_star, "lambda_hat": lam_hat, "initial_active": initial_active,
                    "projection_iterations": int(qp.iterations), "active_history": history,
                    "pcg_converged": bool(kr0.converged), "setup_seconds": float(h.setup_seconds),
-                   "face_rtol": face_tols})
+                   "face_rtol": face_tols, "s_ol": s_ol, "s_ol_fallback": fallback_faces,
+                   "s_ol_breakdown_iterations": broken_iterations})
 
 
 def solve_contact_active_set(problem: ContactProblem, *, rtol: float = 1e-5, pcg_rtol: float = 1e-5,
                              maxiter: int = 1000, max_outer: int = 50,
                              solver: ActiveSetHybrid | None = None, removal: str = "all",
                              face_rtol_rule: str = "max", initial_active: str = "relative",
-                             face_norm: str = "scaled") -> ContactSolution:
+                             face_norm: str = "scaled", s_ol: str = "thesis",
+                             s_ol_fallback: bool = True) -> ContactSolution:
     """Solve (3.1) by the active set method with the hybrid method (Chapter 5).
 
-    See :meth:`ActiveSetHybrid.solve` (``removal``, ``face_rtol_rule``, ``initial_active``:
-    the defaults are the project's rules, the thesis preset passes "blocking", "initial",
-    "positive"); ``solver`` reuses its factorizations.
+    See :meth:`ActiveSetHybrid.solve` (``removal``, ``face_rtol_rule``, ``initial_active``,
+    ``s_ol_fallback``: the defaults are the project's rules, the thesis preset passes "blocking",
+    "initial", "positive", False); ``solver`` reuses its factorizations.
     """
     solver = solver if solver is not None else ActiveSetHybrid(problem)
     return solver.solve(rtol=rtol, pcg_rtol=pcg_rtol, maxiter=maxiter, max_outer=max_outer, removal=removal,
-                        face_rtol_rule=face_rtol_rule, initial_active=initial_active, face_norm=face_norm)
+                        face_rtol_rule=face_rtol_rule, initial_active=initial_active, face_norm=face_norm,
+                        s_ol=s_ol, s_ol_fallback=s_ol_fallback)

@@ -57,10 +57,13 @@ from .interface import GlobalInterface
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ActiveSet", "HybridSolver", "InterfaceSpace", "PROJECTIONS", "NORMS", "RTOL_RULES"]
+__all__ = ["ActiveSet", "HybridSolver", "InterfaceSpace", "PROJECTIONS", "NORMS", "RTOL_RULES", "S_OL_FORMS"]
 
 #: Stopping rules of a face solve: ||r_n|| <= rtol max(||r_0||, ||F_k||) (default) or rtol ||r_0|| (Section 4.4).
 RTOL_RULES: tuple[str, ...] = ("max", "initial")
+#: Forms of the inexact body Schur complement S~_OL in M_D^{-1} of (4.11): ``"thesis"``
+#: S_GG - S_G0 M_0 S_0G of (4.9)-(4.10) (default), ``"energy"`` the PSD E^T S E (:meth:`HybridSolver.S_ol_energy`).
+S_OL_FORMS: tuple[str, ...] = ("thesis", "energy")
 
 #: Projections onto V^k = ker(G^kT): ``"orthogonal"`` is P^k of Section 4.2;
 #: ``"dirichlet"`` and ``"lumped"`` are Q-weighted (FETI's P = I - QG(G^T Q G)^{-1} G^T)
@@ -320,11 +323,49 @@ class HybridSolver:
         # (4.10) on the interface: the same operator as A_GG - A_GI A~_II^{-1} A_IG with A~_II^{-1}
         # of (4.9) (:meth:`inexact_interior_solve`), without interior solves when S is explicit.
         r0 = self.schur.space_matvec(v, self.global_space, self.local_space)
+        x0 = self._local_solve(r0)
+        return self.schur.space_matvec((v, -x0), (self.global_space, self.local_space), self.global_space)
+
+    def _local_solve(self, r: np.ndarray) -> np.ndarray:
+        """M_0 r: the primal-constrained solve of (4.10) on Gamma_0, shape (n_0,) -> (n_0,)."""
         if self._local_space_solve is None:
             self._local_space_solve = (self.local_interface_solver.interface(self.schur.gamma)
                                        .space_operator(self.local_space, self.delta_local))
-        x0 = self._local_space_solve.apply(r0)
-        return self.schur.space_matvec((v, -x0), (self.global_space, self.local_space), self.global_space)
+        return self._local_space_solve.apply(r)
+
+    def S_ol_energy(self, v: np.ndarray) -> np.ndarray:
+        """Energy form S~_E v = E^T S E v of the inexact body Schur complement, E v = [v; -M_0 S_0G v].
+
+        The thesis's S~_OL = S_GG - S_G0 M_0 S_0G of (4.9)-(4.10) (:meth:`S_ol`)
+        is indefinite when the BDDC-type M_0 exceeds S_00^{-1} in some direction
+        (measured: eigenvalues down to -0.116 of P M_D^{-1} P at 58,913 dofs,
+        docs/methods.md). With w = M_0 S_0G v,
+
+            S~_E v = (S_GG v - S_G0 w) - S_G0 M_0 (S_0G v - S_00 w),
+
+        the energy of the extension [v; -w] of v: positive semidefinite by
+        construction, and equal to S~_OL (and to the exact body Schur complement)
+        for M_0 = S_00^{-1}. Cost: one more M_0 and one more Schur product.
+
+        Parameters
+        ----------
+        v : ndarray, shape (n_GL,)
+
+        Returns
+        -------
+        ndarray, shape (n_GL,)
+        """
+        spaces = (self.global_space, self.local_space)
+        w = self._local_solve(self.schur.space_matvec(v, self.global_space, self.local_space))
+        z_global = self.schur.space_matvec((v, -w), spaces, self.global_space)
+        z_local = self.schur.space_matvec((v, -w), spaces, self.local_space)
+        return z_global - self.schur.space_matvec(self._local_solve(z_local), self.local_space, self.global_space)
+
+    def inexact_schur(self, s_ol: str = "thesis"):
+        """The operator S~_OL of M_D^{-1} in (4.11): :meth:`S_ol` (``"thesis"``) or :meth:`S_ol_energy`."""
+        if s_ol not in S_OL_FORMS:
+            raise ValueError(f"unknown s_ol {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
+        return self.S_ol if s_ol == "thesis" else self.S_ol_energy
 
     # ------------------------------------------------------------ active set
     def active_set(self, active: np.ndarray) -> ActiveSet:
@@ -371,7 +412,7 @@ class HybridSolver:
         self._active_cache[key] = aset
         return aset
 
-    def projection(self, a: ActiveSet, kind: str = "orthogonal") -> Projection:
+    def projection(self, a: ActiveSet, kind: str = "orthogonal", s_ol: str = "thesis") -> Projection:
         """The projection onto V^k = ker(G^kT) of the given kind (cached on ``a``).
 
         ``"orthogonal"`` (or no floating bodies): P^k = ``a.projection`` of Section 4.2.
@@ -390,15 +431,16 @@ class HybridSolver:
             raise ValueError(f"unknown projection {kind!r} (choose from {', '.join(PROJECTIONS)})")
         if kind == "orthogonal" or a.projection.k == 0:
             return a.projection
-        hit = a.weighted.get(kind)
+        key = kind if kind == "lumped" or s_ol == "thesis" else (kind, s_ol)   # Q = M_D^{-1} of that S~_OL
+        hit = a.weighted.get(key)
         if hit is not None:
             return hit
-        Q = (lambda g: self.M_D(a, g)) if kind == "dirichlet" else (lambda g: self.M_lumped(a, g))
+        Q = (lambda g: self.M_D(a, g, s_ol)) if kind == "dirichlet" else (lambda g: self.M_lumped(a, g))
         # M_D^{-1} indefinite (e.g. multiplicity scaling across a checkerboard): P is still a
         # projection onto V^k, but PCR will meet the indefinite preconditioner (warning).
         out = Projection(a.G, Q, singular_tol=1e-12,
                          singular_message=f"G^T Q G of the {kind!r} projection is singular")
-        a.weighted[kind] = out
+        a.weighted[key] = out
         return out
 
     def jump(self, a: ActiveSet, u: np.ndarray) -> np.ndarray:
@@ -413,19 +455,20 @@ class HybridSolver:
         """Z B_{Gamma_OL,D} diag(K_GG) B_{Gamma_OL,D}^T Z lam: M_D^{-1} with S~_OL super-lumped."""
         return scaled_jump(a.scaled_jump_global, lambda v: self._K_global_diag * v)(lam)
 
-    def M_D(self, a: ActiveSet, lam: np.ndarray) -> np.ndarray:
+    def M_D(self, a: ActiveSet, lam: np.ndarray, s_ol: str = "thesis") -> np.ndarray:
         """M_D^{-1} lam = Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z lam, shape (n_act,) -> (n_act,).
 
         B_{Gamma_OL,D}: body-level scaled jump, the entry of copy a multiplied
-        by the weight of b's body and vice versa (``gi.weight``).
+        by the weight of b's body and vice versa (``gi.weight``). ``s_ol``: the
+        form of S~_OL (:meth:`inexact_schur`).
         """
-        return scaled_jump(a.scaled_jump_global, self.S_ol)(lam)
+        return scaled_jump(a.scaled_jump_global, self.inexact_schur(s_ol))(lam)
 
     # ---------------------------------------------------------------- solve
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000,
               x0: Any = None, restart: int = 100, norm: str = "l2",
               projection: str = "orthogonal", rtol_rule: str = "max",
-              multiplier_weight: float = 1.0) -> MethodOutput:
+              multiplier_weight: float = 1.0, s_ol: str = "thesis") -> MethodOutput:
         """Solve the KKT system (4.2) on the active set Z^k: PCR on (4.5) with (4.11).
 
         The iteration runs on range(P_R) x V^k for (u_Gamma, mu) with
@@ -491,6 +534,11 @@ class HybridSolver:
             the thesis's ||.||_2; c ~ ||S^_c|| (e.g. the coefficient scale
             max rho) balances forces r_u with displacements r_lambda and makes the
             rule invariant under rho -> s rho (the active set method's default).
+        s_ol : {"thesis", "energy"}
+            Form of S~_OL in M_D^{-1} of (4.11) (:data:`S_OL_FORMS`): ``"thesis"``
+            (default) S_GG - S_G0 M_0 S_0G of (4.9)-(4.10) (:meth:`S_ol`), which can be
+            indefinite, so that PCR may break down; ``"energy"`` the positive
+            semidefinite E^T S E (:meth:`S_ol_energy`, one more M_0 per application).
 
         Returns
         -------
@@ -499,7 +547,7 @@ class HybridSolver:
             ``krylov`` the PCR result on (4.5), ``nlambda`` = active.sum(),
             ``n_factorizations`` new factorizations (0 after the first solve),
             ``extra = {"lambda": (n_active,), "state": dict, "u_gamma": (n_gamma,),
-            "n_gamma": int, "n_floating": int, "constraint_residual": float}``.
+            "n_gamma": int, "n_floating": int, "constraint_residual": float, "s_ol": str}``.
 
         Raises
         ------
@@ -513,6 +561,8 @@ class HybridSolver:
             raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
         if rtol_rule not in RTOL_RULES:
             raise ValueError(f"unknown rtol_rule {rtol_rule!r} (choose from {', '.join(RTOL_RULES)})")
+        if s_ol not in S_OL_FORMS:
+            raise ValueError(f"unknown s_ol {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
         t0 = time.perf_counter()
         a = self.active_set(active)
         n_act = a.n_active
@@ -522,7 +572,7 @@ class HybridSolver:
         # lambda_0 with G^T lambda_0 = e = R_c^T g^_c
         lam0 = a.projection.particular(self.kernel_load()) if nf else np.zeros(n_act)
 
-        proj = self.projection(a, projection)               # P^k of Section 4.2, or Q-weighted
+        proj = self.projection(a, projection, s_ol)         # P^k of Section 4.2, or Q-weighted
 
         def A_op(x: np.ndarray) -> np.ndarray:                  # (4.13), P^k -> P, P^T
             u, mu = x[:n_g], x[n_g:]
@@ -532,7 +582,7 @@ class HybridSolver:
         def M_op(r: np.ndarray) -> np.ndarray:                  # (4.11), P^k M_D^{-1} P^k -> P M_D^{-1} P^T
             ru, rl = r[:n_g], r[n_g:]
             zu = self.P_R(self.M_bddc(self.P_R(ru)))
-            zl = proj.apply(self.M_D(a, proj.apply_transpose(rl)))
+            zl = proj.apply(self.M_D(a, proj.apply_transpose(rl), s_ol))
             return np.concatenate([zu, zl])
 
         b = np.concatenate([self.g_hat - a.jump.rmatvec(lam0), np.zeros(n_act)])
@@ -575,11 +625,11 @@ class HybridSolver:
             u=u, krylov=kr, nlambda=int(n_act), n_factorizations=new_fact,
             setup_seconds=setup + (self.setup_seconds if new_fact else 0.0),
             extra={"lambda": lam, "u_gamma": u_g, "n_gamma": n_g, "n_floating": int(nf),
-                   "constraint_residual": jump,
+                   "constraint_residual": jump, "s_ol": s_ol,
                    "state": {"u_gamma": u_g.copy(), "lambda": lam_full, "active": a.active.copy()}})
 
-    def system(self, active: np.ndarray, *, x0: Any = None,
-               projection: str = "orthogonal") -> tuple[Any, Any, np.ndarray, np.ndarray | None]:
+    def system(self, active: np.ndarray, *, x0: Any = None, projection: str = "orthogonal",
+               s_ol: str = "thesis") -> tuple[Any, Any, np.ndarray, np.ndarray | None]:
         """The system PCR solves in :meth:`solve`: ``(A, M, b, x0)`` of (4.13)/(4.5) with (4.11).
 
         For analysis (e.g. :func:`ddsolve.krylov.optimal.minimal_residual_counts`
@@ -592,6 +642,8 @@ class HybridSolver:
         x0 : dict or ndarray, optional
             Warm start as in :meth:`solve`.
         projection : {"orthogonal", "dirichlet", "lumped"}
+        s_ol : {"thesis", "energy"}
+            Form of S~_OL in (4.11), as in :meth:`solve`.
 
         Returns
         -------
@@ -609,7 +661,7 @@ class HybridSolver:
         a = self.active_set(active)
         n_g, n_act = self.gamma_space.n, a.n_active
         lam0 = a.projection.particular(self.kernel_load()) if self.floating.size else np.zeros(n_act)
-        proj = self.projection(a, projection)
+        proj = self.projection(a, projection, s_ol)
 
         def A_op(x: np.ndarray) -> np.ndarray:
             u, mu = x[:n_g], x[n_g:]
@@ -618,7 +670,7 @@ class HybridSolver:
 
         def M_op(r: np.ndarray) -> np.ndarray:
             zu = self.P_R(self.M_bddc(self.P_R(r[:n_g])))
-            zl = proj.apply(self.M_D(a, proj.apply_transpose(r[n_g:])))
+            zl = proj.apply(self.M_D(a, proj.apply_transpose(r[n_g:]), s_ol))
             return np.concatenate([zu, zl])
 
         b = np.concatenate([self.g_hat - a.jump.rmatvec(lam0), np.zeros(n_act)])

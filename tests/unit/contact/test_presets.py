@@ -145,7 +145,8 @@ def test_solver_options_of_the_presets():
     for method in ("active-set", "smalbe", "direct"):
         assert solver_options("default", "contact", method) == {}
     assert solver_options("thesis", "contact", "active-set") == {
-        "face_rtol_rule": "initial", "initial_active": "positive", "removal": "blocking", "face_norm": "l2"}
+        "face_rtol_rule": "initial", "initial_active": "positive", "removal": "blocking", "face_norm": "l2",
+        "s_ol_fallback": False}
     assert solver_options("thesis", "contact", "smalbe") == {
         "equality_rule": "section-6.4", "rho_bar": None, "polish": False}
     assert solver_options("thesis", "contact", "direct") == {}
