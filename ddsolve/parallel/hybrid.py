@@ -38,7 +38,7 @@ import scipy.sparse as sp
 from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, linear_operator
 from ..krylov.result import KrylovResult
-from ..multibody.hybrid import InterfaceSpace
+from ..multibody.hybrid import S_OL_FORMS, InterfaceSpace
 from .coarse import DistributedPrimalSolver, pinned_vertices
 from .comm import NeighbourSum, SharedIndex
 from .dual import DistributedProjection
@@ -248,18 +248,35 @@ class DistributedHybrid:
         return self.comm.allreduce_sum(np.bincount(self.kernel_column[o], weights=self.g_hat[o],
                                                    minlength=self.floating.size))
 
+    def _local_solve(self, r: np.ndarray) -> np.ndarray:
+        """M_0 r of (4.10) on this rank's Gamma_0 dofs (summed over the ranks sharing them)."""
+        if self._local_op is None:
+            self._local_op = self.local_solver.interface(self.schur.gamma).space_operator(self.loc.space,
+                                                                                          self.delta_local)
+        return self.loc.exchange.sum(self._local_op.apply(r))
+
     def S_ol(self, v: np.ndarray) -> np.ndarray:
         """S~_OL v on this rank's global-interface dofs, as :meth:`HybridSolver.S_ol`."""
         gl, lc = self.glob, self.loc
-        r0 = lc.exchange.sum(self.schur.space_matvec(v, gl.space, lc.space))
-        if self._local_op is None:
-            self._local_op = self.local_solver.interface(self.schur.gamma).space_operator(lc.space, self.delta_local)
-        x0 = lc.exchange.sum(self._local_op.apply(r0))
+        x0 = self._local_solve(lc.exchange.sum(self.schur.space_matvec(v, gl.space, lc.space)))
         return gl.exchange.sum(self.schur.space_matvec((v, -x0), (gl.space, lc.space), gl.space))
 
-    def M_D(self, a: DistributedActiveSet, lam: np.ndarray) -> np.ndarray:
-        """Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z lam."""
-        return a.scaled_jump_global.matvec(self.S_ol(a.scaled_jump_global.rmatvec(lam)))
+    def S_ol_energy(self, v: np.ndarray) -> np.ndarray:
+        """The energy form E^T S E v of S~_OL on this rank's dofs, as :meth:`HybridSolver.S_ol_energy`."""
+        gl, lc = self.glob, self.loc
+        spaces = (gl.space, lc.space)
+        w = self._local_solve(lc.exchange.sum(self.schur.space_matvec(v, gl.space, lc.space)))
+        z_global = gl.exchange.sum(self.schur.space_matvec((v, -w), spaces, gl.space))
+        z_local = lc.exchange.sum(self.schur.space_matvec((v, -w), spaces, lc.space))
+        y = self._local_solve(z_local)
+        return z_global - gl.exchange.sum(self.schur.space_matvec(y, lc.space, gl.space))
+
+    def M_D(self, a: DistributedActiveSet, lam: np.ndarray, s_ol: str = "thesis") -> np.ndarray:
+        """Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z lam (``s_ol``: "thesis" or "energy")."""
+        if s_ol not in S_OL_FORMS:
+            raise ValueError(f"unknown s_ol {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
+        S = self.S_ol if s_ol == "thesis" else self.S_ol_energy
+        return a.scaled_jump_global.matvec(S(a.scaled_jump_global.rmatvec(lam)))
 
     # ------------------------------------------------------------ active set
     def active_set(self, active: np.ndarray) -> DistributedActiveSet:
@@ -316,7 +333,8 @@ class DistributedHybrid:
     # ---------------------------------------------------------------- solve
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000, restart: int = 100,
               norm: str = "l2", rtol_rule: str = "max", gather: bool = True,
-              x0: dict | None = None, multiplier_weight: float = 1.0) -> tuple[MethodOutput, dict]:
+              x0: dict | None = None, multiplier_weight: float = 1.0,
+              s_ol: str = "thesis") -> tuple[MethodOutput, dict]:
         """PCR on (4.5) with (4.11) for Z^k = ``active``, as :meth:`HybridSolver.solve` (orthogonal P^k).
 
         ``multiplier_weight`` c: PCR runs on D A D with D = diag(I, c I), as in the serial solver
@@ -345,7 +363,7 @@ class DistributedHybrid:
 
         def M_op(r: np.ndarray) -> np.ndarray:                  # (4.11)
             zu = self.P_R(self.M_bddc(self.P_R(r[:n_g])))
-            zl = proj(self.M_D(a, proj(r[n_g:])))
+            zl = proj(self.M_D(a, proj(r[n_g:]), s_ol))
             return np.concatenate([zu, zl])
 
         b = np.concatenate([self.g_hat - a.jump.rmatvec(lam0), np.zeros(n_act)])
@@ -389,7 +407,7 @@ class DistributedHybrid:
         out = MethodOutput(u=u, krylov=kr, nlambda=a.n_active, n_factorizations=self.n_factorizations,
                            setup_seconds=self.setup_seconds + setup,
                            extra={"n_gamma": self.gamma.n_global, "n_floating": int(nf), "n_active": a.n_active,
-                                  "constraint_residual": jump, "lambda": lam, "u_gamma": u_g})
+                                  "constraint_residual": jump, "lambda": lam, "u_gamma": u_g, "s_ol": s_ol})
         info = {"coarse_seconds": coarse, "krylov_seconds": krylov_seconds,
                 "per_iteration": counter.per_iteration(kr.iterations)}
         return out, info

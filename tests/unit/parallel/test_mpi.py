@@ -234,3 +234,20 @@ def test_serial_run_never_imports_mpi4py():
                                                                              "PMIX_SIZE")}, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip().splitlines()[-1] == "False False"
+
+
+def test_cli_contact_energy_fallback_equals_serial():
+    """A METIS contact case whose first face solve breaks down on the thesis S~_OL (tests/unit/contact/test_s_ol.py):
+    under mpiexec the fallback to the energy form happens on the same face, with the same iterations."""
+    import json
+    args = ["-m", "ddsolve", "solve", "--problem", "contact", "--mesh", "unstructured", "--geometry", "membranes",
+            "--maxh", "0.1", "--refine", "1", "--parts", "64", "--json"]
+    proc = _mpiexec(2, args)
+    assert proc.returncode == 0, proc.stderr
+    par = json.loads(proc.stdout)
+    ser = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
+                                    env=_env(), cwd=ROOT).stdout)
+    assert par["converged"] and ser["converged"] and "redone with s_ol='energy'" in ser["reason"]
+    assert par["reason"] == ser["reason"]
+    assert par["inner_iterations"] == ser["inner_iterations"] and par["n_active"] == ser["n_active"]
+    assert abs(par["kkt_residual"] - ser["kkt_residual"]) <= 1e-8 * ser["kkt_residual"]
