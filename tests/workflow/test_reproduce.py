@@ -76,7 +76,7 @@ def test_default_run_plans_every_report(workdir):
     assert counts["poisson_solve_case"] == 36 and counts["table_4_solve_case"] == 92 * 2   # presets default, thesis
     assert counts["table_5_6_solve_case"] == 50 * 2 and counts["scaling_scaling_case"] == 14
     assert counts["unstructured_unstructured_case"] == 8     # refine 0..3 of each problem (not the 1M cases)
-    assert counts["unstructured_unstructured_cond_case"] == 2 * (4 + 5 - 1)   # P to 256; refine 0..4 at P 16
+    assert counts["unstructured_unstructured_cond_case"] == 2 * 2 * (4 + 5 - 1)   # x 2 primal sets; P to 256; refine 0..4 at P 16
     assert counts["all"] == 1
     quick = jobs((lambda p: p.stdout + p.stderr)(snakemake(workdir, "-n", "--cores", "2", "--configfile",
                                                            "config/quick.yaml")))
