@@ -91,6 +91,29 @@ class DualSolution:
     krylov: KrylovResult
 
 
+def q_scaled(F: Matvec, M: Matvec, d: np.ndarray, q: np.ndarray | None
+             ) -> tuple[np.ndarray, Matvec, Matvec, np.ndarray]:
+    """The dual problem in mu = Q^{-1/2} lambda: (Q^{1/2}, Q^{1/2} F Q^{1/2}, Q^{-1/2} M^{-1} Q^{-1/2}, Q^{1/2} d).
+
+    Parameters
+    ----------
+    F, M : callable
+        lambda -> F lambda and lambda -> M^{-1} lambda, shape (n,) -> (n,).
+    d : ndarray, shape (n,)
+    q : ndarray, shape (n,), or None
+        Diagonal of Q (positive); None for Q = I.
+    """
+    sq = np.ones(d.shape[0]) if q is None else np.sqrt(q)
+
+    def F_scaled(mu: np.ndarray) -> np.ndarray:
+        return sq * F(sq * mu)
+
+    def M_scaled(mu: np.ndarray) -> np.ndarray:
+        return M(mu / sq) / sq
+
+    return sq, F_scaled, M_scaled, sq * d
+
+
 def solve_dual(F: Matvec, M: Matvec, d: np.ndarray, G: sp.spmatrix | None, e: np.ndarray | None,
                q: np.ndarray | None = None, *, rtol: float = 1e-6, maxiter: int = 1000,
                cond: bool = False, lam0: np.ndarray | None = None) -> DualSolution:
@@ -118,15 +141,7 @@ def solve_dual(F: Matvec, M: Matvec, d: np.ndarray, G: sp.spmatrix | None, e: np
         u = A^+ (f - B^T lambda) + R alpha.
     """
     n = d.shape[0]
-    sq = np.ones(n) if q is None else np.sqrt(q)
-
-    def F_scaled(mu: np.ndarray) -> np.ndarray:
-        return sq * F(sq * mu)
-
-    def M_scaled(mu: np.ndarray) -> np.ndarray:
-        return M(mu / sq) / sq
-
-    d_scaled = sq * d
+    sq, F_scaled, M_scaled, d_scaled = q_scaled(F, M, d, q)
     mu0 = np.zeros(n) if lam0 is None else lam0 / sq
     projection = None
     if G is not None and G.shape[1] > 0:

@@ -25,6 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..dd.dual import q_scaled
 from ..dd.operators import linear_operator
 from ..krylov.result import KrylovResult
 from .comm import CountingComm
@@ -129,15 +130,7 @@ def distributed_solve_dual(F: Matvec, M: Matvec, d: np.ndarray, G: sp.spmatrix |
         Entries counted in inner products.
     """
     n = d.shape[0]
-    sq = np.ones(n) if q is None else np.sqrt(q)
-
-    def F_scaled(mu: np.ndarray) -> np.ndarray:
-        return sq * F(sq * mu)
-
-    def M_scaled(mu: np.ndarray) -> np.ndarray:
-        return M(mu / sq) / sq
-
-    d_scaled = sq * d
+    sq, F_scaled, M_scaled, d_scaled = q_scaled(F, M, d, q)
     mu0 = np.zeros(n)
     proj = None
     if G is not None and G.shape[1] > 0:
