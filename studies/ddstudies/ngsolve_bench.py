@@ -17,7 +17,9 @@ reference solution (``sparsecholesky`` where run) are reported per row.
 
 Run: ``python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png``; the iterations
 against the number of parts on one mesh:
-``python -m ddstudies.ngsolve_bench --parts-sweep ORDER NDOF 64,256,1024`` (a markdown table).
+``python -m ddstudies.ngsolve_bench --parts-sweep ORDER NDOF 64,256,1024`` (a markdown table); the
+condition numbers against H/h at a fixed coarse partition, per order (:func:`hh_study`):
+``python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3`` (a markdown table).
 """
 from __future__ import annotations
 
@@ -236,6 +238,19 @@ def sweep_table(rows: list[Row]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def hh_table(results: dict[int, dict], parts: int) -> str:
+    """Markdown of :func:`hh_study` results per order: cond and iterations against H/h, and the fit
+    cond = c0 + c1 (1 + log(H/h))^2 (H/h nominal, 4 * 2^r)."""
+    lines = [f"| order | H/h (nominal) | dofs | parts | iterations | cond | fit c0 + c1 (1 + log(H/h))^2 |",
+             "|---|---|---|---|---|---|---|"]
+    for order, out in results.items():
+        fit = out["fit"]
+        for i, (n, its, c, hr) in enumerate(zip(out["ndof"], out["iterations"], out["cond"], out["h_ratio"])):
+            law = f"c0 = {fit['c0']:.3f}, c1 = {fit['c1']:.4f}" if i == 0 else ""
+            lines.append(f"| {order} | {4 * hr} | {n:,} | {parts} | {its} | {c:.3f} | {law} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--parts-sweep"] and len(argv) == 4:
@@ -243,6 +258,13 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         rows = parts_sweep(int(argv[1]), int(argv[2]), [int(p) for p in argv[3].split(",")])
         sys.stdout.write(sweep_table(rows))
+        return 0
+    if argv[:1] == ["--hh-study"] and len(argv) == 4:
+        # python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3   (markdown on stdout)
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        refs = tuple(int(r) for r in argv[3].split(","))
+        results = {int(o): hh_study(int(o), int(argv[2]), refs) for o in argv[1].split(",")}
+        sys.stdout.write(hh_table(results, int(argv[2])))
         return 0
     if len(argv) != 4:
         print("usage: python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png", file=sys.stderr)
@@ -261,9 +283,6 @@ def main(argv: list[str] | None = None) -> int:
     plot(rows, argv[3])
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())
 
 
 def hh_study(order: int = 1, parts: int = 16, refinements: tuple[int, ...] = (0, 1, 2), maxh: float = 0.05,
@@ -312,3 +331,7 @@ def _centroids(mesh) -> np.ndarray:
 
     pts = np.asarray(mesh.ngmesh.Coordinates())[:, :2]
     return pts[vertex_table(mesh)].mean(axis=1)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
