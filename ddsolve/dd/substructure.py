@@ -278,6 +278,7 @@ class Substructures:
         by_template = np.argsort(self.template, kind="stable")
         t_bounds = np.searchsorted(self.template[by_template], np.arange(len(self.stiffness) + 1))
         cols, vals, row_nnz, block_nnz = [], [], [], []
+        index_type = np.int32 if self.n_W < 2**31 - 1 else np.int64
         for t, K in enumerate(self.stiffness):
             members = by_template[t_bounds[t]:t_bounds[t + 1]]
             if members.size == 0:
@@ -290,12 +291,18 @@ class Substructures:
             free = keep[full_off[members][:, None] + np.arange(n)]                  # (g, n)
             row_of_entry = np.repeat(np.arange(n), np.diff(K.indptr))
             kept = free[:, row_of_entry] & free[:, K.indices]                       # (g, nnz_t)
-            w_index = np.cumsum(free, axis=1) - 1 + self.offsets[members][:, None]  # W index of local node
+            w_index = (np.cumsum(free, axis=1, dtype=index_type) - 1
+                       + self.offsets[members][:, None].astype(index_type))         # W index of local node
             cols.append(w_index[:, K.indices][kept])
             vals.append((K.data[None, :] * self.rho[members][:, None])[kept])
-            csum = np.concatenate([np.zeros((members.size, 1), dtype=np.int64), np.cumsum(kept, axis=1)], axis=1)
-            row_nnz.append((csum[:, K.indptr[1:]] - csum[:, K.indptr[:-1]])[free])
-            block_nnz.append(csum[:, -1])
+            if np.all(np.diff(K.indptr) > 0):                                       # entries of each row
+                counts = np.add.reduceat(kept, K.indptr[:-1], axis=1, dtype=np.int64)
+            else:
+                csum = np.concatenate([np.zeros((members.size, 1), dtype=np.int64),
+                                       np.cumsum(kept, axis=1)], axis=1)
+                counts = csum[:, K.indptr[1:]] - csum[:, K.indptr[:-1]]
+            row_nnz.append(counts[free])
+            block_nnz.append(counts.sum(axis=1))
         cols, vals, row_nnz = np.concatenate(cols), np.concatenate(vals), np.concatenate(row_nnz)
         if np.any(by_template[1:] < by_template[:-1]):      # blocks back into subdomain order
             block_nnz = np.concatenate(block_nnz)

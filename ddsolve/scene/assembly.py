@@ -140,10 +140,8 @@ def _templates(scene: Scene, node_all: np.ndarray, offsets: np.ndarray,
         ns, ne = int(sizes[members[0]]), int(el_sizes[members[0]])
         r = rel[offsets[members][:, None] + np.arange(ns)].reshape(len(members), -1)
         c = local_lex[el_bounds[members][:, None] + np.arange(ne)].reshape(len(members), -1)
-        rows = np.ascontiguousarray(np.concatenate([r.view(np.uint8), c.view(np.uint8)], axis=1))
-        rows = rows.view(np.dtype((np.void, rows.shape[1]))).ravel()
-        _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
-        first_of[members] = members[first[inverse.ravel()]]
+        rows = np.concatenate([r.view(np.int64), c], axis=1)          # the bytes of both, 8 at a time
+        first_of[members] = members[_first_equal_row(rows)]
     reps, template = np.unique(first_of, return_inverse=True)   # reps ascending = first occurrence
     return template.astype(np.int64), lex, el_bounds
 
@@ -152,6 +150,25 @@ def _coefficient(f: Any, ngs: Any, element_values_cf: Any = None) -> Any:
     if callable(f):
         return f(ngs.x, ngs.y)
     return ngs.CoefficientFunction(float(f))
+
+
+def _first_equal_row(rows: np.ndarray) -> np.ndarray:
+    """Index of the first row equal to each row of an int64 array of shape (g, k).
+
+    Rows are grouped by a wrapping integer hash and the grouping is then verified
+    exactly (one comparison of all rows); on a hash collision the rows are compared
+    as bytes by ``np.unique``.
+    """
+    weights = np.random.default_rng(12345).integers(1, 2**62, rows.shape[1], dtype=np.int64)
+    with np.errstate(over="ignore"):
+        hashes = (rows * weights).sum(axis=1)
+    _, first, inverse = np.unique(hashes, return_index=True, return_inverse=True)
+    first = first[inverse.ravel()]
+    if np.array_equal(rows, rows[first]):
+        return first
+    raw = np.ascontiguousarray(rows).view(np.dtype((np.void, 8 * rows.shape[1]))).ravel()
+    _, first, inverse = np.unique(raw, return_index=True, return_inverse=True)
+    return first[inverse.ravel()]
 
 
 def _broken_mesh(points: np.ndarray, elements: np.ndarray) -> Any:

@@ -105,3 +105,13 @@ def test_block_diagonal_with_interleaved_templates():
         assert sub.K_W.shape == expected.shape
         assert sub.K_W.has_canonical_format
         assert abs(sub.K_W - expected).max() == 0.0
+
+
+def test_first_equal_row_survives_a_hash_collision():
+    from ddsolve.scene.assembly import _first_equal_row
+
+    w = np.random.default_rng(12345).integers(1, 2**62, 2, dtype=np.int64)
+    rows = np.array([[w[1], 0], [0, w[0]], [w[1], 0], [3, 4]], dtype=np.int64)   # rows 0 and 1: same hash
+    with np.errstate(over="ignore"):
+        assert (rows[0] * w).sum() == (rows[1] * w).sum()
+    np.testing.assert_array_equal(_first_equal_row(rows), [0, 1, 0, 3])
