@@ -268,20 +268,50 @@ class Substructures:
 
     # ------------------------------------------------------------------ layout
     def _block_diagonal(self, full_off: np.ndarray, keep: np.ndarray) -> sp.csr_matrix:
-        """diag(rho_i K_t(i)) restricted to free entries, built per template without loops over nodes."""
-        rows, cols, vals = [], [], []
+        """diag(rho_i K_t(i)) restricted to free entries, built per template without loops over nodes.
+
+        The CSR arrays are written directly: for all members of a template at once, the
+        entries of the canonical K_t whose row and column are free (a (members, nnz_t)
+        mask), renumbered to W; the subdomain blocks then follow in subdomain order. O(nnz),
+        no sort and no global fancy indexing.
+        """
+        by_template = np.argsort(self.template, kind="stable")
+        t_bounds = np.searchsorted(self.template[by_template], np.arange(len(self.stiffness) + 1))
+        cols, vals, row_nnz, block_nnz = [], [], [], []
+        index_type = np.int32 if self.n_W < 2**31 - 1 else np.int64
         for t, K in enumerate(self.stiffness):
-            members = np.flatnonzero(self.template == t)
-            coo = K.tocoo()
-            shift = full_off[members][:, None]
-            rows.append((coo.row[None, :] + shift).ravel())
-            cols.append((coo.col[None, :] + shift).ravel())
-            vals.append((coo.data[None, :] * self.rho[members][:, None]).ravel())
-        n_full = int(full_off[-1])
-        K_full = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                               shape=(n_full, n_full))
-        idx = np.flatnonzero(keep)
-        return K_full[idx][:, idx].tocsr()
+            members = by_template[t_bounds[t]:t_bounds[t + 1]]
+            if members.size == 0:
+                continue
+            K = sp.csr_matrix(K)
+            if not K.has_canonical_format:
+                K = K.copy()
+                K.sum_duplicates()
+            n = K.shape[0]
+            free = keep[full_off[members][:, None] + np.arange(n)]                  # (g, n)
+            row_of_entry = np.repeat(np.arange(n), np.diff(K.indptr))
+            kept = free[:, row_of_entry] & free[:, K.indices]                       # (g, nnz_t)
+            w_index = (np.cumsum(free, axis=1, dtype=index_type) - 1
+                       + self.offsets[members][:, None].astype(index_type))         # W index of local node
+            cols.append(w_index[:, K.indices][kept])
+            vals.append((K.data[None, :] * self.rho[members][:, None])[kept])
+            if np.all(np.diff(K.indptr) > 0):                                       # entries of each row
+                counts = np.add.reduceat(kept, K.indptr[:-1], axis=1, dtype=np.int64)
+            else:
+                csum = np.concatenate([np.zeros((members.size, 1), dtype=np.int64),
+                                       np.cumsum(kept, axis=1)], axis=1)
+                counts = csum[:, K.indptr[1:]] - csum[:, K.indptr[:-1]]
+            row_nnz.append(counts[free])
+            block_nnz.append(counts.sum(axis=1))
+        cols, vals, row_nnz = np.concatenate(cols), np.concatenate(vals), np.concatenate(row_nnz)
+        if np.any(by_template[1:] < by_template[:-1]):      # blocks back into subdomain order
+            block_nnz = np.concatenate(block_nnz)
+            n_free = np.diff(self.offsets)[by_template]
+            entry_perm = _block_permutation(block_nnz, by_template)
+            row_perm = _block_permutation(n_free, by_template)
+            cols, vals, row_nnz = cols[entry_perm], vals[entry_perm], row_nnz[row_perm]
+        indptr = np.concatenate([[0], np.cumsum(row_nnz)])
+        return sp.csr_matrix((vals, cols, indptr), shape=(self.n_W, self.n_W))
 
     def position(self, s: int, loc: np.ndarray) -> np.ndarray:
         """W positions of template-local (free) indices ``loc`` of subdomain s."""
@@ -380,3 +410,15 @@ class Substructures:
         sub = self.sub_of_W[entries]
         size = np.diff(self.offsets)[sub]
         return sp.csr_matrix((1.0 / np.sqrt(size), (entries, col_of_sub[sub])), shape=(self.n_W, floating.size))
+
+
+def _block_permutation(sizes: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Gather index that puts blocks stored in the order ``order`` (block k of length
+    ``sizes[k]`` belongs to item ``order[k]``) back into item order."""
+    src_start = np.concatenate([[0], np.cumsum(sizes)])[:-1]
+    item_sizes = np.empty_like(sizes)
+    item_sizes[order] = sizes
+    item_src = np.empty_like(src_start)
+    item_src[order] = src_start
+    dst_start = np.concatenate([[0], np.cumsum(item_sizes)])[:-1]
+    return np.repeat(item_src - dst_start, item_sizes) + np.arange(int(item_sizes.sum()))

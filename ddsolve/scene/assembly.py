@@ -1,18 +1,21 @@
 """Local assembly with NGSolve: subdomain stiffness matrices and load vectors.
 
-The scene is turned into one NGSolve mesh in which every subdomain has its own
-copy of its nodes (a "broken" mesh) and its own material ``s<k>``. A first-order
-H1 space on that mesh is exactly the unassembled space W = prod_i W^(i) of
+A "broken" NGSolve mesh gives every subdomain its own copy of its nodes. A
+first-order H1 space on it is exactly the unassembled space W = prod_i W^(i) of
 Section 2.2.2, so one NGSolve assembly yields the block-diagonal matrix
 diag(A^(i)) and the stacked local loads f^(i) of (2.5) without any Python loop
-over elements.
+over elements. Broken meshes are built with two bulk netgen calls
+(``AddPoints``, one ``AddElements``).
 
-Sharing. Subdomains that are translates of each other (same node coordinates
-relative to their lower-left corner, same element connectivity) form one
-*template*. The coefficient is constant per subdomain, so A^(i) = rho_i K_t with
-K_t the unit-coefficient matrix of the template: the stiffness is assembled once
-per template, on one representative subdomain, and factorizations are later
-shared in the same way (:mod:`ddsolve.dd.local`).
+Sharing (Q1, structured scenes). Subdomains that are translates of each other
+(same node coordinates relative to their lower-left corner, same element
+connectivity) form one *template*, detected for all subdomains at once. The
+coefficient is constant per subdomain, so A^(i) = rho_i K_t with K_t the
+unit-coefficient matrix of the template: the broken mesh holds only one
+representative subdomain per template; on it K_t and the element load matrix
+B_t[k, e] = int_e phi_k are assembled, and f^(i) = B_t f_e^(i) for element-wise
+constant loads. Factorizations are later shared in the same way
+(:mod:`ddsolve.dd.local`).
 
 P1 triangles (netgen meshes, :mod:`ddsolve.scene.unstructured`): METIS
 subdomains are not translates of each other, so no template detection is
@@ -69,30 +72,78 @@ def detect_templates(scene: Scene, nodes: list[np.ndarray]) -> np.ndarray:
 
     Two subdomains share a template when their node coordinates relative to
     the lower-left corner agree to 1e-10 of the scene size and their elements
-    have the same local connectivity.
+    have the same local connectivity. Templates are numbered in the order of
+    their first subdomain.
+
+    Parameters
+    ----------
+    scene : Scene
+    nodes : list of ndarray of int
+        Node ids of each subdomain in local order (``scene.subdomain_nodes()``).
 
     Returns
     -------
     ndarray of int, shape (n_subdomains,)
     """
+    node_all = np.concatenate(nodes)
+    offsets = np.concatenate([[0], np.cumsum([len(nd) for nd in nodes])])
+    sub_all = np.repeat(np.arange(scene.n_subdomains, dtype=np.int64), np.diff(offsets))
+    n = np.int64(scene.n_nodes)
+    key = sub_all * n + node_all
+    srt = np.argsort(key)
+    el_key = np.asarray(scene.element_subdomain, dtype=np.int64)[:, None] * n + np.asarray(scene.elements,
+                                                                                           dtype=np.int64)
+    local = srt[np.searchsorted(key[srt], el_key)] - offsets[scene.element_subdomain][:, None]
+    return _templates(scene, node_all, offsets, local)[0]
+
+
+def _templates(scene: Scene, node_all: np.ndarray, offsets: np.ndarray,
+               local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Template of every subdomain, all subdomains at once (see :func:`detect_templates`).
+
+    Subdomains are grouped by (node count, element count); in each group the rows
+    [relative coordinates, lexicographically sorted local connectivity] are compared
+    as bytes with one ``np.unique``.
+
+    Parameters
+    ----------
+    node_all, offsets : ndarray of int
+        Flat canonical node lists (:meth:`Scene.subdomain_layout`).
+    local : ndarray of int, shape (n_elements, width)
+        Local connectivity of every element.
+
+    Returns
+    -------
+    template : ndarray of int, shape (n_subdomains,)
+    lex : ndarray of int, shape (n_elements,)
+        Elements grouped by subdomain, each group ordered by its local connectivity rows
+        (corresponding elements of subdomains of one template share a position).
+    el_bounds : ndarray of int, shape (n_subdomains + 1,)
+        Group bounds in ``lex``.
+    """
+    n_sub, width = scene.n_subdomains, local.shape[1]
     size = float(np.ptp(scene.coords, axis=0).max()) or 1.0
-    order = np.argsort(scene.element_subdomain, kind="stable")
-    bounds = np.searchsorted(scene.element_subdomain[order], np.arange(scene.n_subdomains + 1))
-    keys: dict[bytes, int] = {}
-    template = np.empty(scene.n_subdomains, dtype=np.int64)
-    for s, nd in enumerate(nodes):
-        rel = np.round((scene.coords[nd] - scene.coords[nd].min(axis=0)) / size, 10)
-        local = _local_connectivity(nd, scene.elements[order[bounds[s]:bounds[s + 1]]])
-        local = local[np.lexsort(local.T[::-1])]
-        key = rel.tobytes() + b"|" + local.tobytes()
-        template[s] = keys.setdefault(key, len(keys))
-    return template
+    xy = scene.coords[node_all]
+    lo = np.minimum.reduceat(xy, offsets[:-1], axis=0)
+    sizes = np.diff(offsets)
+    rel = np.round((xy - np.repeat(lo, sizes, axis=0)) / size, 10)
+    el_sub = np.asarray(scene.element_subdomain, dtype=np.int64)
+    lex = np.lexsort(tuple(local[:, j] for j in range(width - 1, -1, -1)) + (el_sub,))
+    el_bounds = np.searchsorted(el_sub[lex], np.arange(n_sub + 1))
+    el_sizes = np.diff(el_bounds)
+    local_lex = np.ascontiguousarray(local[lex], dtype=np.int64)
 
-
-def _local_connectivity(nodes: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    """Element connectivity in local node indices (``nodes`` is the local order)."""
-    srt = np.argsort(nodes)
-    return srt[np.searchsorted(nodes[srt], elements)]
+    shape_key = sizes * (int(el_sizes.max()) + 1) + el_sizes
+    first_of = np.full(n_sub, -1, dtype=np.int64)       # first subdomain of each subdomain's class
+    for k in np.unique(shape_key):
+        members = np.flatnonzero(shape_key == k)
+        ns, ne = int(sizes[members[0]]), int(el_sizes[members[0]])
+        r = rel[offsets[members][:, None] + np.arange(ns)].reshape(len(members), -1)
+        c = local_lex[el_bounds[members][:, None] + np.arange(ne)].reshape(len(members), -1)
+        rows = np.concatenate([r.view(np.int64), c], axis=1)          # the bytes of both, 8 at a time
+        first_of[members] = members[_first_equal_row(rows)]
+    reps, template = np.unique(first_of, return_inverse=True)   # reps ascending = first occurrence
+    return template.astype(np.int64), lex, el_bounds
 
 
 def _coefficient(f: Any, ngs: Any, element_values_cf: Any = None) -> Any:
@@ -101,8 +152,47 @@ def _coefficient(f: Any, ngs: Any, element_values_cf: Any = None) -> Any:
     return ngs.CoefficientFunction(float(f))
 
 
+def _first_equal_row(rows: np.ndarray) -> np.ndarray:
+    """Index of the first row equal to each row of an int64 array of shape (g, k).
+
+    Rows are grouped by a wrapping integer hash and the grouping is then verified
+    exactly (one comparison of all rows); on a hash collision the rows are compared
+    as bytes by ``np.unique``.
+    """
+    weights = np.random.default_rng(12345).integers(1, 2**62, rows.shape[1], dtype=np.int64)
+    with np.errstate(over="ignore"):
+        hashes = (rows * weights).sum(axis=1)
+    _, first, inverse = np.unique(hashes, return_index=True, return_inverse=True)
+    first = first[inverse.ravel()]
+    if np.array_equal(rows, rows[first]):
+        return first
+    raw = np.ascontiguousarray(rows).view(np.dtype((np.void, 8 * rows.shape[1]))).ravel()
+    _, first, inverse = np.unique(raw, return_index=True, return_inverse=True)
+    return first[inverse.ravel()]
+
+
+def _broken_mesh(points: np.ndarray, elements: np.ndarray) -> Any:
+    """NGSolve mesh of ``points`` (shape (n, 2)) and ``elements`` (0-based), two bulk netgen calls."""
+    import ngsolve as ngs
+    from netgen.meshing import Mesh as NGMesh
+
+    ngmesh = NGMesh(dim=2)
+    ngmesh.AddPoints(np.ascontiguousarray(np.column_stack([points, np.zeros(len(points))])))
+    region = ngmesh.AddRegion("omega", 2)
+    ngmesh.AddElements(dim=2, index=region, data=np.ascontiguousarray(elements, dtype=np.int32), base=0)
+    return ngs.Mesh(ngmesh)
+
+
 def assemble(scene: Scene) -> LocalProblems:
     """Assemble local stiffness matrices (per template) and load vectors with NGSolve.
+
+    Q1 (structured) scenes: the templates are detected for all subdomains at once;
+    a small broken mesh holding only one representative subdomain per template is
+    assembled for the stiffness K_t and for the element load matrix
+    B_t[k, e] = int_e phi_k (a mixed H1 x L2(order 0) form), and the loads of every
+    subdomain of template t follow as f^(s) = B_t f_e^(s) for element-wise constant
+    loads (numbers and arrays). Only a callable ``f`` needs the broken mesh of all
+    subdomains (built in bulk) and one NGSolve load assembly on it.
 
     Parameters
     ----------
@@ -117,48 +207,80 @@ def assemble(scene: Scene) -> LocalProblems:
     LocalProblems
     """
     import ngsolve as ngs
-    from netgen.meshing import Mesh as NGMesh
 
     if scene.element_type == "P1":
         return _assemble_p1(scene)
-    nodes = scene.subdomain_nodes()
-    template = detect_templates(scene, nodes)
     n_sub = scene.n_subdomains
-    offsets = np.concatenate([[0], np.cumsum([len(nd) for nd in nodes])])
+    node_all, offsets, local = scene.subdomain_layout(local_elements=True)
+    nodes = np.split(node_all, offsets[1:-1])
+    template, lex, el_bounds = _templates(scene, node_all, offsets, local)
+    n_templates = int(template.max()) + 1
+    reps = np.zeros(n_templates, dtype=np.int64)
+    reps[template[::-1]] = np.arange(n_sub - 1, -1, -1)         # first subdomain of each template
+    asc = np.argsort(scene.element_subdomain, kind="stable")     # elements by subdomain, ascending ids
+    pos_asc = np.empty(asc.size, dtype=np.int64)
+    pos_asc[asc] = np.arange(asc.size) - el_bounds[np.asarray(scene.element_subdomain)[asc]]
 
-    order = np.argsort(scene.element_subdomain, kind="stable")
-    bounds = np.searchsorted(scene.element_subdomain[order], np.arange(n_sub + 1))
-
-    ngmesh = NGMesh(dim=2)
-    points = np.concatenate([scene.coords[nd] for nd in nodes])
-    ngmesh.AddPoints(np.ascontiguousarray(np.column_stack([points, np.zeros(len(points))])))
-    for s in range(n_sub):
-        region = ngmesh.AddRegion(f"s{s}", 2)
-        local = _local_connectivity(nodes[s], scene.elements[order[bounds[s]:bounds[s + 1]]])
-        ngmesh.AddElements(dim=2, index=region, data=np.ascontiguousarray(local + offsets[s], dtype=np.int32),
-                           base=0)
-    mesh = ngs.Mesh(ngmesh)
+    # Small broken mesh of the representatives (their elements in ascending order).
+    rep_sizes = offsets[reps + 1] - offsets[reps]
+    rep_off = np.concatenate([[0], np.cumsum(rep_sizes)])
+    rep_el_sizes = el_bounds[reps + 1] - el_bounds[reps]
+    rep_el_off = np.concatenate([[0], np.cumsum(rep_el_sizes)])
+    points = np.concatenate([scene.coords[node_all[offsets[r]:offsets[r + 1]]] for r in reps])
+    rep_els = np.concatenate([local[asc[el_bounds[r]:el_bounds[r + 1]]] + rep_off[t] for t, r in enumerate(reps)])
+    mesh = _broken_mesh(points, rep_els)
     fes = ngs.H1(mesh, order=1)
     u, v = fes.TnT()
-
-    # Stiffness: only on one representative subdomain per template.
-    reps = np.array([int(np.flatnonzero(template == t)[0]) for t in range(template.max() + 1)])
-    rep_region = mesh.Materials("|".join(f"s{s}" for s in reps))
     a = ngs.BilinearForm(fes)
-    a += ngs.grad(u) * ngs.grad(v) * ngs.dx(definedon=rep_region)
+    a += ngs.grad(u) * ngs.grad(v) * ngs.dx
     a.Assemble()
-    rows, cols, vals = a.mat.COO()
-    A = sp.csr_matrix((np.asarray(vals), (np.asarray(rows), np.asarray(cols))), shape=(fes.ndof, fes.ndof))
-    stiffness = []
-    for s in reps:
-        block = A[offsets[s]:offsets[s + 1], offsets[s]:offsets[s + 1]].tocsr()
-        block.sum_duplicates()
-        block.eliminate_zeros()
-        stiffness.append(block)
+    A = _csr(a.mat, (fes.ndof, fes.ndof))
+    stiffness = [_diagonal_block(A, rep_off[t], rep_off[t + 1]) for t in range(n_templates)]
 
-    loads = _loads(scene, mesh, fes, order, offsets)
-    log.info("assembled %d subdomains with %d templates (%d broken dofs)", n_sub, len(reps), fes.ndof)
+    if callable(scene.f):
+        loads = _callable_loads(scene, node_all, offsets, local, asc)
+    else:
+        l2 = ngs.L2(mesh, order=0)
+        b = ngs.BilinearForm(trialspace=l2, testspace=fes)
+        # the order-2 rule of the load form f * v (a mixed form of orders 0 and 1 would take order 1,
+        # inexact on non-parallelogram quadrilaterals)
+        b += l2.TrialFunction() * v * ngs.dx(bonus_intorder=1)
+        b.Assemble()
+        B = _csr(b.mat, (fes.ndof, l2.ndof))
+        f_el = np.broadcast_to(np.asarray(scene.f, dtype=float), (scene.elements.shape[0],))
+        loads = [None] * n_sub
+        for t, r in enumerate(reps):
+            B_t = B[rep_off[t]:rep_off[t + 1], rep_el_off[t]:rep_el_off[t + 1]]
+            members = np.flatnonzero(template == t)
+            ne = int(rep_el_sizes[t])
+            # column of B_t (rep element, ascending order) of each lexicographic position
+            cols = pos_asc[lex[el_bounds[r]:el_bounds[r] + ne]]
+            F = np.empty((ne, members.size))
+            F[cols] = f_el[lex[el_bounds[members][None, :] + np.arange(ne)[:, None]]]
+            L = np.asarray(B_t @ F)
+            for i, s in enumerate(members):
+                loads[s] = np.ascontiguousarray(L[:, i])
+    log.info("assembled %d subdomains with %d templates (%d representative dofs)", n_sub, n_templates, fes.ndof)
     return LocalProblems(scene=scene, nodes=nodes, template=template, stiffness=stiffness, loads=loads)
+
+
+def _csr(mat: Any, shape: tuple[int, int]) -> sp.csr_matrix:
+    """An NGSolve sparse matrix as canonical CSR."""
+    rows, cols, vals = mat.COO()
+    A = sp.csr_matrix((np.asarray(vals), (np.asarray(rows), np.asarray(cols))), shape=shape)
+    A.sum_duplicates()
+    return A
+
+
+def _callable_loads(scene: Scene, node_all: np.ndarray, offsets: np.ndarray, local: np.ndarray,
+                    asc: np.ndarray) -> list[np.ndarray]:
+    """Loads of a callable ``f`` on the broken mesh of all subdomains (built in bulk)."""
+    import ngsolve as ngs
+
+    el_off = offsets[np.asarray(scene.element_subdomain)[asc]][:, None]
+    mesh = _broken_mesh(scene.coords[node_all], local[asc] + el_off)
+    fes = ngs.H1(mesh, order=1)
+    return _loads(scene, mesh, fes, asc, offsets)
 
 
 def _loads(scene: Scene, mesh: Any, fes: Any, order: np.ndarray, offsets: np.ndarray) -> list[np.ndarray]:

@@ -24,9 +24,12 @@ def sorted_unique(values: np.ndarray, return_counts: bool = False):
     """Sorted distinct values of a 1-D integer array (and their counts).
 
     Sort-based; numpy's ``np.unique`` without counts takes a hash path that is
-    an order of magnitude slower on millions of int64 keys.
+    an order of magnitude slower on millions of int64 keys. The stable sort
+    (timsort) exploits the runs of structured meshes' keys (node and edge keys
+    listed element by element: 10x faster than quicksort on the 1M-element
+    structured scene) and costs the same as quicksort on random keys.
     """
-    srt = np.sort(values)
+    srt = np.sort(values, kind="stable")
     first = np.r_[True, srt[1:] != srt[:-1]] if srt.size else np.zeros(0, dtype=bool)
     uniq = srt[first]
     if not return_counts:
@@ -119,11 +122,32 @@ class Scene:
         list of ndarray of int
             ``nodes[s]`` has shape (n_s,).
         """
+        node_all, offsets, _ = self.subdomain_layout()
+        return np.split(node_all, offsets[1:-1])
+
+    def subdomain_layout(self, local_elements: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Flat form of :meth:`subdomain_nodes`, optionally with the local element connectivity.
+
+        Parameters
+        ----------
+        local_elements : bool
+            Also return each element's connectivity in local node indices of its subdomain.
+
+        Returns
+        -------
+        node_all : ndarray of int, shape (sum_s n_s,)
+            The canonical local node lists of all subdomains, concatenated.
+        offsets : ndarray of int, shape (n_subdomains + 1,)
+            Subdomain s owns ``node_all[offsets[s]:offsets[s + 1]]``.
+        local : ndarray of int, shape (n_elements, width), or None
+            ``node_all[offsets[element_subdomain[e]] + local[e, j]] == elements[e, j]``.
+        """
         n_sub, width = self.n_subdomains, self.elements.shape[1]
-        key = (np.repeat(np.asarray(self.element_subdomain, dtype=np.int64), width) * self.n_nodes
-               + np.asarray(self.elements, dtype=np.int64).ravel())
-        key = sorted_unique(key)
-        sub, nodes = np.divmod(key, self.n_nodes)
+        n = np.int64(self.n_nodes)
+        el_sub = np.asarray(self.element_subdomain, dtype=np.int64)
+        el_key = (np.repeat(el_sub, width) * n + np.asarray(self.elements, dtype=np.int64).ravel())
+        key = sorted_unique(el_key)
+        sub, nodes = np.divmod(key, n)
         bounds = np.searchsorted(sub, np.arange(n_sub + 1))
         xy = self.coords[nodes]
         if np.any(bounds[1:] == bounds[:-1]):
@@ -134,7 +158,13 @@ class Scene:
         scale = np.maximum((hi - lo).max(axis=1), 1e-300)
         rel = np.round((xy - lo[sub]) / scale[sub, None], 10)
         order = np.lexsort((nodes, rel[:, 0], rel[:, 1], sub))
-        return np.split(nodes[order], bounds[1:-1])
+        if not local_elements:
+            return nodes[order], bounds, None
+        # local index of sorted key k: its position in the canonical order minus the subdomain offset
+        local_of_key = np.empty(key.size, dtype=np.int64)
+        local_of_key[order] = np.arange(key.size) - bounds[sub[order]]
+        local = local_of_key[np.searchsorted(key, el_key)].reshape(-1, width)
+        return nodes[order], bounds, local
 
     def _boundary_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """(body, node) pairs on body boundaries, sorted by body, and the per-body bounds (cached)."""
