@@ -23,12 +23,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd.common import MethodOutput
-from ..dd.dual import dual_operators
 from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur
 from .comm import NeighbourSum
 from .dual import DistributedProjection, distributed_solve_dual
-from .fetidp import local_jump
+from .fetidp import local_jump, summed_dual_operators
 from .setup import RankProblem, gather_solution
 
 __all__ = ["DistributedProjection", "solve_feti_mpi"]   # DistributedProjection lives in .dual
@@ -54,13 +53,7 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     Kplus = BatchedSolver(sub, ~fixed, cache)
     schur = DirichletSchur(sub, sub.interface, cache)
     exchange = NeighbourSum(comm, shared)
-    F_loc, M_loc = dual_operators(B, B_D, Kplus.solve, schur.matvec)
-
-    def F(lam: np.ndarray) -> np.ndarray:
-        return exchange.sum(F_loc(lam))
-
-    def M(lam: np.ndarray) -> np.ndarray:
-        return exchange.sum(M_loc(lam))
+    F, M = summed_dual_operators(B, B_D, Kplus.solve, schur.matvec, exchange)
 
     F_d = exchange.sum(B @ Kplus.solve(sub.f_W))
     n_fact = Kplus.n_new_factorizations + schur.II.n_new_factorizations

@@ -99,6 +99,20 @@ def local_jump(prob: RankProblem, mask_global: np.ndarray, with_pairs: bool = Fa
     return B_loc, B_D_loc, shared, pa.size
 
 
+def summed_dual_operators(B, B_D, solve, schur_matvec, exchange: NeighbourSum):
+    """F and M^{-1} of :func:`ddsolve.dd.dual.dual_operators` on this rank's multipliers, each
+    followed by the neighbour sum of the rows shared with other ranks; shapes (n,) -> (n,)."""
+    F_loc, M_loc = dual_operators(B, B_D, solve, schur_matvec)
+
+    def F(lam: np.ndarray) -> np.ndarray:
+        return exchange.sum(F_loc(lam))
+
+    def M(lam: np.ndarray) -> np.ndarray:
+        return exchange.sum(M_loc(lam))
+
+    return F, M
+
+
 def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
                      gather: bool = True) -> tuple[MethodOutput, dict]:
     """FETI-DP on the ranks of ``prob.comm``; the serial :func:`ddsolve.dd.solve_fetidp`, distributed.
@@ -121,14 +135,13 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, primal_dofs)
     schur = DirichletSchur(sub, sub.interface, cache)
     exchange = NeighbourSum(comm, shared)
-    F_loc, M_loc = dual_operators(B, B_D, primal_solver.solve, schur.matvec)
+    F, M = summed_dual_operators(B, B_D, primal_solver.solve, schur.matvec, exchange)
     d = exchange.sum(B @ primal_solver.solve(sub.f_W))
     setup = time.perf_counter() - t0
     n = shared.n
     t1 = time.perf_counter()
-    kr, per_iteration = distributed_pcg(linear_operator(n, lambda v: exchange.sum(F_loc(v))), d, comm=comm, owned=shared.owned,
-                         rtol=rtol, maxiter=maxiter, M=linear_operator(n, lambda v: exchange.sum(M_loc(v))),
-                         cond=cond)
+    kr, per_iteration = distributed_pcg(linear_operator(n, F), d, comm=comm, owned=shared.owned,
+                                        rtol=rtol, maxiter=maxiter, M=linear_operator(n, M), cond=cond)
     krylov_seconds = time.perf_counter() - t1
     u_W = primal_solver.solve(sub.f_W - B.T @ kr.x)
     u = gather_solution(prob, u_W) if gather else None

@@ -45,12 +45,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd.common import MethodOutput
-from ..dd.dual import DUAL_PROJECTIONS, dual_operators
+from ..dd.dual import DUAL_PROJECTIONS
 from ..dd.operators import DirichletSchur
 from .coarse import DistributedPrimalSolver, pinned_vertices
 from .comm import NeighbourSum, SharedIndex
 from .dual import distributed_solve_dual
-from .fetidp import jump_pairs, pair_rows
+from .fetidp import jump_pairs, pair_rows, summed_dual_operators
 from .setup import RankProblem, gather_solution
 
 __all__ = ["solve_fetifeti_mpi"]
@@ -131,13 +131,7 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
     coef_a, coef_b = np.r_[delta[lb], w[gb]], np.r_[-delta[la], -w[ga]]
     B, B_D, shared, rows = pair_rows(prob, pa, pb, coef_a, coef_b)
     exchange = NeighbourSum(comm, shared)
-    F_loc, M_loc = dual_operators(B, B_D, primal_solver.solve, tilde.apply)
-
-    def F(lam: np.ndarray) -> np.ndarray:
-        return exchange.sum(F_loc(lam))
-
-    def M(lam: np.ndarray) -> np.ndarray:
-        return exchange.sum(M_loc(lam))
+    F, M = summed_dual_operators(B, B_D, primal_solver.solve, tilde.apply, exchange)
 
     d = exchange.sum(B @ primal_solver.solve(sub.f_W))
     # G = B R: +1 / -1 where the body of the a / b copy floats (zero on the rows inside a body)
