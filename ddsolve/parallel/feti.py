@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd.common import MethodOutput
+from ..dd.feti import pinned_entries
 from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur
 from .comm import NeighbourSum
@@ -46,10 +47,7 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     t0 = time.perf_counter()
     cache: dict = {}
     B, B_D, shared, n_lam, (pa, pb) = local_jump(prob, np.ones(topo.n_W, dtype=bool), with_pairs=True)
-    fixed = np.zeros(sub.n_W, dtype=bool)
-    for s in np.flatnonzero(sub.floating_sub):
-        lo, hi = sub.offsets[s], sub.offsets[s + 1]
-        fixed[lo + (hi - lo) // 2] = True
+    fixed = pinned_entries(sub)
     Kplus = BatchedSolver(sub, ~fixed, cache)
     schur = DirichletSchur(sub, sub.interface, cache)
     exchange = NeighbourSum(comm, shared)

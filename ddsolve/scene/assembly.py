@@ -290,7 +290,6 @@ def _assemble_p1(scene: Scene) -> LocalProblems:
     mesh; there is no Python loop over elements.
     """
     import ngsolve as ngs
-    from netgen.meshing import Mesh as NGMesh
 
     nodes = scene.subdomain_nodes()
     n_sub = scene.n_subdomains
@@ -306,19 +305,13 @@ def _assemble_p1(scene: Scene) -> LocalProblems:
     el_key = np.asarray(scene.element_subdomain, dtype=np.int64)[order][:, None] * scene.n_nodes + els
     broken = srt[np.searchsorted(key[srt], el_key)]
 
-    ngmesh = NGMesh(dim=2)
-    ngmesh.AddPoints(np.ascontiguousarray(np.column_stack([scene.coords[node_all], np.zeros(len(node_all))])))
-    region = ngmesh.AddRegion("omega", 2)
-    ngmesh.AddElements(dim=2, index=region, data=np.ascontiguousarray(broken, dtype=np.int32), base=0)
-    mesh = ngs.Mesh(ngmesh)
+    mesh = _broken_mesh(scene.coords[node_all], broken)
     fes = ngs.H1(mesh, order=1)
     u, v = fes.TnT()
     a = ngs.BilinearForm(fes)
     a += ngs.grad(u) * ngs.grad(v) * ngs.dx
     a.Assemble()
-    rows, cols, vals = a.mat.COO()
-    A = sp.csr_matrix((np.asarray(vals), (np.asarray(rows), np.asarray(cols))), shape=(fes.ndof, fes.ndof))
-    A.sum_duplicates()
+    A = _csr(a.mat, (fes.ndof, fes.ndof))
     stiffness = [_diagonal_block(A, offsets[s], offsets[s + 1]) for s in range(n_sub)]
     loads = _loads(scene, mesh, fes, order, offsets)
     log.info("assembled %d P1 subdomains (%d broken dofs)", n_sub, fes.ndof)
