@@ -35,6 +35,7 @@ DISTRIBUTED: dict[str, tuple[str, ...]] = {"poisson": METHODS, "multibody": ("fe
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")
 #: Test hook: a rank number; that rank raises once its setup is done (tests of the abort path only).
 FAIL_ENV = "DDSOLVE_TEST_FAIL_RANK"
+ABORT_GRACE_SECONDS = 1.0     # between the error line and MPI_Abort
 
 
 def mpi_world_size(environ: dict | None = None) -> int | None:
@@ -276,7 +277,11 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int:
             summary = result.to_dict()
             print(json.dumps(summary) if as_json else human(summary), flush=True)
     except Exception as exc:     # noqa: BLE001 - any failure on any rank ends the whole job
-        sys.stderr.write(f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n")   # one write
+        line = f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n"
         sys.stderr.flush()
+        os.write(2, line.encode(errors="replace"))                    # one unbuffered write
+        # MPI_Abort makes the launcher kill every process at once; give it time to forward the line
+        # first (without the pause a loaded machine lost it now and then).
+        time.sleep(ABORT_GRACE_SECONDS)
         comm.Abort(1)
     return 0
