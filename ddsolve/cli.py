@@ -181,9 +181,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         # --- distributed solve under mpiexec (docs/parallel.md): launcher env vars, no mpi4py import otherwise
         import os
         if any(name in os.environ for name in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")):
-            from .parallel.run import METHODS as MPI_METHODS, check_supported, main as mpi_main, mpi_world_size
+            from .parallel.run import DISTRIBUTED, check_supported, main as mpi_main, mpi_world_size
             size = mpi_world_size() or 1
-            if size > 1 or (spec.problem == "poisson" and spec.method in MPI_METHODS):
+            if size > 1 or spec.method in DISTRIBUTED.get(spec.problem, ()):    # -n 1: the distributed code too
                 check_supported(spec, size)
                 return mpi_main(spec, args.json, _human)
         # --- end of the distributed block

@@ -17,14 +17,20 @@ __all__ = ["DENSE_MAX", "estimate_norm"]
 DENSE_MAX = 50
 
 
-def estimate_norm(A: Any, *, seed: int = 0, tol: float = 1e-6) -> tuple[float, int]:
+def estimate_norm(A: Any, *, seed: int = 0, tol: float = 1e-4) -> tuple[float, int]:
     """Largest eigenvalue ``||A||_2`` of a symmetric positive semidefinite operator (deterministic).
 
     ARPACK Lanczos (``eigsh``, largest algebraic eigenvalue, at most 20 Lanczos vectors)
-    from a seeded random start vector, to relative accuracy ``tol``; for ``n <=``
+    from a seeded random start vector, to relative Ritz residual ``tol``; for ``n <=``
     :data:`DENSE_MAX` a dense eigensolve of the operator's columns. Lanczos converges to
     the extreme eigenvalue much faster than the power iteration (which needs a spectral
     gap), so the steplength ``1.9 / estimate`` stays in ``(0, 2/||A||]``.
+
+    The steplength needs the norm to a few per cent only (an estimate low by less than 5 %
+    keeps ``1.9 / estimate <= 2 / ||A||``). The default ``tol = 1e-4`` gives it to about
+    1e-4 or better: on the preconditioner of (5.4) at 1M dofs (721 contact pairs, a cluster
+    at the top of the spectrum) 91 products and 7e-6 relative, where ``tol = 1e-6`` took
+    2,221 products (2.1 s, half of the whole active set solve).
 
     Parameters
     ----------
@@ -33,7 +39,8 @@ def estimate_norm(A: Any, *, seed: int = 0, tol: float = 1e-6) -> tuple[float, i
     seed : int
         Seed of the random start vector (the result is deterministic).
     tol : float
-        Relative accuracy requested from ARPACK.
+        Relative Ritz residual requested from ARPACK (the eigenvalue error is about its square
+        over the spectral gap, and at most ``tol`` relative).
 
     Returns
     -------

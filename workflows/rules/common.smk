@@ -409,13 +409,24 @@ if KIND == "stress":
 # One job per number of ranks P, each launched with mpiexec -n P (resources tasks=P, mpi).
 
 
-def mpi_spec(wildcards=None):
+MPI_CONTACT_METHOD = "active-set"      # the method of the optional contact case
+
+
+def mpi_methods():
+    """The methods of the study: the Poisson method, then the contact case's when configured."""
+    return [config["method"]] + ([MPI_CONTACT_METHOD] if config.get("contact") else [])
+
+
+def mpi_spec(wildcards):
     """The ddsolve solve flags of the case (a plain dict: a params value)."""
-    return {key: config[key] for key in ("method", "subdomains", "elements", "rtol", "maxiter")}
+    common = {key: config[key] for key in ("rtol", "maxiter")}
+    if wildcards.method == MPI_CONTACT_METHOD:
+        return {"problem": "contact", "method": MPI_CONTACT_METHOD, **config["contact"], **common}
+    return {key: config[key] for key in ("method", "subdomains", "elements")} | common
 
 
 def mpi_case_files(wildcards=None):
-    return [f"results/{STUDY}/{config['method']}/P{P}.json" for P in config["ranks"]]
+    return [f"results/{STUDY}/{method}/P{P}.json" for method in mpi_methods() for P in config["ranks"]]
 
 
 def targets():

@@ -1,8 +1,10 @@
-# Distributed-solve benchmark (kind mpi, config/mpi.yaml): one case, P = ranks.
+# Distributed-solve benchmark (kind mpi, config/mpi.yaml): a Poisson case (and optionally a
+# contact case, the active set method), each with P = ranks.
 #   snakemake --cores 2 --configfile config/mpi.yaml
 # Not part of the default reproduction (config/default.yaml does not list it).
 #   results/<study>/<method>/P<P>.json    the JSON of `mpiexec -n P ddsolve solve --json` (+ load average)
 #   reports/<study>/mpi.csv, mpi.md       speed-up of the solve phase, comm counts, the alpha-beta model
+#                                         (FETI-DP/BDDC), the contact case's measured table
 
 
 rule mpi:
@@ -14,7 +16,7 @@ rule mpi_case:
     output:
         f"results/{STUDY}/{{method}}/P{{P}}.json",
     wildcard_constraints:
-        method=re.escape(config["method"]),
+        method="|".join(re.escape(method) for method in mpi_methods()),
         P=r"[1-9]\d*",
     params:
         spec=mpi_spec,
