@@ -429,6 +429,14 @@ def mpi_case_files(wildcards=None):
     return [f"results/{STUDY}/{method}/P{P}.json" for method in mpi_methods() for P in config["ranks"]]
 
 
+def mpi_previous_case(wildcards):
+    """The case timed just before this one: the cases run one after another, never beside each other
+    (two timed runs sharing the cores would measure each other), whatever --cores or the executor allow."""
+    files = mpi_case_files()
+    index = files.index(f"results/{STUDY}/{wildcards.method}/P{wildcards.P}.json")
+    return files[index - 1:index] if index > 0 else []
+
+
 def targets():
     """The reports of the study (the input of rule all)."""
     if KIND == "mpi":

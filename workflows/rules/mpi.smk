@@ -13,6 +13,8 @@ rule mpi:
 
 
 rule mpi_case:
+    input:
+        mpi_previous_case,
     output:
         f"results/{STUDY}/{{method}}/P{{P}}.json",
     wildcard_constraints:
