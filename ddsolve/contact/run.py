@@ -1,6 +1,7 @@
 """Glue between :func:`ddsolve.solve` and the contact solvers: a prepared problem in, the result fields out."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -8,7 +9,7 @@ import numpy as np
 from ..errors import InputError
 from ..spec import ProblemSpec
 from .direct import ContactSolution, solve_contact_direct
-from .problem import ContactProblem
+from .problem import ContactProblem, KKTResiduals
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..prepared import Prepared
@@ -59,26 +60,73 @@ def run_contact(method: str, prep: "Prepared", **options: Any) -> ContactSolutio
                               **options)
 
 
-def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: ContactSolution) -> dict[str, Any]:
-    """The :class:`~ddsolve.result.SolveResult` fields of a contact solve.
+@dataclass(frozen=True)
+class ContactMeasures:
+    """What the result of a contact solve reports about its (u, lambda): the KKT residuals (5.5) and J(u).
 
-    ``iterations`` is the total of the inner iterations; ``extra`` holds
+    Computed from the assembled problem (:meth:`ContactProblem.kkt`, :meth:`ContactProblem.energy`)
+    in serial, from the ranks' subdomains under mpiexec (:func:`ddsolve.parallel.kkt.distributed_kkt`).
+
+    Attributes
+    ----------
+    kkt : KKTResiduals
+    energy : float
+        1/2 u^T K u - f^T u.
+    n_contact : int
+        Number of contact pairs n_c.
+    """
+
+    kkt: KKTResiduals
+    energy: float
+    n_contact: int
+
+    @classmethod
+    def of(cls, problem: ContactProblem, u: np.ndarray, lam: np.ndarray) -> ContactMeasures:
+        """From the assembled problem (serial)."""
+        return cls(kkt=problem.kkt(u, lam), energy=problem.energy(u), n_contact=int(problem.n_contact))
+
+
+def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: ContactSolution) -> dict[str, Any]:
+    """The :class:`~ddsolve.result.SolveResult` fields of a contact solve (serial: the assembled problem).
+
+    :func:`contact_fields` of the measures of ``problem`` (also ``kkt_residual_unpolished`` of
+    SMALBE), then, with ``check``, :func:`check_fields` against the direct reference.
+    """
+    unpolished = None
+    if "lambda_unpolished" in sol.extra:
+        unpolished = problem.kkt(sol.extra["u_unpolished"], sol.extra["lambda_unpolished"]).max
+    fields = contact_fields(spec, sol, ContactMeasures.of(problem, sol.u, sol.lam), kkt_unpolished=unpolished)
+    if spec.check:
+        check_fields(spec, problem, sol, fields)
+    return fields
+
+
+def contact_fields(spec: ProblemSpec, sol: ContactSolution, measures: ContactMeasures, *,
+                   kkt_unpolished: float | None = None) -> dict[str, Any]:
+    """The :class:`~ddsolve.result.SolveResult` fields of a contact solve, from its KKT residuals and energy.
+
+    The one definition of the fields, serial and distributed. ``iterations`` is the total of the
+    inner iterations; ``extra`` holds
     ``outer_iterations``, ``inner_iterations`` (list), ``pcg_iterations``,
     ``total_iterations``, ``n_active``, ``n_contact``, ``energy``,
     ``kkt_residual`` and its four parts (SMALBE also its counters, ``penalty``,
     ``rho_bar``, ``force_error`` = |sum(lambda) - net load| / net load, and
     ``polish`` ("accepted" / "rejected") with ``polish_iterations``, the PCG
     iterations of the FETI-FETI refinement on the active set, not in ``iterations``, and
-    ``kkt_residual_unpolished``, the KKT residual of SMALBE's own iterate before any polish),
-    ``preset``. With
-    ``check``, ``error_vs_direct`` is the relative l2 error of u against the
-    primal-dual active set reference
-    (the stiffness is singular on the floating membrane, so the energy norm
-    would not see a rigid shift of it) and ``lambda_error_vs_direct`` that of
-    the multipliers (SMALBE also ``lambda_error_unpolished``, that of its iterate before
-    any polish).
+    ``kkt_residual_unpolished`` (given), the KKT residual of SMALBE's own iterate before any polish),
+    ``preset``. The active set method's result is accepted (``converged``) only if its KKT
+    residual is at most max(KKT_ACCEPT_FACTOR rtol, KKT_ACCEPT_FLOOR).
+
+    Parameters
+    ----------
+    spec : ProblemSpec
+    sol : ContactSolution
+    measures : ContactMeasures
+        KKT residuals (5.5) and energy of (``sol.u``, ``sol.lam``), n_c.
+    kkt_unpolished : float, optional
+        SMALBE: the KKT residual of its iterate before the polish.
     """
-    kkt = problem.kkt(sol.u, sol.lam)
+    kkt = measures.kkt
     setup = float(sol.extra.get("setup_seconds", 0.0))
     extra: dict[str, Any] = {
         "outer_iterations": int(sol.outer_iterations),
@@ -86,15 +134,14 @@ def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: Conta
         "pcg_iterations": int(sol.pcg_iterations),
         "total_iterations": int(sol.total_iterations),
         "n_active": int(np.count_nonzero(sol.active)),
-        "n_contact": int(problem.n_contact),
-        "energy": problem.energy(sol.u),
+        "n_contact": int(measures.n_contact),
+        "energy": measures.energy,
         **kkt.as_dict(),
         "preset": spec.preset,
     }
     extra.update({key: sol.extra[key] for key in SMALBE_KEYS if key in sol.extra})
-    unpolished = "lambda_unpolished" in sol.extra
-    if unpolished:
-        extra["kkt_residual_unpolished"] = problem.kkt(sol.extra["u_unpolished"], sol.extra["lambda_unpolished"]).max
+    if kkt_unpolished is not None:
+        extra["kkt_residual_unpolished"] = kkt_unpolished
     converged, reason = bool(sol.converged), sol.reason
     if spec.method == "active-set" and converged:
         limit = max(KKT_ACCEPT_FACTOR * float(spec.rtol), KKT_ACCEPT_FLOOR)
@@ -102,16 +149,27 @@ def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: Conta
             converged = False
             reason = (f"not accepted: {reason.removeprefix('converged: ')}, but the KKT residual "
                       f"{kkt.max:.1e} > {limit:.1e} = max({KKT_ACCEPT_FACTOR:g} rtol, {KKT_ACCEPT_FLOOR:g})")
-    fields: dict[str, Any] = dict(
+    return dict(
         u=sol.u, converged=converged, reason=reason, iterations=sol.total_iterations,
-        nlambda=int(sol.extra.get("nlambda", problem.n_contact)), n_factorizations=int(sol.n_factorizations),
+        nlambda=int(sol.extra.get("nlambda", measures.n_contact)), n_factorizations=int(sol.n_factorizations),
         setup_seconds=setup, solve_seconds=max(sol.seconds - setup, 0.0), extra=extra)
-    if spec.check:
-        ref = sol if spec.method == "direct" else solve_contact_direct(problem)
-        fields["error_vs_direct"] = float(np.linalg.norm(sol.u - ref.u) / max(np.linalg.norm(ref.u), 1e-300))
-        lam_scale = max(np.linalg.norm(ref.lam), 1e-300)
-        extra["lambda_error_vs_direct"] = float(np.linalg.norm(sol.lam - ref.lam) / lam_scale)
-        if unpolished:
-            extra["lambda_error_unpolished"] = float(np.linalg.norm(sol.extra["lambda_unpolished"] - ref.lam)
-                                                     / lam_scale)
-    return fields
+
+
+def check_fields(spec: ProblemSpec, problem: ContactProblem, sol: ContactSolution, fields: dict[str, Any]) -> None:
+    """Add the ``check`` fields to ``fields`` (in place): errors against the direct reference.
+
+    ``error_vs_direct`` is the relative l2 error of u against the
+    primal-dual active set reference
+    (the stiffness is singular on the floating membrane, so the energy norm
+    would not see a rigid shift of it) and ``extra["lambda_error_vs_direct"]`` that of
+    the multipliers (SMALBE also ``lambda_error_unpolished``, that of its iterate before
+    any polish).
+    """
+    extra = fields["extra"]
+    ref = sol if spec.method == "direct" else solve_contact_direct(problem)
+    fields["error_vs_direct"] = float(np.linalg.norm(sol.u - ref.u) / max(np.linalg.norm(ref.u), 1e-300))
+    lam_scale = max(np.linalg.norm(ref.lam), 1e-300)
+    extra["lambda_error_vs_direct"] = float(np.linalg.norm(sol.lam - ref.lam) / lam_scale)
+    if "lambda_unpolished" in sol.extra:
+        extra["lambda_error_unpolished"] = float(np.linalg.norm(sol.extra["lambda_unpolished"] - ref.lam)
+                                                 / lam_scale)

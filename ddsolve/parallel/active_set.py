@@ -19,6 +19,10 @@ to this rank's u_Gamma dofs and return replicated multipliers (one Allreduce
 of n_c doubles); the face solves are the distributed hybrid PCR. Since every
 rank holds the same replicated values, every rank takes the same decisions:
 the same active sets, outer iterations and iteration counts.
+
+The KKT residuals (5.5) and the energy of the result are computed distributed
+as well (:meth:`DistributedActiveSetHybrid.measures`, :mod:`ddsolve.parallel.kkt`):
+no rank assembles K, f or B.
 """
 from __future__ import annotations
 
@@ -29,9 +33,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..contact.active_set import ActiveSetHybrid
+from ..contact.direct import ContactSolution
+from ..contact.run import ContactMeasures
 from ..dd.common import MethodOutput
 from ..dd.projection import Projection
 from .hybrid import DistributedHybrid
+from .kkt import distributed_kkt
 from .setup import RankProblem
 
 __all__ = ["ReplicatedHybrid", "DistributedActiveSetHybrid"]
@@ -70,6 +77,7 @@ class ReplicatedHybrid:
         self.g_hat = self.to_global(dh.g_hat)
         self._pair_gamma = np.searchsorted(self.gamma_dofs, dh.pair_dofs)   # (n_gl, 2)
         self.face_solves: list[dict] = []
+        self.last_u_gamma: np.ndarray | None = None       # this rank's u_Gamma of the last face solve
 
     # -------------------------------------------------------------- layout
     def to_local(self, u: np.ndarray) -> np.ndarray:
@@ -137,6 +145,7 @@ class ReplicatedHybrid:
                              **options)
         a = dh.active_set(active)
         self.face_solves.append(info)
+        self.last_u_gamma = out.extra["u_gamma"]
         extra = dict(out.extra)
         extra["lambda"] = self.replicate_rows(a, out.extra["lambda"], a.n_active)
         extra["u_gamma"] = self.to_global(out.extra["u_gamma"])
@@ -165,6 +174,14 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
         self.n_contact = n_c
         self.all_pairs = rep.active_set(np.ones(n_c, dtype=bool))
         self._pairs = self.dh.active_set(np.ones(n_c, dtype=bool))     # this rank's rows of all pairs
+
+    def measures(self, sol: ContactSolution) -> ContactMeasures:
+        """KKT residuals (5.5) and energy of ``sol`` (the last face solve's u), computed distributed.
+
+        Collective; the same on every rank. u is that of the last face solve (``sol.u`` on rank 0,
+        :func:`~ddsolve.parallel.kkt.distributed_kkt`), lambda the replicated ``sol.lam``.
+        """
+        return distributed_kkt(self.dh, self.hybrid.last_u_gamma, sol.lam)
 
     def coefficient_scale(self) -> float:
         """max_i rho_i over the subdomains of all ranks (one Allreduce)."""

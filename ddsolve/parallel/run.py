@@ -172,7 +172,7 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
 
 def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: float,
                    options: dict) -> SolveResult | None:
-    """The active set method over ranks; the result fields (KKT residuals) from a serial assembly on rank 0."""
+    """The active set method over ranks; the KKT residuals and energy distributed (``--check``: rank 0 assembles)."""
     from .active_set import DistributedActiveSetHybrid
 
     start = comm.counters.snapshot()
@@ -188,14 +188,16 @@ def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: fl
             "coarse_seconds": (solver.dh.body_solver.coarse_seconds + solver.dh.local_solver.coarse_seconds),
             "krylov_seconds": float(sum(f["krylov_seconds"] for f in faces))}
     red = _reduce(prob, comm, info, prep_seconds + setup, total - setup, solver.dh.n_factorizations)
+    # the KKT residuals (5.5) and the energy from every rank's own subdomains (no assembled K, f, B)
+    measures = solver.measures(sol)
     if comm.rank != 0:
         return None
-    from ..contact.run import contact_result_fields
-    from ..prepared import prepare
-    # the KKT residuals (5.5) and the acceptance test need the assembled K, f and B: rank 0 assembles
-    # them serially (as --check does); the solve itself never forms them
-    problem = prepare(spec, prob.topo.scene).contact
-    fields = contact_result_fields(spec, problem, sol)
+    from ..contact.run import contact_fields
+    fields = contact_fields(spec, sol, measures)
+    if spec.check:                 # the direct reference, on rank 0 only (serial assembly, as for poisson)
+        from ..contact.run import check_fields
+        from ..prepared import prepare
+        check_fields(spec, prepare(spec, prob.topo.scene).contact, sol, fields)
     fields["setup_seconds"], fields["solve_seconds"] = red["setup"], red["solve"]
     fields["n_factorizations"] = red["n_fact"]
     common, sizes = _report(spec, prob, comm, red)
