@@ -49,8 +49,9 @@ class KKTResiduals:
 
     @property
     def max(self) -> float:
-        """The largest of the four (the ``kkt_residual`` of a result)."""
-        return max(self.feasibility, self.dual_feasibility, self.complementarity, self.stationarity)
+        """The largest of the four (the ``kkt_residual`` of a result); NaN if any part is NaN."""
+        parts = (self.feasibility, self.dual_feasibility, self.complementarity, self.stationarity)
+        return float(np.max(parts))      # np.max propagates NaN wherever it is (builtin max drops a later one)
 
     def as_dict(self) -> dict[str, float]:
         return {"kkt_feasibility": self.feasibility, "kkt_dual_feasibility": self.dual_feasibility,
