@@ -162,3 +162,29 @@ def test_interface_blocks_are_formed_only_where_they_pay_off(hybrid):
     direct = solve_contact_direct(big)
     assert sol.converged and np.array_equal(sol.active, direct.active)
     assert np.linalg.norm(sol.u - direct.u) < 1e-6 * np.linalg.norm(direct.u)
+
+
+def test_active_set_seconds_count_the_solver_built_in_the_call(monkeypatch):
+    """seconds = the whole call (setup included), extra["setup_seconds"] = the part spent building the
+    solver: their difference is the solve phase of the JSON (it used to subtract a setup done outside)."""
+    import time
+
+    from ddsolve.contact import active_set as module
+
+    problem = contact_problem(2, 4)
+    real_init = module.ActiveSetHybrid.__init__
+
+    def slow_init(self, *args, **kwargs):
+        real_init(self, *args, **kwargs)
+        time.sleep(0.3)                       # a setup long enough to be seen above the solve's noise
+
+    monkeypatch.setattr(module.ActiveSetHybrid, "__init__", slow_init)
+    t0 = time.perf_counter()
+    sol = module.solve_contact_active_set(problem, rtol=1e-8, pcg_rtol=1e-8)
+    wall = time.perf_counter() - t0
+    assert sol.converged and 0.3 <= sol.extra["setup_seconds"] <= sol.seconds <= wall
+    assert wall - sol.seconds < 0.05                                   # nothing of the call left out
+    built = ActiveSetHybrid(problem)                                   # its setup outside the call
+    reused = module.solve_contact_active_set(problem, rtol=1e-8, pcg_rtol=1e-8, solver=built)
+    assert reused.extra["setup_seconds"] == 0.0 and reused.seconds < sol.seconds - 0.25
+    assert np.array_equal(reused.u, sol.u)
