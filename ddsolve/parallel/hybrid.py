@@ -203,6 +203,8 @@ class DistributedHybrid:
         self._kernel_owned = self._kernel_on[self.gamma.owned[self._kernel_on]]
         self._kernel_count = comm.allreduce_sum(np.bincount(self.kernel_column[self._kernel_owned],
                                                             minlength=self.floating.size).astype(float))
+        self._column_owned = self.kernel_column[self._kernel_owned]        # P_R's gathers, once
+        self._column_on = self.kernel_column[self._kernel_on]
         self.pair_dofs = topo.dof_of_node[gi.pair_nodes]                   # (n_gl, 2)
         self.pair_weight = gi.weight[gi.pairs]                             # (n_gl, 2)
         self.pair_body = topo.body_of_sub[topo.sub_of_W[gi.pairs]]         # (n_gl, 2)
@@ -233,13 +235,16 @@ class DistributedHybrid:
         """Remove the mean on every floating body (one Allreduce of k doubles)."""
         if self.floating.size == 0:
             return u
-        o = self._kernel_owned
-        sums = self.comm.allreduce_sum(np.bincount(self.kernel_column[o], weights=u[o],
+        if self.floating.size == 1:          # one floating body (two-body contact): scalar sum and shift
+            mean = self.comm.allreduce_sum(np.array([u[self._kernel_owned].sum()])) / self._kernel_count
+            out = u.copy()
+            out[self._kernel_on] -= mean[0]
+            return out
+        sums = self.comm.allreduce_sum(np.bincount(self._column_owned, weights=u[self._kernel_owned],
                                                    minlength=self.floating.size))
         mean = sums / self._kernel_count
         out = u.copy()
-        on = self._kernel_on
-        out[on] -= mean[self.kernel_column[on]]
+        out[self._kernel_on] -= mean[self._column_on]
         return out
 
     def kernel_load(self) -> np.ndarray:
