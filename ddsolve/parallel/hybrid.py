@@ -235,11 +235,6 @@ class DistributedHybrid:
         """Remove the mean on every floating body (one Allreduce of k doubles)."""
         if self.floating.size == 0:
             return u
-        if self.floating.size == 1:          # one floating body (two-body contact): scalar sum and shift
-            mean = self.comm.allreduce_sum(np.array([u[self._kernel_owned].sum()])) / self._kernel_count
-            out = u.copy()
-            out[self._kernel_on] -= mean[0]
-            return out
         sums = self.comm.allreduce_sum(np.bincount(self._column_owned, weights=u[self._kernel_owned],
                                                    minlength=self.floating.size))
         mean = sums / self._kernel_count
