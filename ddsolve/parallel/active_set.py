@@ -61,8 +61,9 @@ class ReplicatedHybrid:
     dh : DistributedHybrid
     """
 
-    def __init__(self, dh: DistributedHybrid) -> None:
+    def __init__(self, dh: DistributedHybrid, gather: bool = True) -> None:
         self.dh = dh
+        self.gather = gather                 # the global u of each face solve on rank 0 (else u is None)
         prob, comm = dh.prob, dh.comm
         topo = prob.topo
         self.comm = comm
@@ -141,8 +142,8 @@ class ReplicatedHybrid:
         """A distributed face solve; ``extra["lambda"]`` (active multipliers) and ``extra["u_gamma"]`` replicated."""
         dh = self.dh
         x0_loc = {"u_gamma": self.to_local(np.asarray(x0["u_gamma"], dtype=float)), "lambda": x0["lambda"]}
-        out, info = dh.solve(active, rtol=rtol, maxiter=maxiter, rtol_rule=rtol_rule, x0=x0_loc, gather=True,
-                             **options)
+        out, info = dh.solve(active, rtol=rtol, maxiter=maxiter, rtol_rule=rtol_rule, x0=x0_loc,
+                             gather=self.gather, **options)
         a = dh.active_set(active)
         self.face_solves.append(info)
         self.last_u_gamma = out.extra["u_gamma"]
@@ -163,11 +164,14 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
     ----------
     prob : RankProblem
         Of a contact problem (``prob.gi``: the contact pairs).
+    gather : bool
+        Assemble the global solution u on rank 0 (the solution's ``u``; ``None`` without): only
+        for a caller that needs it (the API, ``--check``); the KKT residuals do not.
     """
 
-    def __init__(self, prob: RankProblem) -> None:
+    def __init__(self, prob: RankProblem, gather: bool = True) -> None:
         self.dh = DistributedHybrid(prob)
-        rep = ReplicatedHybrid(self.dh)
+        rep = ReplicatedHybrid(self.dh, gather=gather)
         n_c = int(prob.gi.n_gl)
         self.problem = SimpleNamespace(n_contact=n_c, ndof=int(prob.topo.ndof))
         self.hybrid = rep

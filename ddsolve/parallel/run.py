@@ -171,13 +171,13 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
 
 
 def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: float,
-                   options: dict) -> SolveResult | None:
+                   options: dict, gather: bool = True) -> SolveResult | None:
     """The active set method over ranks; the KKT residuals and energy distributed (``--check``: rank 0 assembles)."""
     from .active_set import DistributedActiveSetHybrid
 
     start = comm.counters.snapshot()
     t0 = time.perf_counter()
-    solver = DistributedActiveSetHybrid(prob)
+    solver = DistributedActiveSetHybrid(prob, gather=gather or spec.check)
     setup = time.perf_counter() - t0
     sol = solver.solve(rtol=spec.rtol, pcg_rtol=spec.rtol, maxiter=spec.maxiter, **options)
     total = time.perf_counter() - t0
@@ -255,7 +255,7 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
             raise InputError("parts", f"{prob.topo.n_sub} subdomains for {comm.size} ranks")
         options = solver_options(spec.preset, spec.problem, spec.method)
         if spec.problem == "contact":
-            return _solve_contact(spec, prob, comm, prep_seconds, options)
+            return _solve_contact(spec, prob, comm, prep_seconds, options, gather)
         if spec.method == "hybrid":
             options.update(norm=spec.norm, projection=spec.projection)
         out, info = method(prob, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,

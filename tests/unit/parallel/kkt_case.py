@@ -5,6 +5,7 @@ Usage: kkt_case.py {structured,unstructured} {0,1 (check)} OUT.npz
 1. The distributed active set solve, then :meth:`DistributedActiveSetHybrid.measures` (collective), and on
    rank 0 the serial :meth:`ContactProblem.kkt` / ``energy`` of the same gathered u and lambda.
 2. :func:`ddsolve.parallel.solve` with ``ddsolve.prepared.prepare`` counting its calls on every rank.
+3. :func:`ddsolve.parallel.solve` with ``gather=check``, as the command line calls it.
 Rank 0 writes both into OUT.npz.
 """
 import sys
@@ -46,6 +47,8 @@ def main(kind: str, check: bool, out: str) -> None:
     prepared.prepare = counting
     result = solve(spec, scene=scene, comm=comm)
     prepared.prepare = original
+    # 3. as the command line runs it without --check: no global u anywhere (gather=False)
+    bare = solve(spec, scene=scene, comm=comm, gather=spec.check)
     n_calls = comm.comm.gather(len(calls), root=0)
     if comm.rank != 0:
         return
@@ -53,7 +56,9 @@ def main(kind: str, check: bool, out: str) -> None:
     e = result.extra
     np.savez(out, n_ranks=comm.size, converged=bool(sol.converged), dist=_row(dist), serial=_row(ser),
              result=np.array([e[k] for k in KEYS] + [e["energy"]]), n_contact=[dist.n_contact, ser.n_contact],
-             prepare_calls=np.array(n_calls), result_converged=result.converged, u=sol.u, lam=sol.lam)
+             prepare_calls=np.array(n_calls), result_converged=result.converged, u=sol.u, lam=sol.lam,
+             bare_u_is_none=bare.u is None, bare_result=np.array([bare.extra[k] for k in KEYS] + [bare.extra["energy"]]),
+             bare_iterations=[bare.iterations, result.iterations])
 
 
 def _row(m: ContactMeasures) -> np.ndarray:

@@ -76,6 +76,9 @@ def test_distributed_kkt_equals_serial(tmp_path, kind, n):
     # the result of ddsolve.parallel.solve reports these very values, and no rank called prepare()
     assert par["result"].tolist() == dist.tolist()
     assert par["prepare_calls"].tolist() == [0] * n
+    # without --check the command line gathers no global u on rank 0; the same numbers
+    assert bool(par["bare_u_is_none"]) and par["bare_result"].tolist() == par["result"].tolist()
+    assert par["bare_iterations"][0] == par["bare_iterations"][1]
 
     # against the serial run: its u differs by the other summation order (to ~1e-10, test_mpi.py);
     # the KKT residual is what the face solves (rtol 1e-5) left over and follows u's rounding
@@ -92,4 +95,5 @@ def test_check_assembles_once_on_rank_0(tmp_path):
     """With ``check`` the direct reference is assembled serially, on rank 0 only (the instrument counts)."""
     par = _run(tmp_path, "unstructured", 2, check=True)
     assert par["prepare_calls"].tolist() == [1, 0]
+    assert not bool(par["bare_u_is_none"])          # --check needs u on rank 0
     assert par["result"].tolist() == par["dist"].tolist()
