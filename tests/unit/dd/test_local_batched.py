@@ -53,7 +53,8 @@ def metis(scene, nparts):
     A.setdiag(0)
     A = (A >= 2).astype(np.int64).tocsr()
     A.eliminate_zeros()
-    _, parts = pymetis.part_graph(nparts, xadj=A.indptr, adjncy=A.indices, options=pymetis.Options(seed=1))
+    adjacency = pymetis.CSRAdjacency(A.indptr.astype(np.int64), A.indices.astype(np.int64))
+    _, parts = pymetis.part_graph(nparts, adjacency, options=pymetis.Options(seed=1))
     labels = np.asarray(parts)
     for s in range(nparts):
         e = els[labels == s]
