@@ -128,13 +128,17 @@ def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0) -> np.
     root = refinement_roots(mesh)
     roots, coarse = np.unique(root, return_inverse=True)
     n_c = roots.size
+    if n_c == V.shape[0]:
+        log.info("partition 'coarse': the mesh has no mesh.Refine() hierarchy (a mesh refined by netgen's "
+                 "ngmesh.Refine() keeps none); METIS on all %d elements", n_c)
     if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
         raise InputError("parts", f"must be a positive integer, got {parts!r}")
     if parts > n_c:
         raise InputError("parts", f"{parts} parts requested but the coarse mesh has only {n_c} elements")
     if parts == 1:
         return np.zeros(V.shape[0], dtype=np.int64)
-    first, second = element_graph(V)
+    graph = element_graph(V)
+    first, second = graph
     a, b = coarse[first], coarse[second]
     keep = a != b
     G = sp.coo_matrix((np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(n_c, n_c)).tocsr()
@@ -145,13 +149,15 @@ def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0) -> np.
     counts = np.bincount(label, minlength=parts)
     if (counts == 0).any():
         raise InputError("parts", f"METIS left {int((counts == 0).sum())} of {parts} parts empty on the coarse mesh")
-    return split_disconnected(V, label)
+    return split_disconnected(V, label, graph)
 
 
-def split_disconnected(V: np.ndarray, label: np.ndarray) -> np.ndarray:
-    """Relabel so that every part is one connected piece (element-edge adjacency)."""
+def split_disconnected(V: np.ndarray, label: np.ndarray,
+                       graph: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Relabel so that every part is one connected piece (element-edge adjacency; ``graph``: the
+    :func:`~ddsolve.scene.partition.element_graph` of V when the caller has it)."""
     ne = V.shape[0]
-    first, second = element_graph(V)
+    first, second = element_graph(V) if graph is None else graph
     same = label[first] == label[second]
     G = sp.coo_matrix((np.ones(int(same.sum())), (first[same], second[same])), shape=(ne, ne))
     n, comp = connected_components(G, directed=False)

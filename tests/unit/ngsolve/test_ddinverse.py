@@ -207,6 +207,20 @@ def test_coarse_partition_is_inherited_by_refinement():
         DDInverse(a, parts=coarse.ne + 1, partition="coarse")
 
 
+def test_coarse_partition_without_hierarchy_says_so(caplog):
+    """netgen's own ngmesh.Refine() keeps no parents: 'coarse' is then METIS on the mesh, and the log says so."""
+    import logging
+
+    ngmesh = unit_square.GenerateMesh(maxh=0.2)
+    ngmesh.Refine()
+    mesh = ngs.Mesh(ngmesh)
+    fes, a, f = forms(mesh, 1, 1 + ngs.x, dirichlet=".*")
+    with caplog.at_level(logging.INFO, logger="ddsolve.ngsolve.local"):
+        x, inv = dd(fes, a, f, parts=4, partition="coarse")
+    assert "no mesh.Refine() hierarchy" in caplog.text and inv.n_parts >= 4
+    assert relerr(x, direct(fes, a, f)) < 1e-8
+
+
 @pytest.mark.parametrize("order", [1, 3])
 @pytest.mark.parametrize("method", ["bddc", "fetidp", "feti"])
 def test_robin_boundary_terms(order, method):
