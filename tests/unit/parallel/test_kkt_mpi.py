@@ -7,9 +7,6 @@ Each test launches ``mpiexec -n P`` (marker ``mpi``) on ``kkt_case.py``: the dis
 """
 from __future__ import annotations
 
-import os
-import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -21,33 +18,17 @@ from ddsolve.contact.run import contact_result_fields
 from ddsolve.prepared import prepare
 from ddsolve.spec import ProblemSpec
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parents[2]
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from launch import HERE, MPI_MARKS, mpiexec  # noqa: E402
 from mpi_case import case  # noqa: E402
 
-MPIEXEC = shutil.which("mpiexec")
-try:
-    import mpi4py  # noqa: F401
-    HAVE_MPI4PY = True
-except ImportError:         # pragma: no cover
-    HAVE_MPI4PY = False
-
-pytestmark = [pytest.mark.mpi,
-              pytest.mark.skipif(MPIEXEC is None or not HAVE_MPI4PY,
-                                 reason="mpiexec or mpi4py not installed: distributed solves cannot be launched")]
-TIMEOUT = 120
+pytestmark = MPI_MARKS
 KEYS = ("kkt_feasibility", "kkt_dual_feasibility", "kkt_complementarity", "kkt_stationarity", "kkt_residual")
 
 
 def _run(tmp_path: Path, kind: str, n: int, check: bool) -> dict:
     out = tmp_path / "kkt.npz"
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(ROOT / "studies"), str(HERE), env.get("PYTHONPATH", "")])
-    env["OMP_NUM_THREADS"] = "1"
-    proc = subprocess.run([MPIEXEC, "-n", str(n), sys.executable, str(HERE / "kkt_case.py"), kind,
-                           "1" if check else "0", str(out)], capture_output=True, text=True, timeout=TIMEOUT,
-                          env=env, cwd=ROOT)
+    proc = mpiexec(n, [str(HERE / "kkt_case.py"), kind, "1" if check else "0", str(out)])
     assert proc.returncode == 0, proc.stderr
     with np.load(out) as z:
         return {k: z[k] for k in z.files}

@@ -6,7 +6,6 @@ Each test launches ``mpiexec -n P`` through subprocess (marker ``mpi``); skipped
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -18,35 +17,11 @@ from ddsolve.api import SOLVERS
 from ddsolve.parallel.model import messages_bytes
 from ddsolve.prepared import prepare
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parents[2]
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from launch import HERE, ROOT, TIMEOUT, MPI_MARKS, mpi_env, mpiexec  # noqa: E402
 from mpi_case import case  # noqa: E402
 
-MPIEXEC = shutil.which("mpiexec")
-try:
-    import mpi4py  # noqa: F401
-    HAVE_MPI4PY = True
-except ImportError:         # pragma: no cover
-    HAVE_MPI4PY = False
-
-pytestmark = [pytest.mark.mpi,
-              pytest.mark.skipif(MPIEXEC is None or not HAVE_MPI4PY,
-                                 reason="mpiexec or mpi4py not installed: distributed solves cannot be launched")]
-TIMEOUT = 120
-
-
-def _env(**extra: str) -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(ROOT / "studies"), env.get("PYTHONPATH", "")])
-    env["OMP_NUM_THREADS"] = "1"
-    env.update(extra)
-    return env
-
-
-def _mpiexec(n: int, args: list[str], **env: str) -> subprocess.CompletedProcess:
-    return subprocess.run([MPIEXEC, "-n", str(n), sys.executable, *args], capture_output=True, text=True,
-                          timeout=TIMEOUT, env=_env(**env), cwd=ROOT)
+pytestmark = MPI_MARKS
 
 
 def _serial(method: str, kind: str):
@@ -82,7 +57,7 @@ def test_hybrid_middle_contact_is_rounding_sensitive_in_serial():
                                            ("hybrid", "unstructured", 4)])
 def test_distributed_equals_serial(tmp_path, method, kind, n):
     out_file = tmp_path / "u.npz"
-    proc = _mpiexec(n, [str(HERE / "mpi_case.py"), method, kind, str(out_file)])
+    proc = mpiexec(n, [str(HERE / "mpi_case.py"), method, kind, str(out_file)])
     assert proc.returncode == 0, proc.stderr
     par = np.load(out_file)
     ser = _serial(method, kind)
@@ -109,7 +84,7 @@ def test_distributed_active_set_equals_serial(tmp_path, kind, n):
     from ddsolve.spec import ProblemSpec
 
     out_file = tmp_path / "u.npz"
-    proc = _mpiexec(n, [str(HERE / "mpi_case.py"), "active-set", kind, str(out_file)])
+    proc = mpiexec(n, [str(HERE / "mpi_case.py"), "active-set", kind, str(out_file)])
     assert proc.returncode == 0, proc.stderr
     par = np.load(out_file)
     spec, scene = case("active-set", kind)
@@ -130,12 +105,12 @@ def test_distributed_active_set_equals_serial(tmp_path, kind, n):
 def test_cli_contact_json(rho):
     args = ["-m", "ddsolve", "solve", "--problem", "contact", "--method", "active-set", "--subdomains", "2",
             "--elements", "4", "--check", "--json", *rho]
-    proc = _mpiexec(2, args)
+    proc = mpiexec(2, args)
     assert proc.returncode == 0, proc.stderr
     import json
     summary = json.loads(proc.stdout)
     ref = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
-                                    env=_env(), cwd=ROOT).stdout)
+                                    env=mpi_env(), cwd=ROOT).stdout)
     assert set(ref) - set(summary) == set()                        # every serial key is reported
     for key in ("converged", "iterations", "outer_iterations", "inner_iterations", "pcg_iterations", "n_active",
                 "n_contact", "nlambda"):
@@ -148,14 +123,14 @@ def test_cli_contact_json(rho):
 
 
 def test_cli_json_contract():
-    proc = _mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "4", "--elements", "4", "--cond", "--json"])
+    proc = mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "4", "--elements", "4", "--cond", "--json"])
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 1                      # rank 0 alone prints
     import json
     summary = json.loads(lines[0])
     serial = subprocess.run([sys.executable, "-m", "ddsolve", "solve", "--subdomains", "4", "--elements", "4",
-                             "--cond", "--json"], capture_output=True, text=True, timeout=TIMEOUT, env=_env(),
+                             "--cond", "--json"], capture_output=True, text=True, timeout=TIMEOUT, env=mpi_env(),
                             cwd=ROOT)
     ref = json.loads(serial.stdout)
     assert "n_ranks" not in ref and "comm" not in ref
@@ -175,12 +150,12 @@ def test_cli_json_contract():
 def test_cli_multibody_metis_json(method):
     args = ["-m", "ddsolve", "solve", "--problem", "multibody", "--method", method, "--mesh", "unstructured",
             "--bodies", "2", "--parts", "3", "--maxh", "0.15", "--contact", "middle", "--json"]
-    proc = _mpiexec(2, args)
+    proc = mpiexec(2, args)
     assert proc.returncode == 0, proc.stderr
     import json
     summary = json.loads(proc.stdout)
     ref = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
-                                    env=_env(), cwd=ROOT).stdout)
+                                    env=mpi_env(), cwd=ROOT).stdout)
     assert summary["n_ranks"] == 2 and summary["iterations"] == ref["iterations"]
     assert summary["n_active"] == ref["n_active"] and summary["nlambda"] == ref["nlambda"]
     assert set(ref) - set(summary) == set()                        # every serial key is reported
@@ -193,7 +168,7 @@ def test_cli_multibody_metis_json(method):
 @pytest.mark.parametrize("problem", [[], ["--problem", "multibody", "--method", "feti-feti", "--bodies", "2"],
                                      ["--problem", "contact", "--method", "active-set"]])
 def test_failure_on_one_rank_aborts_all(problem):
-    proc = _mpiexec(3, ["-m", "ddsolve", "solve", *problem, "--subdomains", "3", "--elements", "4", "--json"],
+    proc = mpiexec(3, ["-m", "ddsolve", "solve", *problem, "--subdomains", "3", "--elements", "4", "--json"],
                     DDSOLVE_TEST_FAIL_RANK="1")
     assert proc.returncode != 0
     # exactly one error message, from the failing rank (count messages: the launcher may join lines)
@@ -211,7 +186,7 @@ def test_failure_on_one_rank_aborts_all(problem):
                                         (["--problem", "multibody", "--method", "feti-feti", "--bodies", "3",
                                           "--subdomains", "1"], "subdomains")])
 def test_bad_input_exits_2_on_every_rank(args, field):
-    proc = _mpiexec(2, ["-m", "ddsolve", "solve", *args])
+    proc = mpiexec(2, ["-m", "ddsolve", "solve", *args])
     assert proc.returncode == 2, proc.stderr
     # one line per rank (the launcher may join two ranks' lines: count the messages, not the lines)
     assert proc.stderr.count("ddsolve: error: ") == 2, proc.stderr
@@ -222,7 +197,7 @@ def test_without_mpi4py_is_a_clear_error(tmp_path):
     broken = tmp_path / "mpi4py"
     broken.mkdir()
     (broken / "__init__.py").write_text('raise ImportError("mpi4py broken (test)")\n')
-    proc = _mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4"],
+    proc = mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4"],
                     PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT), str(ROOT / "studies")]))
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.count("ddsolve: error: mpi: running under mpiexec with 2 ranks needs mpi4py") == 2
@@ -232,7 +207,7 @@ def test_serial_run_never_imports_mpi4py():
     code = ("import sys; from ddsolve.cli import main; main(['solve', '--subdomains', '2', '--elements', '2']); "
             "print('mpi4py' in sys.modules, 'ddsolve.parallel' in sys.modules)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=TIMEOUT,
-                          env={k: v for k, v in _env().items() if k not in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE",
+                          env={k: v for k, v in mpi_env().items() if k not in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE",
                                                                              "PMIX_SIZE")}, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip().splitlines()[-1] == "False False"
@@ -244,11 +219,11 @@ def test_cli_contact_energy_fallback_equals_serial():
     import json
     args = ["-m", "ddsolve", "solve", "--problem", "contact", "--mesh", "unstructured", "--geometry", "membranes",
             "--maxh", "0.1", "--refine", "1", "--parts", "64", "--json"]
-    proc = _mpiexec(2, args)
+    proc = mpiexec(2, args)
     assert proc.returncode == 0, proc.stderr
     par = json.loads(proc.stdout)
     ser = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
-                                    env=_env(), cwd=ROOT).stdout)
+                                    env=mpi_env(), cwd=ROOT).stdout)
     assert par["converged"] and ser["converged"] and "redone with s_ol='energy'" in ser["reason"]
     assert par["reason"] == ser["reason"]
     assert par["inner_iterations"] == ser["inner_iterations"] and par["n_active"] == ser["n_active"]
