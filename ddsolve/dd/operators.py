@@ -135,7 +135,10 @@ class DirichletSchur:
         interior solve. Formed on the first :meth:`matvec` from the existing
         interior factorizations (no new factorization). ``None`` (default):
         explicit when that setup costs at most ``EXPLICIT_SETUP_MATVECS``
-        implicit applications and no block exceeds ``EXPLICIT_MAX_BLOCK``.
+        implicit applications and no block exceeds ``EXPLICIT_MAX_BLOCK``; otherwise
+        implicit until the applications made have cost as much as that setup, then explicit
+        (rent or buy: a long run such as the active set method's face solves pays at most
+        twice the better choice, a short one never the setup). ``False``: always implicit.
         The result is the same operator up to rounding.
     """
 
@@ -148,6 +151,8 @@ class DirichletSchur:
         self._cache = cache
         self._explicit_option = explicit
         self._blocks: DenseBlocks | None | bool = None      # None: not decided yet; False: implicit
+        self._switch_after: float | None = None     # implicit: applications after which explicit pays off
+        self._implicit_applications = 0
         self._space_operators: dict[tuple, SchurSpaceMatvec] = {}     # by the spaces' keys
         self._extensions: HarmonicExtensions | None = None  # explicit harmonic extensions (with explicit S)
         self._last_load: _InteriorLoad | None = None
@@ -171,14 +176,16 @@ class DirichletSchur:
             groups[key].members.append(s)
         return list(groups.values())
 
-    def _build_explicit(self) -> DenseBlocks | bool:
+    def _build_explicit(self, force: bool = False) -> DenseBlocks | bool:
         groups = self._explicit_groups()
         setup_cols = sum(g.gamma_local.size for g in groups)
         biggest = max((g.gamma_local.size for g in groups), default=0)
-        explicit = self._explicit_option
+        explicit = True if force else self._explicit_option
         if explicit is None:
-            explicit = (setup_cols <= EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1)
-                        and biggest <= EXPLICIT_MAX_BLOCK)
+            fits = biggest <= EXPLICIT_MAX_BLOCK
+            explicit = setup_cols <= EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1) and fits
+            if fits and not explicit:                # rent now, buy once the rent has reached the price
+                self._switch_after = setup_cols / max(self.sub.n_sub, 1)
         if not explicit:
             return False
         sub = self.sub
@@ -238,6 +245,21 @@ class DirichletSchur:
             self._blocks = self._build_explicit()
         return self._blocks is not False
 
+    def _use_explicit(self) -> bool:
+        """:attr:`explicit` for one application, counting implicit ones and switching to the
+        explicit blocks once they have paid off (see the ``explicit`` parameter)."""
+        if self.explicit:
+            return True
+        if self._switch_after is not None:
+            self._implicit_applications += 1
+            if self._implicit_applications > self._switch_after:
+                log.debug("DirichletSchur: explicit local Schur complements formed after %d implicit "
+                          "applications", self._implicit_applications - 1)
+                self._switch_after = None
+                self._blocks = self._build_explicit(force=True)
+                return True
+        return False
+
     def space_matvec(self, u, space_in, space_out) -> np.ndarray:
         """gather_out(S scatter_in(u)) between spaces of continuous interface values.
 
@@ -266,11 +288,11 @@ class DirichletSchur:
         """
         spaces = list(space_in) if isinstance(space_in, (list, tuple)) else [space_in]
         us = list(u) if isinstance(space_in, (list, tuple)) else [u]
-        if not self.explicit:
+        if not self._use_explicit():
             w = np.zeros(self.sub.n_W)
             for sp_, v in zip(spaces, us):
                 w[sp_.idx] = v[sp_.pos]
-            y = self.matvec(w)
+            y = self._implicit_matvec(w)
             return np.bincount(space_out.pos, weights=y[space_out.idx], minlength=space_out.n)
         key = tuple(space_key(x) for x in spaces) + (space_key(space_out),)
         op = self._space_operators.get(key)
@@ -302,11 +324,15 @@ class DirichletSchur:
 
     def matvec(self, w: np.ndarray) -> np.ndarray:
         """S w for a W vector (read on Gamma); result is zero off Gamma."""
-        if self.explicit:
+        if self._use_explicit():
             y = np.zeros(self.sub.n_W)
             blocks = self._blocks
             y[blocks.flat] = blocks.apply(w[blocks.flat])
             return y
+        return self._implicit_matvec(w)
+
+    def _implicit_matvec(self, w: np.ndarray) -> np.ndarray:
+        """S w = K_GG w - K_GI K_II^{-1} K_IG w by two sparse products and one interior solve."""
         w = np.where(self.gamma, w, 0.0)
         t = self.sub.K_W @ w
         z = self.II.solve(t)

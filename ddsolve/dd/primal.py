@@ -190,7 +190,7 @@ class PrimalConstrainedSolver:
         x[self.primal] = u_pi[self.coarse_of_W[self.primal]]
         return x
 
-    def _explicit_pays_off(self, mask: np.ndarray) -> bool:
+    def _explicit_pays_off(self, mask: np.ndarray) -> tuple[bool, float | None]:
         """Whether the dense interface blocks of ``mask`` pay off (the rule of ``DirichletSchur``).
 
         Forming them costs one local solve per interface unknown of each distinct
@@ -198,6 +198,13 @@ class PrimalConstrainedSolver:
         subdomain. Explicit when the former is at most ``EXPLICIT_SETUP_MATVECS`` of the
         latter and no block exceeds ``EXPLICIT_MAX_BLOCK``. With few, large subdomains
         (H/h = 128 or more) the implicit solve is cheaper over a solve.
+
+        Returns
+        -------
+        explicit : bool
+        switch_after : float or None
+            When not explicit but the blocks fit: the setup cost in implicit applications,
+            after which :class:`ImplicitInterfaceSolve` forms them after all (see there).
         """
         cols, biggest = 0, 0
         for g in self.rr.groups:
@@ -206,24 +213,29 @@ class PrimalConstrainedSolver:
             _, first = np.unique(rows, return_index=True)                           # distinct patterns
             n_d = np.count_nonzero(mask[g.index][:, first], axis=0)
             cols, biggest = cols + int(n_d.sum()), max(biggest, int(n_d.max(initial=0)))
-        explicit = (cols <= _operators.EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1)
-                    and biggest <= _operators.EXPLICIT_MAX_BLOCK)
+        fits = biggest <= _operators.EXPLICIT_MAX_BLOCK
+        explicit = cols <= _operators.EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1) and fits
         log.debug("PrimalConstrainedSolver: %s interface blocks (%d setup columns, largest %d)",
                   "explicit" if explicit else "implicit", cols, biggest)
-        return explicit
+        return explicit, (cols / max(self.sub.n_sub, 1) if fits and not explicit else None)
 
     def interface(self, mask: np.ndarray, explicit: bool | None = None) -> InterfaceSolve:
         """A~^{-1} restricted to the interface ``mask`` (explicit dense blocks or implicit solves).
 
         ``mask`` (an interface: every interior entry of the subdomains is outside it).
-        ``explicit=None`` decides by :meth:`_explicit_pays_off`. Cached on this solver by the
-        mask's bytes and ``explicit``.
+        ``explicit=None`` decides by :meth:`_explicit_pays_off` (an implicit solve then forms
+        the blocks once they have paid off); ``False`` keeps the implicit solve. Cached on this
+        solver by the mask's bytes and ``explicit``.
         """
         key = (np.packbits(mask).tobytes(), mask.size, explicit)
         hit = self._interfaces.get(key)
         if hit is None:
-            use_explicit = self._explicit_pays_off(mask) if explicit is None else bool(explicit)
-            hit = (ExplicitInterfaceSolve if use_explicit else ImplicitInterfaceSolve)(self, mask.copy())
+            if explicit is None:
+                use_explicit, switch_after = self._explicit_pays_off(mask)
+            else:
+                use_explicit, switch_after = bool(explicit), None
+            hit = (ExplicitInterfaceSolve(self, mask.copy()) if use_explicit
+                   else ImplicitInterfaceSolve(self, mask.copy(), switch_after=switch_after))
             self._interfaces[key] = hit
         return hit
 
@@ -284,26 +296,66 @@ class InterfaceSolve:
 
 
 class ImplicitInterfaceSolve(InterfaceSolve):
-    """Interface solves through the full batched :meth:`PrimalConstrainedSolver.solve`."""
+    """Interface solves through the full batched :meth:`PrimalConstrainedSolver.solve`.
+
+    With ``switch_after`` (the dense blocks' setup cost in implicit applications, from
+    :meth:`PrimalConstrainedSolver._explicit_pays_off`), the blocks are formed once that many
+    applications (solves and space-operator applications together) have been made, and every
+    later one goes through them: the rent-or-buy rule, so a long run (the hundreds of face-solve
+    iterations of the active set method) pays at most twice the better of the two, and a short
+    one never pays the setup.
+    """
+
+    def __init__(self, solver: PrimalConstrainedSolver, mask: np.ndarray,
+                 switch_after: float | None = None) -> None:
+        super().__init__(solver, mask)
+        self.switch_after = switch_after
+        self.applications = 0
+        self.explicit_solve: ExplicitInterfaceSolve | None = None
+
+    @property
+    def explicit(self) -> bool:            # type: ignore[override]
+        """Whether the dense blocks are in use (after the switch)."""
+        return self.explicit_solve is not None
+
+    def switched(self) -> ExplicitInterfaceSolve | None:
+        """Count one application; the explicit solve once the blocks have paid off (else None)."""
+        if self.explicit_solve is None and self.switch_after is not None:
+            self.applications += 1
+            if self.applications > self.switch_after:
+                log.debug("PrimalConstrainedSolver: dense interface blocks formed after %d implicit "
+                          "applications", self.applications - 1)
+                self.explicit_solve = ExplicitInterfaceSolve(self.solver, self.mask)
+        return self.explicit_solve
 
     def solve(self, b: np.ndarray) -> np.ndarray:
+        explicit = self.switched()
+        if explicit is not None:
+            return explicit.solve(b)
         return np.where(self.mask, self.solver.solve(np.where(self.mask, b, 0.0)), 0.0)
 
     def space_operator(self, space, weights: np.ndarray) -> ImplicitSpaceSolve:
-        return ImplicitSpaceSolve(self.solver, space, weights)
+        return ImplicitSpaceSolve(self, space, weights)
 
 
 class ImplicitSpaceSolve:
-    """Scatter, the implicit solve, gather (see :meth:`InterfaceSolve.space_operator`)."""
+    """Scatter, the implicit solve, gather (see :meth:`InterfaceSolve.space_operator`); after the
+    interface's switch, its explicit space operator."""
 
-    def __init__(self, solver: PrimalConstrainedSolver, space, weights: np.ndarray) -> None:
-        self.solver, self.space, self.weights = solver, space, weights
+    def __init__(self, interface: ImplicitInterfaceSolve, space, weights: np.ndarray) -> None:
+        self.interface, self.space, self.weights = interface, space, weights
+        self._explicit_op: ExplicitSpaceSolve | None = None
 
     def apply(self, r: np.ndarray) -> np.ndarray:
-        space, weights = self.space, self.weights
-        w = np.zeros(self.solver.sub.n_W)
+        explicit = self.interface.switched()
+        if explicit is not None:
+            if self._explicit_op is None:
+                self._explicit_op = explicit.space_operator(self.space, self.weights)
+            return self._explicit_op.apply(r)
+        space, weights, solver = self.space, self.weights, self.interface.solver
+        w = np.zeros(solver.sub.n_W)
         w[space.idx] = weights * r[space.pos]
-        x = self.solver.solve(w)
+        x = solver.solve(w)
         return np.bincount(space.pos, weights=weights * x[space.idx], minlength=space.n)
 
 

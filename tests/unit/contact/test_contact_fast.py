@@ -81,17 +81,28 @@ def test_inexact_body_schur_complement_matches_interior_formula(hybrid):
     assert np.abs(got - ref).max() < 1e-11 * np.abs(ref).max()
 
 
-@pytest.mark.parametrize("explicit", [True, False])
+@pytest.mark.parametrize("explicit", [True, False, "switch"])
 def test_active_set_with_and_without_explicit_operators_matches_direct(monkeypatch, count_factorizations, explicit):
+    """Explicit blocks from the start, never (no block may be formed), or after the implicit applications
+    have cost their setup (the rent-or-buy switch): the same solution, no factorization after the setup."""
     p = contact_problem(4, 8)
     ref = solve_contact_direct(p)
     import ddsolve.dd.operators as ops
-    monkeypatch.setattr(ops, "EXPLICIT_SETUP_MATVECS", 10**9 if explicit else -1)
+    if explicit == "switch":
+        monkeypatch.setattr(ops, "EXPLICIT_SETUP_MATVECS", -1)     # not at first use, but the blocks fit
+    elif explicit:
+        monkeypatch.setattr(ops, "EXPLICIT_SETUP_MATVECS", 10**9)
+    else:
+        monkeypatch.setattr(ops, "EXPLICIT_MAX_BLOCK", 0)          # no block fits: implicit throughout
     with threadpool_limits(1, "blas"):
         s = ActiveSetHybrid(p)
+        assert s.hybrid.schur.explicit is (explicit is True)
         made = count_factorizations()
         sol = s.solve(rtol=1e-5)
-    assert s.hybrid.schur.explicit is explicit
+    assert s.hybrid.schur.explicit is bool(explicit)
+    if explicit == "switch":     # the body solver's interface solves switched too
+        assert s.hybrid.schur._implicit_applications > 0
+        assert any(i.explicit and i.applications > 0 for i in s.hybrid.body_solver._interfaces.values())
     assert made == []                                     # no factorization after the setup
     assert sol.converged, sol.reason
     assert np.array_equal(sol.active, ref.active)
