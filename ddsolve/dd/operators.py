@@ -41,6 +41,8 @@ EXPLICIT_MAX_BLOCK = 4000
 #: Memory budget of the explicit harmonic extensions K_II^{-1} K_IG kept by an explicit
 #: :class:`DirichletSchur` (dense n_I x n_G per group) for :meth:`DirichletSchur.interior_solution`.
 EXPLICIT_EXTENSION_BYTES = 512 * 2**20
+#: Harmonic extensions solved at once while explicit blocks are formed without keeping them.
+EXPLICIT_BUILD_BYTES = 32 * 2**20
 
 
 @dataclass
@@ -190,17 +192,35 @@ class DirichletSchur:
             return False
         sub = self.sub
         blocks = []
-        keep_ext = sum(g.interior_local.size * g.gamma_local.size for g in groups) * 8 <= EXPLICIT_EXTENSION_BYTES
+        # the harmonic extensions are kept for interior_solution when chosen at first use (a switch
+        # after many implicit applications keeps none: its build must not add memory at the end)
+        keep_ext = not force and (sum(g.interior_local.size * g.gamma_local.size for g in groups) * 8
+                                  <= EXPLICIT_EXTENSION_BYTES)
         ext: list[ExtensionBlock] = []
-        # harmonic extensions K_II^{-1} K_IG (rho cancels) of all groups first: the batched
-        # subdomains share multi-column solves (solve_many)
+        # harmonic extensions K_II^{-1} K_IG (rho cancels): the batched subdomains share
+        # multi-column solves (solve_many), all groups at once when the extensions are kept,
+        # else in batches of at most EXPLICIT_BUILD_BYTES of them
         K_igs = {k: sub.stiffness[g.template][g.interior_local][:, g.gamma_local]
                  for k, g in enumerate(groups) if g.interior_local.size}
-        solved = dict(zip(K_igs, solve_many([
-            (self._cache[groups[k].template.to_bytes(8, "little")           # built by self.II
-                         + groups[k].interior_local.astype(np.int64).tobytes()], K_ig)
-            for k, K_ig in K_igs.items()])))
+        batch_of: dict[int, int] = {}
+        size = batch = 0
+        for k in K_igs:
+            nbytes = groups[k].interior_local.size * groups[k].gamma_local.size * 8
+            if size and not keep_ext and size + nbytes > EXPLICIT_BUILD_BYTES:
+                batch, size = batch + 1, 0
+            batch_of[k], size = batch, size + nbytes
+        solved: dict[int, np.ndarray] = {}
+
+        def solve_batch(b: int) -> None:
+            keys = [k for k, kb in batch_of.items() if kb == b]
+            solved.update(zip(keys, solve_many([
+                (self._cache[groups[k].template.to_bytes(8, "little")       # built by self.II
+                             + groups[k].interior_local.astype(np.int64).tobytes()], K_igs[k])
+                for k in keys])))
+
         for k, group in enumerate(groups):
+            if k in K_igs and k not in solved:
+                solve_batch(batch_of[k])
             t, loc_i, loc_g, members = group.template, group.interior_local, group.gamma_local, group.members
             K = sub.stiffness[t]
             Kg = K[loc_g]

@@ -15,6 +15,7 @@ Split from :mod:`ddsolve.dd.operators`, which re-exports every name.
 from __future__ import annotations
 
 import logging
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +28,9 @@ from .operators import space_key
 from .substructure import Substructures
 
 log = logging.getLogger(__name__)
+
+#: Interface solves (one per mask) kept by a :class:`PrimalConstrainedSolver`, least recently used dropped.
+MAX_INTERFACES = 4
 
 
 class PrimalConstrainedSolver:
@@ -144,7 +148,8 @@ class PrimalConstrainedSolver:
         self.n_factorizations = self.rr.n_new_factorizations + (1 if self.n_primal else 0)
         self._psi_global: sp.csr_matrix | None = None      # Psi as sparse (n_W, n_primal), on first use
         self._psi_global_T: sp.csr_matrix | None = None
-        self._interfaces: dict[tuple, InterfaceSolve] = {}  # by (mask bytes, n_W, explicit option)
+        # by (mask bytes, n_W, explicit option), the MAX_INTERFACES most recently used
+        self._interfaces: OrderedDict[tuple, InterfaceSolve] = OrderedDict()
 
     def _primal_dofs(self, sub: Substructures, primal_mask: np.ndarray) -> np.ndarray:
         """Sorted global dofs of the primal unknowns (hook: a rank-local ``sub`` sees only its own)."""
@@ -229,7 +234,9 @@ class PrimalConstrainedSolver:
         """
         key = (np.packbits(mask).tobytes(), mask.size, explicit)
         hit = self._interfaces.get(key)
-        if hit is None:
+        if hit is not None:
+            self._interfaces.move_to_end(key)
+        else:
             if explicit is None:
                 use_explicit, switch_after = self._explicit_pays_off(mask)
             else:
@@ -237,6 +244,8 @@ class PrimalConstrainedSolver:
             hit = (ExplicitInterfaceSolve(self, mask.copy()) if use_explicit
                    else ImplicitInterfaceSolve(self, mask.copy(), switch_after=switch_after))
             self._interfaces[key] = hit
+            if len(self._interfaces) > MAX_INTERFACES:     # e.g. one per active set of a contact solve:
+                self._interfaces.popitem(last=False)        # their dense blocks must not pile up
         return hit
 
     def space_solve(self, r: np.ndarray, space, weights: np.ndarray, mask: np.ndarray,
