@@ -117,6 +117,10 @@ def _serial_seconds(first: dict) -> float:
     return float(first.get("serial", {}).get("solve_seconds", first["solve_seconds"]))
 
 
+def _loads(values) -> str:
+    return "/".join(f"{x:.2f}" for x in values)
+
+
 def _serial_line(first: dict) -> str:
     """What "speed-up" (against the distributed code on 1 rank) and "vs serial" are relative to."""
     serial = first.get("serial")
@@ -124,7 +128,21 @@ def _serial_line(first: dict) -> str:
         return "Speed-ups against the P = 1 run (no serial run recorded).\n"
     return (f"Speed-up: against the distributed code on P = 1 ({first['solve_seconds']:.3f} s); vs serial: against "
             f"the serial solver without mpiexec in the same job ({serial['solve_seconds']:.3f} s, "
-            f"{serial['iterations']} iterations, load average {'/'.join(f'{x:.2f}' for x in serial['load_average'])}).\n")
+            f"{serial['iterations']} iterations, load average {_loads(serial['load_average'])}).\n")
+
+
+def _measured_row(run: dict, first: dict) -> dict:
+    """The measured columns of one run's row (the first run is the reference of the speed-ups)."""
+    comm = run["comm"]
+    return {"ranks": run["n_ranks"], "ndof": run["ndof"], "iterations": run["iterations"],
+            "solve_seconds": run["solve_seconds"],
+            "speedup_solve": first["solve_seconds"] / run["solve_seconds"],
+            "speedup_vs_serial": _serial_seconds(first) / run["solve_seconds"],
+            "messages_per_iteration": comm["messages_per_iteration"],
+            "bytes_per_iteration": comm["bytes_per_iteration"],
+            "allreduces_per_iteration": comm["allreduces_per_iteration"],
+            "coarse_seconds": comm["coarse_seconds"],
+            "load_average": _loads(run.get("load_average", []))}
 
 
 def mpi_report(runs: list[dict], m: Machine = Machine(), strong_subdomains: float = 40000.0) -> tuple[list[dict], str]:
@@ -134,19 +152,11 @@ def mpi_report(runs: list[dict], m: Machine = Machine(), strong_subdomains: floa
     n_sub = first["bodies"] ** 2 * first["subdomains"] ** 2
     rows = []
     for run in runs:
-        P = run["n_ranks"]
-        comm = run["comm"]
-        t_meas = comm["krylov_seconds"] / max(run["iterations"], 1)
-        rows.append({"ranks": P, "ndof": run["ndof"], "iterations": run["iterations"],
-                     "solve_seconds": run["solve_seconds"], "krylov_seconds": comm["krylov_seconds"],
-                     "speedup_solve": first["solve_seconds"] / run["solve_seconds"],
-                     "speedup_vs_serial": _serial_seconds(first) / run["solve_seconds"],
-                     "t_iter_measured": t_meas, "t_iter_model": t_iter(P, n_sub, cal, m)["t_iter"],
-                     "messages_per_iteration": comm["messages_per_iteration"],
-                     "bytes_per_iteration": comm["bytes_per_iteration"],
-                     "allreduces_per_iteration": comm["allreduces_per_iteration"],
-                     "coarse_seconds": comm["coarse_seconds"],
-                     "load_average": "/".join(f"{x:.2f}" for x in run.get("load_average", []))})
+        row = _measured_row(run, first)
+        row["krylov_seconds"] = run["comm"]["krylov_seconds"]
+        row["t_iter_measured"] = run["comm"]["krylov_seconds"] / max(run["iterations"], 1)
+        row["t_iter_model"] = t_iter(run["n_ranks"], n_sub, cal, m)["t_iter"]
+        rows.append(row)
     lines = ["# Distributed solve (ddsolve.parallel)", "",
              f"{first['method']}, {first['ndof']} dofs, {n_sub} subdomains, H/h = {first['elements']}.", "",
              _serial_line(first),
@@ -177,19 +187,8 @@ def measured_report(runs: list[dict]) -> tuple[list[dict], str]:
     synchronisations of FETI-DP per iteration).
     """
     first = runs[0]
-    rows = []
-    for run in runs:
-        comm = run["comm"]
-        rows.append({"problem": run["problem"], "method": run["method"], "ranks": run["n_ranks"],
-                     "ndof": run["ndof"], "iterations": run["iterations"], "solve_seconds": run["solve_seconds"],
-                     "speedup_solve": first["solve_seconds"] / run["solve_seconds"],
-                     "speedup_vs_serial": _serial_seconds(first) / run["solve_seconds"],
-                     "t_iter_measured": run["solve_seconds"] / max(run["iterations"], 1),
-                     "messages_per_iteration": comm["messages_per_iteration"],
-                     "bytes_per_iteration": comm["bytes_per_iteration"],
-                     "allreduces_per_iteration": comm["allreduces_per_iteration"],
-                     "coarse_seconds": comm["coarse_seconds"],
-                     "load_average": "/".join(f"{x:.2f}" for x in run.get("load_average", []))})
+    rows = [{"problem": run["problem"], "method": run["method"], **_measured_row(run, first),
+             "t_iter_measured": run["solve_seconds"] / max(run["iterations"], 1)} for run in runs]
     lines = [f"{first['problem']} / {first['method']}, {first['ndof']} dofs, {first['subdomains']} x "
              f"{first['subdomains']} subdomains per body, H/h = {first['elements']} (measured only).", "",
              _serial_line(first),
