@@ -53,6 +53,7 @@ from ..krylov import PCR
 from ..krylov.pcr import NORMS
 from ..krylov.result import KrylovResult
 from .interface import GlobalInterface
+from .kernel import FloatingSums
 from .spaces import ActiveSet, InterfaceSpace
 
 log = logging.getLogger(__name__)
@@ -151,6 +152,7 @@ class HybridSolver:
         self.kernel_column = column[body_of_gamma]
         self._kernel_count = np.bincount(self.kernel_column[self.kernel_column >= 0],
                                          minlength=self.floating.size)
+        self._floating_sums = FloatingSums(self.kernel_column, self.floating.size)
 
         # global multipliers in the u_Gamma and GL index spaces
         pair_dofs = sub.dof_of_node[gi.pair_nodes]           # (n_gl, 2)
@@ -189,17 +191,11 @@ class HybridSolver:
         """P_R = I - R_c (R_c^T R_c)^{-1} R_c^T: remove the mean on every floating body."""
         if self.floating.size == 0:
             return u
-        on = self.kernel_column >= 0
-        mean = (np.bincount(self.kernel_column[on], weights=u[on], minlength=self.floating.size)
-                / self._kernel_count)
-        out = u.copy()
-        out[on] -= mean[self.kernel_column[on]]
-        return out
+        return self._floating_sums.subtract(u, self._floating_sums.sums(u) / self._kernel_count)
 
     def kernel_load(self) -> np.ndarray:
         """e = R_c^T g^_c, shape (n_float,): G^kT lambda_0 = e fixes the multipliers' kernel part."""
-        on = self.kernel_column >= 0
-        return np.bincount(self.kernel_column[on], weights=self.g_hat[on], minlength=self.floating.size)
+        return self._floating_sums.sums(self.g_hat)
 
     def inexact_interior_solve(self, t: np.ndarray) -> np.ndarray:
         """A~_II^{-1} of (4.9)-(4.10) on every body, global-interface nodes held at zero.

@@ -39,6 +39,7 @@ from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, linear_operator
 from ..krylov.result import KrylovResult
 from ..multibody.hybrid import S_OL_FORMS, InterfaceSpace
+from ..multibody.kernel import FloatingSums
 from .coarse import DistributedPrimalSolver, pinned_vertices
 from .comm import NeighbourSum, SharedIndex
 from .dual import DistributedProjection
@@ -199,12 +200,10 @@ class DistributedHybrid:
         column[self.floating] = np.arange(self.floating.size)
         self._column_of_body = column
         self.kernel_column = column[body_of_gamma]
-        self._kernel_on = np.flatnonzero(self.kernel_column >= 0)
-        self._kernel_owned = self._kernel_on[self.gamma.owned[self._kernel_on]]
-        self._kernel_count = comm.allreduce_sum(np.bincount(self.kernel_column[self._kernel_owned],
+        kernel_owned = np.flatnonzero((self.kernel_column >= 0) & self.gamma.owned)
+        self._kernel_count = comm.allreduce_sum(np.bincount(self.kernel_column[kernel_owned],
                                                             minlength=self.floating.size).astype(float))
-        self._column_owned = self.kernel_column[self._kernel_owned]        # P_R's gathers, once
-        self._column_on = self.kernel_column[self._kernel_on]
+        self._floating_sums = FloatingSums(self.kernel_column, self.floating.size, summed=self.gamma.owned)
         self.pair_dofs = topo.dof_of_node[gi.pair_nodes]                   # (n_gl, 2)
         self.pair_weight = gi.weight[gi.pairs]                             # (n_gl, 2)
         self.pair_body = topo.body_of_sub[topo.sub_of_W[gi.pairs]]         # (n_gl, 2)
@@ -235,18 +234,12 @@ class DistributedHybrid:
         """Remove the mean on every floating body (one Allreduce of k doubles)."""
         if self.floating.size == 0:
             return u
-        sums = self.comm.allreduce_sum(np.bincount(self._column_owned, weights=u[self._kernel_owned],
-                                                   minlength=self.floating.size))
-        mean = sums / self._kernel_count
-        out = u.copy()
-        out[self._kernel_on] -= mean[self._column_on]
-        return out
+        fs = self._floating_sums
+        return fs.subtract(u, self.comm.allreduce_sum(fs.sums(u)) / self._kernel_count)
 
     def kernel_load(self) -> np.ndarray:
         """e = R_c^T g^_c over all ranks, shape (n_float,)."""
-        o = self._kernel_owned
-        return self.comm.allreduce_sum(np.bincount(self.kernel_column[o], weights=self.g_hat[o],
-                                                   minlength=self.floating.size))
+        return self.comm.allreduce_sum(self._floating_sums.sums(self.g_hat))
 
     def _local_solve(self, r: np.ndarray) -> np.ndarray:
         """M_0 r of (4.10) on this rank's Gamma_0 dofs (summed over the ranks sharing them)."""
