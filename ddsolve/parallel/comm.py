@@ -13,6 +13,7 @@ in increasing rank order, so that all copies are bitwise identical.
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,6 +29,7 @@ class CommCounters:
     messages: int = 0
     bytes: int = 0
     allreduces: int = 0
+    seconds: float = 0.0          # wall time inside MPI calls (transfer and waiting for other ranks)
 
     def snapshot(self) -> tuple[int, int, int]:
         return self.messages, self.bytes, self.allreduces
@@ -55,7 +57,9 @@ class CountingComm:
         """Elementwise sum over ranks of a float64 array (one Allreduce)."""
         x = np.ascontiguousarray(x, dtype=np.float64)
         out = np.empty_like(x)
+        t0 = time.perf_counter()
         self.comm.Allreduce(x, out, op=self.MPI.SUM)
+        self.counters.seconds += time.perf_counter() - t0
         self.counters.allreduces += 1
         return out
 
@@ -63,7 +67,9 @@ class CountingComm:
         """Sum (or max) of one float over ranks."""
         x = np.array([value], dtype=np.float64)
         out = np.empty(1)
+        t0 = time.perf_counter()
         self.comm.Allreduce(x, out, op=self.MPI.SUM if op == "sum" else self.MPI.MAX)
+        self.counters.seconds += time.perf_counter() - t0
         self.counters.allreduces += 1
         return float(out[0])
 
@@ -81,6 +87,7 @@ class CountingComm:
     # ---------------------------------------------------------- point to point
     def exchange(self, sends: dict[int, np.ndarray], recv_sizes: dict[int, int], tag: int = 7) -> dict[int, np.ndarray]:
         """Send ``sends[q]`` to every neighbour q and receive ``recv_sizes[q]`` doubles from it (Isend/Irecv)."""
+        t0 = time.perf_counter()
         requests, received = [], {}
         for q, n in recv_sizes.items():
             buf = np.empty(n)
@@ -93,6 +100,7 @@ class CountingComm:
             self.counters.bytes += data.nbytes
             sends[q] = data                         # keep the buffer alive until Waitall
         self.MPI.Request.Waitall(requests)
+        self.counters.seconds += time.perf_counter() - t0
         return received
 
     def abort(self, code: int = 1) -> None:

@@ -94,6 +94,7 @@ def _reduce(prob, comm: CountingComm, info: dict, setup_seconds: float, solve_se
             "setup": comm.comm.allreduce(setup_seconds, op=comm.MPI.MAX),
             "solve": comm.comm.allreduce(solve_seconds, op=comm.MPI.MAX),
             "krylov": comm.comm.allreduce(info["krylov_seconds"], op=comm.MPI.MAX),
+            "mpi_seconds": comm.comm.allgather(float(info.get("mpi_seconds", 0.0))),
             "n_fact": comm.comm.allreduce(int(n_factorizations)),
             "n_templates": comm.comm.allreduce(int(prob.sub.local.n_templates)),
             "timings": {k: comm.comm.allreduce(float(v), op=comm.MPI.MAX) for k, v in sorted(prob.timings.items())},
@@ -109,7 +110,10 @@ def _report(spec: ProblemSpec, prob, comm: CountingComm, red: dict[str, Any]) ->
         "n_ranks": comm.size,
         "comm": {"messages_per_iteration": float(red["totals"][0]), "bytes_per_iteration": float(red["totals"][1]),
                  "allreduces_per_iteration": red["allreduces"], "coarse_seconds": float(red["coarse"]),
-                 "krylov_seconds": float(red["krylov"])},
+                 "krylov_seconds": float(red["krylov"]),
+                 # per rank: wall time inside MPI calls in the solve phase (transfers and waiting for the
+                 # slowest rank; their spread measures the load imbalance)
+                 "mpi_seconds": [round(s, 6) for s in red["mpi_seconds"]]},
         "n_templates": red["n_templates"],                          # summed over ranks (each factors its own)
         "timings": {"mesh": t.get("mesh", 0.0), "partition": t.get("partition", 0.0),
                     "assembly": t.get("assembly", 0.0),
@@ -179,6 +183,7 @@ def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: fl
     t0 = time.perf_counter()
     solver = DistributedActiveSetHybrid(prob, gather=gather or spec.check)
     setup = time.perf_counter() - t0
+    mpi0 = comm.counters.seconds
     sol = solver.solve(rtol=spec.rtol, pcg_rtol=spec.rtol, maxiter=spec.maxiter, **options)
     total = time.perf_counter() - t0
     end = comm.counters.snapshot()
@@ -186,7 +191,8 @@ def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: fl
     faces = solver.hybrid.face_solves
     info = {"per_iteration": tuple((b - a) / its for a, b in zip(start, end)),
             "coarse_seconds": (solver.dh.body_solver.coarse_seconds + solver.dh.local_solver.coarse_seconds),
-            "krylov_seconds": float(sum(f["krylov_seconds"] for f in faces))}
+            "krylov_seconds": float(sum(f["krylov_seconds"] for f in faces)),
+            "mpi_seconds": comm.counters.seconds - mpi0}
     red = _reduce(prob, comm, info, prep_seconds + setup, total - setup, solver.dh.n_factorizations)
     # the KKT residuals (5.5) and the energy from every rank's own subdomains (no assembled K, f, B)
     measures = solver.measures(sol)
@@ -258,9 +264,11 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
             return _solve_contact(spec, prob, comm, prep_seconds, options, gather)
         if spec.method == "hybrid":
             options.update(norm=spec.norm, projection=spec.projection)
+        mpi0 = comm.counters.seconds
         out, info = method(prob, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
                            gather=gather or spec.check, **options)
         total = time.perf_counter() - t1
+        info = {**info, "mpi_seconds": comm.counters.seconds - mpi0}      # includes the method's own setup
         return _result(spec, prob, out, info, prep_seconds + out.setup_seconds, total - out.setup_seconds, comm)
 
 
