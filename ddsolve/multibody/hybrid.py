@@ -167,11 +167,38 @@ class HybridSolver:
         # condensed load g^_c = R^T (f_Gamma - A_GI A_II^{-1} f_I)
         self.g_hat = self.gamma_space.gather(self.schur.harmonic_extension_rhs(sub.f_W))
         self._active_cache: dict[bytes, ActiveSet] = {}
+        self.build_operators()
         self.setup_seconds = time.perf_counter() - t0
         log.info("hybrid setup: n_gamma=%d, n_gl=%d, %d floating bodies, %d factorizations, %.3g s",
                  self.n_gamma, gi.n_gl, self.floating.size, self.n_factorizations, self.setup_seconds)
 
     # ----------------------------------------------------------- operators
+    def build_operators(self) -> None:
+        """Form now what the operators would otherwise form at their first application.
+
+        That is the choice between explicit and implicit local Schur complements (with the
+        dense blocks where explicit is chosen) and the interface restrictions of the two
+        primal-constrained solvers, of M_BDDC^{-1} and of M_0 in (4.10) (their dense blocks
+        where they pay off). Called by the constructor, so that this work is timed as setup,
+        like the factorizations it continues, and the solve phase only iterates. The operators
+        are the same as if formed at first use (the same decisions, the same numbers).
+        """
+        _ = self.schur.explicit
+        self._bddc_operator()
+        self._local_operator()
+
+    def _bddc_operator(self):
+        if self._bddc_space_solve is None:
+            self._bddc_space_solve = (self.body_solver.interface(self.schur.gamma)
+                                      .space_operator(self.gamma_space, self.delta_gamma))
+        return self._bddc_space_solve
+
+    def _local_operator(self):
+        if self._local_space_solve is None:
+            self._local_space_solve = (self.local_interface_solver.interface(self.schur.gamma)
+                                       .space_operator(self.local_space, self.delta_local))
+        return self._local_space_solve
+
     def S_hat(self, u: np.ndarray) -> np.ndarray:
         """S^_c u, the per-body assembled Schur complement, shape (n_gamma,) -> (n_gamma,)."""
         return self.schur.space_matvec(u, self.gamma_space, self.gamma_space)
@@ -182,10 +209,7 @@ class HybridSolver:
         R_D scales the subdomain copies by delta-dagger (within the body); the
         primal copies are summed inside :class:`PrimalConstrainedSolver`.
         """
-        if self._bddc_space_solve is None:
-            self._bddc_space_solve = (self.body_solver.interface(self.schur.gamma)
-                                      .space_operator(self.gamma_space, self.delta_gamma))
-        return self._bddc_space_solve.apply(r)
+        return self._bddc_operator().apply(r)
 
     def P_R(self, u: np.ndarray) -> np.ndarray:
         """P_R = I - R_c (R_c^T R_c)^{-1} R_c^T: remove the mean on every floating body."""
@@ -243,10 +267,7 @@ class HybridSolver:
 
     def _local_solve(self, r: np.ndarray) -> np.ndarray:
         """M_0 r: the primal-constrained solve of (4.10) on Gamma_0, shape (n_0,) -> (n_0,)."""
-        if self._local_space_solve is None:
-            self._local_space_solve = (self.local_interface_solver.interface(self.schur.gamma)
-                                       .space_operator(self.local_space, self.delta_local))
-        return self._local_space_solve.apply(r)
+        return self._local_operator().apply(r)
 
     def S_ol_energy(self, v: np.ndarray) -> np.ndarray:
         """Energy form S~_E v = E^T S E v of the inexact body Schur complement, E v = [v; -M_0 S_0G v].

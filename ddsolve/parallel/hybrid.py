@@ -214,7 +214,8 @@ class DistributedHybrid:
         self._inc_dof, self._inc_rank = np.divmod(key, base)
         self.g_hat = self.gamma.exchange.sum(g.gather(self.schur.harmonic_extension_rhs(sub.f_W)))
         self._cache: dict[bytes, DistributedActiveSet] = {}
-        self._bddc_op = self._local_op = None       # interface operators of the two solvers, on first use
+        self._bddc_op = self._local_op = None       # interface operators of the two solvers
+        self.build_operators()
         self.setup_seconds = time.perf_counter() - t0
 
     # ----------------------------------------------------------- operators
@@ -223,12 +224,28 @@ class DistributedHybrid:
         g = self.gamma
         return g.exchange.sum(self.schur.space_matvec(u, g.space, g.space))
 
+    def build_operators(self) -> None:
+        """As :meth:`HybridSolver.build_operators` (no communication: each rank decides from its own
+        subdomains, as it would at first use)."""
+        _ = self.schur.explicit
+        self._bddc_operator()
+        self._local_operator()
+
+    def _bddc_operator(self):
+        if self._bddc_op is None:            # the serial operator (explicit interface blocks where they pay)
+            self._bddc_op = self.body_solver.interface(self.schur.gamma).space_operator(self.gamma.space,
+                                                                                        self.delta_gamma)
+        return self._bddc_op
+
+    def _local_operator(self):
+        if self._local_op is None:
+            self._local_op = self.local_solver.interface(self.schur.gamma).space_operator(self.loc.space,
+                                                                                          self.delta_local)
+        return self._local_op
+
     def M_bddc(self, r: np.ndarray) -> np.ndarray:
         """R_D^T S~^dagger R_D r (every body; primal copies summed in the coarse problem)."""
-        g = self.gamma
-        if self._bddc_op is None:            # the serial operator (explicit interface blocks where they pay)
-            self._bddc_op = self.body_solver.interface(self.schur.gamma).space_operator(g.space, self.delta_gamma)
-        return g.exchange.sum(self._bddc_op.apply(r))
+        return self.gamma.exchange.sum(self._bddc_operator().apply(r))
 
     def P_R(self, u: np.ndarray) -> np.ndarray:
         """Remove the mean on every floating body (one Allreduce of k doubles)."""
@@ -243,10 +260,7 @@ class DistributedHybrid:
 
     def _local_solve(self, r: np.ndarray) -> np.ndarray:
         """M_0 r of (4.10) on this rank's Gamma_0 dofs (summed over the ranks sharing them)."""
-        if self._local_op is None:
-            self._local_op = self.local_solver.interface(self.schur.gamma).space_operator(self.loc.space,
-                                                                                          self.delta_local)
-        return self.loc.exchange.sum(self._local_op.apply(r))
+        return self.loc.exchange.sum(self._local_operator().apply(r))
 
     def S_ol(self, v: np.ndarray) -> np.ndarray:
         """S~_OL v on this rank's global-interface dofs, as :meth:`HybridSolver.S_ol`."""
