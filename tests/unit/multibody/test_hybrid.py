@@ -177,3 +177,25 @@ def test_iterations_bounded_in_number_of_bodies_and_subdomains(case):
     counts = by_bodies + by_subdomains
     assert max(counts) <= 30, counts
     assert by_subdomains[-1] - by_subdomains[0] <= 10, by_subdomains
+
+
+def test_operators_are_formed_in_setup(monkeypatch):
+    """The constructor forms the operators (setup); a solve forms no dense block and no interface solve."""
+    from ddsolve.dd import operators, primal
+
+    sub, gi, _ = problem(3, 2, 4)
+    with threadpool_limits(1, "blas"):
+        hs = HybridSolver(sub, gi)
+    assert hs.schur.explicit                                  # thesis-sized blocks: explicit at once
+    assert hs._bddc_space_solve is not None and hs._local_space_solve is not None
+    built = []
+    for cls, name in ((operators.DirichletSchur, "_build_explicit"),
+                      (primal.ExplicitInterfaceSolve, "_build_blocks"),
+                      (primal.PrimalConstrainedSolver, "interface")):
+        original = getattr(cls, name)
+        monkeypatch.setattr(cls, name, lambda self, *a, _o=original, _n=name, **k: built.append(_n) or _o(self, *a, **k))
+    with threadpool_limits(1, "blas"):
+        out = hs.solve(gi.contact_mask("full"), rtol=1e-8)
+    assert built == []
+    ref = solve_constrained_direct(sub, gi, gi.contact_mask("full")).u
+    assert rel_error(out.u, ref) < 1e-6
