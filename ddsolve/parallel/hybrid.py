@@ -405,9 +405,10 @@ class DistributedHybrid:
         if P is not None:                    # u_Gamma - R_c (G^T G)^{-1} G^T Z B^ u_Gamma
             beta = P.coefficients(a.jump.matvec(u_g))
             u_g = u_g - np.where(self.kernel_column >= 0, beta[np.maximum(self.kernel_column, 0)], 0.0)
-        sub = self.prob.sub
-        u_W = self.schur.interior_solution(sub.f_W, self.gamma.space.scatter(u_g))
-        u = gather_solution(self.prob, u_W) if gather else None
+        u = None
+        if gather:                           # the interior completion only for the gathered u (the KKT
+            sub = self.prob.sub              # measures of the active set complete the last u_Gamma)
+            u = gather_solution(self.prob, self.schur.interior_solution(sub.f_W, self.gamma.space.scatter(u_g)))
         jump = self.comm.allreduce_scalar(float(np.abs(a.jump.matvec(u_g)).max()) if n_act else 0.0, op="max")
         coarse = self.body_solver.coarse_seconds + self.local_solver.coarse_seconds + (
             P.coarse_seconds if P is not None else 0.0)
