@@ -280,6 +280,20 @@ class DDInverse(ngsolve.BaseMatrix):
         self.timings["substructures"] = time.perf_counter() - t
 
         t = time.perf_counter()
+        try:
+            self._build_operators(method, sub, pm, fes)
+        except (np.linalg.LinAlgError, RuntimeError) as exc:
+            # dense Cholesky (LinAlgError) or PARDISO (RuntimeError, error -4) of a subdomain matrix
+            if isinstance(exc, RuntimeError) and "not positive definite" not in str(exc):
+                raise
+            raise InputError("a", "a subdomain matrix is not positive definite; DDInverse needs a symmetric "
+                                  "positive definite form (no negative reaction term, no Helmholtz form)") from None
+        self.timings["setup"] = time.perf_counter() - t
+        log.info("DDInverse: %d parts, %d dofs, %d primal, timings %s", self.n_parts, ndof, sub.n_primal,
+                 self.timings)
+
+    def _build_operators(self, method: str, sub: Substructures, pm: Any, fes: Any) -> None:
+        """Factor the subdomain matrices once: the BDDC operators, and FETI-DP's or FETI's."""
         self._bddc = _BDDC(self.space.sub)
         self._fetidp = _FETIDP(self.space.sub, self._bddc) if method == "fetidp" else None
         self._feti: _FETI | None = None
@@ -292,9 +306,6 @@ class DDInverse(ngsolve.BaseMatrix):
             scale = np.bincount(sub.sub_of_W, weights=np.abs(sub.K_W.diagonal()), minlength=sub.n_sub)
             sub.floating_sub = sub.floating_sub & (res <= 1e-10 * scale)
             self._feti = _FETI(sub, self._bddc, vertex_W)
-        self.timings["setup"] = time.perf_counter() - t
-        log.info("DDInverse: %d parts, %d dofs, %d primal, timings %s", self.n_parts, ndof, sub.n_primal,
-                 self.timings)
 
     # ----------------------------------------------------------- BaseMatrix
     def Height(self) -> int:
