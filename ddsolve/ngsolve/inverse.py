@@ -48,6 +48,14 @@ def _free_mask(fes: Any, freedofs: Any) -> np.ndarray:
     return free
 
 
+def _check_vector(name: str, v: np.ndarray, ndof: int) -> np.ndarray:
+    """``v`` as an array of shape (ndof,), else an InputError naming ``name``."""
+    v = np.asarray(v)
+    if v.shape != (ndof,):
+        raise InputError(name, f"expected a vector of {ndof} entries (the space's ndof), got shape {v.shape}")
+    return v
+
+
 def _no_interface() -> KrylovResult:
     return KrylovResult(x=np.zeros(0), converged=True, reason="no interface: solved directly", iterations=0,
                         residuals=np.zeros(1))
@@ -327,10 +335,12 @@ class DDInverse(ngsolve.BaseMatrix):
         return ngsolve.BaseVector(self.fes.ndof, False)
 
     def Mult(self, x: Any, y: Any) -> None:
-        y.FV().NumPy()[:] = self.solve(np.asarray(x.FV().NumPy()))
+        out = _check_vector("y", y.FV().NumPy(), self.fes.ndof)
+        out[:] = self.solve(x.FV().NumPy())
 
     def MultAdd(self, s: float, x: Any, y: Any) -> None:
-        y.FV().NumPy()[:] += s * self.solve(np.asarray(x.FV().NumPy()))
+        out = _check_vector("y", y.FV().NumPy(), self.fes.ndof)
+        out[:] += s * self.solve(x.FV().NumPy())
 
     def MultTrans(self, x: Any, y: Any) -> None:
         """The inverse of a symmetric form is symmetric."""
@@ -362,6 +372,7 @@ class DDInverse(ngsolve.BaseMatrix):
     def solve(self, f: np.ndarray) -> np.ndarray:
         """u with A u = f on the free dofs, zero elsewhere; f, u of shape (ndof,)."""
         t = time.perf_counter()
+        f = _check_vector("f", f, self.fes.ndof)
         f_W, fb = self._condense_rhs(f)
         if self.method == "bddc" or self._bddc.n_g == 0:
             u_W, kr = self._bddc.solve(f_W, self.rtol, self.maxiter, self.want_cond)
@@ -410,8 +421,9 @@ class DDPreconditioner(ngsolve.BaseMatrix):
 
     def Mult(self, x: Any, y: Any) -> None:
         inv = self.inv
-        f_W, fb = inv._condense_rhs(np.asarray(x.FV().NumPy()))
-        y.FV().NumPy()[:] = inv._expand(inv._bddc.precondition(f_W), fb)
+        out = _check_vector("y", y.FV().NumPy(), inv.fes.ndof)
+        f_W, fb = inv._condense_rhs(_check_vector("f", x.FV().NumPy(), inv.fes.ndof))
+        out[:] = inv._expand(inv._bddc.precondition(f_W), fb)
 
     def MultTrans(self, x: Any, y: Any) -> None:
         """P is symmetric."""

@@ -37,3 +37,25 @@ def test_indefinite_form_is_an_input_error(mesh, method, backend, reaction, monk
         a += ngs.grad(u) * ngs.grad(v) * ngs.dx + reaction * u * v * ngs.dx
     with pytest.raises(InputError, match=r"^a: a subdomain matrix is not positive definite"):
         DDInverse(a, method=method, parts=2)
+
+
+def test_vector_of_wrong_size_is_an_input_error(mesh):
+    """Mult, the preconditioner and solve() name the vector whose size is wrong (was a numpy broadcast error)."""
+    import numpy as np
+
+    fes = ngs.H1(mesh, order=2, dirichlet=".*")
+    u, v = fes.TnT()
+    inv = DDInverse(ngs.BilinearForm(ngs.grad(u) * ngs.grad(v) * ngs.dx), parts=4)
+    n = fes.ndof
+    good, short, long = ngs.BaseVector(n), ngs.BaseVector(n - 1), ngs.BaseVector(n + 5)
+    for vec in (good, short, long):
+        vec[:] = 1.0
+    for op in (inv, inv.preconditioner):
+        with pytest.raises(InputError, match=rf"^f: expected a vector of {n} entries .*got shape \({n - 1},\)"):
+            good.data = op * short
+        with pytest.raises(InputError, match=rf"^y: expected a vector of {n} entries .*got shape \({n + 5},\)"):
+            long.data = op * good
+    with pytest.raises(InputError, match=rf"^f: expected a vector of {n} entries"):
+        inv.solve(np.ones(n + 1))
+    good.data = inv * good                      # the right size still works
+    assert inv.converged and np.isfinite(good.FV().NumPy()).all()
