@@ -192,7 +192,8 @@ class DDInverse(ngsolve.BaseMatrix):
         ``Discontinuous(fes)``, its boundary (``ds``) integrators element by
         element on the boundary and added to the volume element they bound.
     fes : ngsolve.H1, optional
-        Defaults to ``a.space``.
+        Defaults to ``a.space``; else a space with the same dofs (same mesh and
+        order, e.g. other ``dirichlet=`` boundaries, whose ``FreeDofs()`` are used).
     method : {"bddc", "fetidp", "feti"}
     parts : int
         METIS parts (ignored when ``partition`` is given).
@@ -227,6 +228,9 @@ class DDInverse(ngsolve.BaseMatrix):
             raise InputError("a", f"expected an ngsolve.BilinearForm, got {type(a).__name__}")
         fes = a.space if fes is None else fes
         check_space(fes)
+        if fes.ndof != a.space.ndof:        # another order or mesh: the inverse would not be one of a.mat
+            raise InputError("fes", f"has {fes.ndof} dofs but the form's space has {a.space.ndof}; give a space "
+                                    "of the form's order on the form's mesh (e.g. other dirichlet=) or None")
         if method not in METHODS:
             raise InputError("method", f"expected one of {METHODS}, got {method!r}")
         if scaling not in SCALINGS:

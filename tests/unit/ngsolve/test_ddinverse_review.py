@@ -59,3 +59,25 @@ def test_vector_of_wrong_size_is_an_input_error(mesh):
         inv.solve(np.ones(n + 1))
     good.data = inv * good                      # the right size still works
     assert inv.converged and np.isfinite(good.FV().NumPy()).all()
+
+
+def test_fes_with_other_dofs_than_the_form_is_an_input_error(mesh):
+    """fes of another order than a.space was accepted and gave an operator of the wrong size."""
+    import numpy as np
+
+    fes2 = ngs.H1(mesh, order=2, dirichlet=".*")
+    u, v = fes2.TnT()
+    form = ngs.BilinearForm(ngs.grad(u) * ngs.grad(v) * ngs.dx)
+    with pytest.raises(InputError, match=r"^fes: has \d+ dofs but the form's space has"):
+        DDInverse(form, fes=ngs.H1(mesh, order=1, dirichlet=".*"))
+    # same dofs, other Dirichlet boundaries: fes.FreeDofs() is used
+    other = ngs.H1(mesh, order=2, dirichlet="left")
+    inv = DDInverse(form, fes=other, parts=4, rtol=1e-10)
+    f = ngs.LinearForm(other)
+    f += v * ngs.dx
+    f.Assemble()
+    form.Assemble()
+    ref = (form.mat.Inverse(other.FreeDofs(), inverse="sparsecholesky") * f.vec).Evaluate()
+    u_dd = (inv * f.vec).Evaluate()
+    r, d = ref.FV().NumPy(), u_dd.FV().NumPy()
+    assert np.linalg.norm(d - r) <= 1e-8 * np.linalg.norm(r)
