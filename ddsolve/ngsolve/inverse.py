@@ -197,7 +197,10 @@ class DDInverse(ngsolve.BaseMatrix):
     method : {"bddc", "fetidp", "feti"}
     parts : int
         METIS parts (ignored when ``partition`` is given).
-    partition : None, "materials" or array of int, shape (n_elements,)
+    partition : None, "coarse", "materials" or array of int, shape (n_elements,)
+        None: METIS on the mesh; "coarse": METIS on the coarsest mesh of a
+        ``mesh.Refine()`` hierarchy, children inherit the part; "materials":
+        one part per material; an array: the part of every element.
     primal : {"vertices", "vertices+edges"}
         Primal constraints; edge averages for bddc and fetidp only.
     rtol, maxiter : float, int
@@ -217,7 +220,9 @@ class DDInverse(ngsolve.BaseMatrix):
     ----------
     iterations, residuals, cond, converged, reason : last solve's Krylov data.
     timings : dict
-        Seconds per phase (partition, assembly, condense, substructures, setup, solve).
+        Seconds per phase (dof_table, assembly, partition, condense, substructures, setup, solve).
+    n_parts : int
+        Number of subdomains (after splitting parts that are not connected).
     """
 
     def __init__(self, a: Any, fes: Any = None, *, method: str = "bddc", parts: int = 16, partition: Any = None,
