@@ -48,6 +48,14 @@ def _free_mask(fes: Any, freedofs: Any) -> np.ndarray:
     return free
 
 
+def _check_vector(name: str, v: np.ndarray, ndof: int) -> np.ndarray:
+    """``v`` as an array of shape (ndof,), else an InputError naming ``name``."""
+    v = np.asarray(v)
+    if v.shape != (ndof,):
+        raise InputError(name, f"expected a vector of {ndof} entries (the space's ndof), got shape {v.shape}")
+    return v
+
+
 def _no_interface() -> KrylovResult:
     return KrylovResult(x=np.zeros(0), converged=True, reason="no interface: solved directly", iterations=0,
                         residuals=np.zeros(1))
@@ -184,11 +192,15 @@ class DDInverse(ngsolve.BaseMatrix):
         ``Discontinuous(fes)``, its boundary (``ds``) integrators element by
         element on the boundary and added to the volume element they bound.
     fes : ngsolve.H1, optional
-        Defaults to ``a.space``.
+        Defaults to ``a.space``; else a space with the same dofs (same mesh and
+        order, e.g. other ``dirichlet=`` boundaries, whose ``FreeDofs()`` are used).
     method : {"bddc", "fetidp", "feti"}
     parts : int
         METIS parts (ignored when ``partition`` is given).
-    partition : None, "materials" or array of int, shape (n_elements,)
+    partition : None, "coarse", "materials" or array of int, shape (n_elements,)
+        None: METIS on the mesh; "coarse": METIS on the coarsest mesh of a
+        ``mesh.Refine()`` hierarchy, children inherit the part; "materials":
+        one part per material; an array: the part of every element.
     primal : {"vertices", "vertices+edges"}
         Primal constraints; edge averages for bddc and fetidp only.
     rtol, maxiter : float, int
@@ -208,7 +220,9 @@ class DDInverse(ngsolve.BaseMatrix):
     ----------
     iterations, residuals, cond, converged, reason : last solve's Krylov data.
     timings : dict
-        Seconds per phase (partition, assembly, condense, substructures, setup, solve).
+        Seconds per phase (dof_table, assembly, partition, condense, substructures, setup, solve).
+    n_parts : int
+        Number of subdomains (after splitting parts that are not connected).
     """
 
     def __init__(self, a: Any, fes: Any = None, *, method: str = "bddc", parts: int = 16, partition: Any = None,
@@ -219,6 +233,9 @@ class DDInverse(ngsolve.BaseMatrix):
             raise InputError("a", f"expected an ngsolve.BilinearForm, got {type(a).__name__}")
         fes = a.space if fes is None else fes
         check_space(fes)
+        if fes.ndof != a.space.ndof:        # another order or mesh: the inverse would not be one of a.mat
+            raise InputError("fes", f"has {fes.ndof} dofs but the form's space has {a.space.ndof}; give a space "
+                                    "of the form's order on the form's mesh (e.g. other dirichlet=) or None")
         if method not in METHODS:
             raise InputError("method", f"expected one of {METHODS}, got {method!r}")
         if scaling not in SCALINGS:
@@ -280,6 +297,20 @@ class DDInverse(ngsolve.BaseMatrix):
         self.timings["substructures"] = time.perf_counter() - t
 
         t = time.perf_counter()
+        try:
+            self._build_operators(method, sub, pm, fes)
+        except (np.linalg.LinAlgError, RuntimeError) as exc:
+            # dense Cholesky (LinAlgError) or PARDISO (RuntimeError, error -4) of a subdomain matrix
+            if isinstance(exc, RuntimeError) and "not positive definite" not in str(exc):
+                raise
+            raise InputError("a", "a subdomain matrix is not positive definite; DDInverse needs a symmetric "
+                                  "positive definite form (no negative reaction term, no Helmholtz form)") from None
+        self.timings["setup"] = time.perf_counter() - t
+        log.info("DDInverse: %d parts, %d dofs, %d primal, timings %s", self.n_parts, ndof, sub.n_primal,
+                 self.timings)
+
+    def _build_operators(self, method: str, sub: Substructures, pm: Any, fes: Any) -> None:
+        """Factor the subdomain matrices once: the BDDC operators, and FETI-DP's or FETI's."""
         self._bddc = _BDDC(self.space.sub)
         self._fetidp = _FETIDP(self.space.sub, self._bddc) if method == "fetidp" else None
         self._feti: _FETI | None = None
@@ -292,9 +323,6 @@ class DDInverse(ngsolve.BaseMatrix):
             scale = np.bincount(sub.sub_of_W, weights=np.abs(sub.K_W.diagonal()), minlength=sub.n_sub)
             sub.floating_sub = sub.floating_sub & (res <= 1e-10 * scale)
             self._feti = _FETI(sub, self._bddc, vertex_W)
-        self.timings["setup"] = time.perf_counter() - t
-        log.info("DDInverse: %d parts, %d dofs, %d primal, timings %s", self.n_parts, ndof, sub.n_primal,
-                 self.timings)
 
     # ----------------------------------------------------------- BaseMatrix
     def Height(self) -> int:
@@ -316,10 +344,12 @@ class DDInverse(ngsolve.BaseMatrix):
         return ngsolve.BaseVector(self.fes.ndof, False)
 
     def Mult(self, x: Any, y: Any) -> None:
-        y.FV().NumPy()[:] = self.solve(np.asarray(x.FV().NumPy()))
+        out = _check_vector("y", y.FV().NumPy(), self.fes.ndof)
+        out[:] = self.solve(x.FV().NumPy())
 
     def MultAdd(self, s: float, x: Any, y: Any) -> None:
-        y.FV().NumPy()[:] += s * self.solve(np.asarray(x.FV().NumPy()))
+        out = _check_vector("y", y.FV().NumPy(), self.fes.ndof)
+        out[:] += s * self.solve(x.FV().NumPy())
 
     def MultTrans(self, x: Any, y: Any) -> None:
         """The inverse of a symmetric form is symmetric."""
@@ -351,6 +381,7 @@ class DDInverse(ngsolve.BaseMatrix):
     def solve(self, f: np.ndarray) -> np.ndarray:
         """u with A u = f on the free dofs, zero elsewhere; f, u of shape (ndof,)."""
         t = time.perf_counter()
+        f = _check_vector("f", f, self.fes.ndof)
         f_W, fb = self._condense_rhs(f)
         if self.method == "bddc" or self._bddc.n_g == 0:
             u_W, kr = self._bddc.solve(f_W, self.rtol, self.maxiter, self.want_cond)
@@ -399,8 +430,9 @@ class DDPreconditioner(ngsolve.BaseMatrix):
 
     def Mult(self, x: Any, y: Any) -> None:
         inv = self.inv
-        f_W, fb = inv._condense_rhs(np.asarray(x.FV().NumPy()))
-        y.FV().NumPy()[:] = inv._expand(inv._bddc.precondition(f_W), fb)
+        out = _check_vector("y", y.FV().NumPy(), inv.fes.ndof)
+        f_W, fb = inv._condense_rhs(_check_vector("f", x.FV().NumPy(), inv.fes.ndof))
+        out[:] = inv._expand(inv._bddc.precondition(f_W), fb)
 
     def MultTrans(self, x: Any, y: Any) -> None:
         """P is symmetric."""
