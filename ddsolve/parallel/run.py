@@ -206,6 +206,30 @@ def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: fl
                        ndof=prob.topo.ndof, **fields)
 
 
+def _prepare_agreed(spec: ProblemSpec, comm: CountingComm, scene):
+    """:func:`prepare_rank`, with its input errors agreed on by every rank.
+
+    The rank setup communicates nothing, so every rank reaches the one allgather here: an
+    :class:`InputError` of any rank (a mesh file that is not a netgen mesh, fewer METIS parts of a
+    mesh file than ranks, a file that one rank cannot read) is raised on every rank, the lowest
+    failing rank's, marked ``every_rank`` (the command line then prints it and exits 2 on every
+    rank, with no ``MPI_Abort``). Any other exception propagates (and aborts the job).
+    """
+    from .setup import prepare_rank
+
+    prob, error = None, None
+    try:
+        prob = prepare_rank(spec, comm, scene)
+    except InputError as exc:
+        error = (exc.field, exc.message)
+    errors = [e for e in comm.comm.allgather(error) if e is not None]
+    if errors:
+        exc = InputError(*errors[0])
+        exc.every_rank = True
+        raise exc
+    return prob
+
+
 def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: bool = True) -> SolveResult | None:
     """Distributed solve of ``spec`` (a method of :data:`DISTRIBUTED`) over the ranks of ``comm``.
 
@@ -231,7 +255,6 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
     from .fetidp import solve_fetidp_mpi
     from .fetifeti import solve_fetifeti_mpi
     from .hybrid import solve_hybrid_mpi
-    from .setup import prepare_rank
 
     if not isinstance(spec, ProblemSpec):
         spec = ProblemSpec.from_mapping(spec)
@@ -242,7 +265,7 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         comm = CountingComm(comm)
     with threadpool_limits(limits=1, user_api="blas"):
         t0 = time.perf_counter()
-        prob = prepare_rank(spec, comm, scene)
+        prob = _prepare_agreed(spec, comm, scene)
         prep_seconds = time.perf_counter() - t0
         fail = os.environ.get(FAIL_ENV)
         if fail is not None and fail == str(comm.rank):
@@ -251,8 +274,6 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
                   "feti-feti": solve_fetifeti_mpi, "hybrid": solve_hybrid_mpi, "active-set": None}[spec.method]
         t1 = time.perf_counter()
         from ..presets import solver_options
-        if prob.topo.n_sub < comm.size:
-            raise InputError("parts", f"{prob.topo.n_sub} subdomains for {comm.size} ranks")
         options = solver_options(spec.preset, spec.problem, spec.method)
         if spec.problem == "contact":
             return _solve_contact(spec, prob, comm, prep_seconds, options, gather)
@@ -278,12 +299,23 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int:
         if comm.Get_rank() == 0:
             summary = result.to_dict()
             print(json.dumps(summary) if as_json else human(summary), flush=True)
+    except InputError as exc:
+        if not getattr(exc, "every_rank", False):
+            _abort(comm, exc)
+        sys.stderr.flush()                                   # raised on every rank alike: no abort needed
+        os.write(2, f"ddsolve: error: {exc}\n".encode(errors="replace"))     # one write: lines never interleave
+        return 2
     except Exception as exc:     # noqa: BLE001 - any failure on any rank ends the whole job
-        line = f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n"
-        sys.stderr.flush()
-        os.write(2, line.encode(errors="replace"))                    # one unbuffered write
-        # MPI_Abort makes the launcher kill every process at once; give it time to forward the line
-        # first (without the pause a loaded machine lost it now and then).
-        time.sleep(ABORT_GRACE_SECONDS)
-        comm.Abort(1)
+        _abort(comm, exc)
     return 0
+
+
+def _abort(comm, exc: BaseException) -> None:
+    """One line ``ddsolve: error: rank <r>: <type>: <message>``, then ``MPI_Abort`` of the whole job."""
+    line = f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n"
+    sys.stderr.flush()
+    os.write(2, line.encode(errors="replace"))                    # one unbuffered write
+    # MPI_Abort makes the launcher kill every process at once; give it time to forward the line
+    # first (without the pause a loaded machine lost it now and then).
+    time.sleep(ABORT_GRACE_SECONDS)
+    comm.Abort(1)
