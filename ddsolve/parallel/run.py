@@ -61,9 +61,9 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
         (``parts``) when there are fewer subdomains than ranks; ``output`` (not written under mpiexec).
     """
     if spec.method not in DISTRIBUTED.get(spec.problem, ()):
-        listed = "; ".join(f"{p} with {', '.join(ms)}" for p, ms in DISTRIBUTED.items())
-        raise InputError("method", f"{spec.problem}/{spec.method} has no distributed (mpiexec) implementation; "
-                                   f"distributed methods: {listed} (run without mpiexec for the others)")
+        listed = "; ".join(f"{p}: {', '.join(ms)}" for p, ms in DISTRIBUTED.items())   # the whole line fits
+        raise InputError("method", f"{spec.problem}/{spec.method} is not distributed (mpiexec: {listed}); "
+                                   f"run it without mpiexec")
     if spec.method == "hybrid" and spec.projection != "orthogonal":
         raise InputError("projection", f"{spec.projection!r} is not distributed for the hybrid method "
                                        f"(under mpiexec only 'orthogonal', the default)")
@@ -289,7 +289,7 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int:
     """Command-line solve under mpiexec; the input is already validated. Returns 0 (or aborts the job)."""
     try:
         from mpi4py import MPI
-    except ImportError as exc:
+    except Exception as exc:     # noqa: BLE001 - not installed, or broken (its MPI library fails to load)
         print(f"ddsolve: error: mpi: running under mpiexec with {mpi_world_size()} ranks needs mpi4py "
               f"({exc})", file=sys.stderr)
         return 2
