@@ -58,7 +58,7 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
     ------
     InputError
         ``method`` outside :data:`METHODS` or a problem other than poisson; ``subdomains``
-        (``parts``) when there are fewer subdomains than ranks; ``output`` (not written under mpiexec).
+        (``parts``) when there are fewer subdomains than ranks.
     """
     if spec.method not in DISTRIBUTED.get(spec.problem, ()):
         listed = "; ".join(f"{p}: {', '.join(ms)}" for p, ms in DISTRIBUTED.items())   # the whole line fits
@@ -69,8 +69,6 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
                                        f"(under mpiexec only 'orthogonal', the default)")
     from ..prepared import check_decomposition
     check_decomposition(spec)
-    if spec.output:
-        raise InputError("output", "writing a .vtu file is not available under mpiexec yet (run without mpiexec)")
     if spec.primal != "vertices":
         raise InputError("primal", f"{spec.primal!r}: edge averages have no distributed (mpiexec) implementation "
                                    f"(run without mpiexec, or use 'vertices')")
@@ -202,8 +200,13 @@ def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: fl
     fields["n_factorizations"] = red["n_fact"]
     common, sizes = _report(spec, prob, comm, red)
     fields["extra"].update(common)
-    return SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
-                       ndof=prob.topo.ndof, **fields)
+    result = SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
+                         ndof=prob.topo.ndof, **fields)
+    if spec.output:                # rank 0 alone writes; the gap of the file needs the serial B (as --check)
+        from ..api import _write_output
+        from ..prepared import prepare
+        _write_output(spec, prepare(spec, prob.topo.scene), result.u, sol.lam)
+    return result
 
 
 def _prepare_agreed(spec: ProblemSpec, comm: CountingComm, scene):
@@ -275,6 +278,7 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         t1 = time.perf_counter()
         from ..presets import solver_options
         options = solver_options(spec.preset, spec.problem, spec.method)
+        gather = gather or bool(spec.output)
         if spec.problem == "contact":
             return _solve_contact(spec, prob, comm, prep_seconds, options, gather)
         if spec.method == "hybrid":
@@ -282,7 +286,13 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         out, info = method(prob, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
                            gather=gather or spec.check, **options)
         total = time.perf_counter() - t1
-        return _result(spec, prob, out, info, prep_seconds + out.setup_seconds, total - out.setup_seconds, comm)
+        result = _result(spec, prob, out, info, prep_seconds + out.setup_seconds, total - out.setup_seconds, comm)
+        if result is not None and spec.output:        # rank 0 alone writes, after the timed solve (as serial)
+            from types import SimpleNamespace
+
+            from ..api import _write_output
+            _write_output(spec, SimpleNamespace(scene=prob.topo.scene, sub=prob.topo, contact=None), result.u)
+        return result
 
 
 def main(spec: ProblemSpec, as_json: bool, human) -> int:
