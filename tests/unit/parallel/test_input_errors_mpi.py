@@ -79,3 +79,22 @@ def test_refused_method_message_is_whole(method, problem):
     _one_error_per_rank(proc, 2, f"method: {problem}/{method} is not distributed (mpiexec: poisson: fetidp, "
                                  f"bddc, feti; multibody: feti-feti, hybrid; contact: active-set); "
                                  f"run it without mpiexec\n")
+
+
+def test_error_line_is_one_write(monkeypatch):
+    """The command line writes its error line in one call (``print`` made two: the line, then the newline,
+    and under mpiexec the launcher joined the lines of two ranks: ``...'direct'ddsolve: error: ...``)."""
+    import io
+
+    from ddsolve.cli import main
+
+    calls: list[str] = []
+
+    class Recorder(io.StringIO):
+        def write(self, text: str) -> int:
+            calls.append(text)
+            return len(text)
+
+    monkeypatch.setattr(sys, "stderr", Recorder())
+    assert main(["solve", "--subdomains", "0"]) == 2
+    assert calls == ["ddsolve: error: subdomains: must be an integer in [1, 2147483647], got '0'\n"]
