@@ -190,7 +190,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from .api import solve
         result = solve(spec)
     except InputError as exc:
-        print(f"ddsolve: error: {exc}", file=sys.stderr)
+        sys.stderr.write(f"ddsolve: error: {exc}\n")     # one write: under mpiexec ranks' lines never interleave
         return EXIT_INPUT
     summary = result.to_dict()
     print(json.dumps(summary) if args.json else _human(summary))

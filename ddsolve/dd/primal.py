@@ -188,6 +188,7 @@ class PrimalConstrainedSolver:
         if self.n_primal == 0:
             return x
         b_pi = np.bincount(self.coarse_of_W[self.primal], weights=b[self.primal], minlength=self.n_primal)
+        b_pi = b_pi.astype(float, copy=False)          # bincount of no entries is int64 (a rank with no primal dof)
         b_pi -= self.Psi_global_T @ br                 # assembled Psi^T b_r
         b_pi[self.pinned] = 0.0
         u_pi = self.coarse.solve(b_pi)

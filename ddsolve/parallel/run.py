@@ -58,19 +58,17 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
     ------
     InputError
         ``method`` outside :data:`METHODS` or a problem other than poisson; ``subdomains``
-        (``parts``) when there are fewer subdomains than ranks; ``output`` (not written under mpiexec).
+        (``parts``) when there are fewer subdomains than ranks.
     """
     if spec.method not in DISTRIBUTED.get(spec.problem, ()):
-        listed = "; ".join(f"{p} with {', '.join(ms)}" for p, ms in DISTRIBUTED.items())
-        raise InputError("method", f"{spec.problem}/{spec.method} has no distributed (mpiexec) implementation; "
-                                   f"distributed methods: {listed} (run without mpiexec for the others)")
+        listed = "; ".join(f"{p}: {', '.join(ms)}" for p, ms in DISTRIBUTED.items())   # the whole line fits
+        raise InputError("method", f"{spec.problem}/{spec.method} is not distributed (mpiexec: {listed}); "
+                                   f"run it without mpiexec")
     if spec.method == "hybrid" and spec.projection != "orthogonal":
         raise InputError("projection", f"{spec.projection!r} is not distributed for the hybrid method "
                                        f"(under mpiexec only 'orthogonal', the default)")
     from ..prepared import check_decomposition
     check_decomposition(spec)
-    if spec.output:
-        raise InputError("output", "writing a .vtu file is not available under mpiexec yet (run without mpiexec)")
     if spec.primal != "vertices":
         raise InputError("primal", f"{spec.primal!r}: edge averages have no distributed (mpiexec) implementation "
                                    f"(run without mpiexec, or use 'vertices')")
@@ -208,8 +206,37 @@ def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: fl
     fields["n_factorizations"] = red["n_fact"]
     common, sizes = _report(spec, prob, comm, red)
     fields["extra"].update(common)
-    return SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
-                       ndof=prob.topo.ndof, **fields)
+    result = SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
+                         ndof=prob.topo.ndof, **fields)
+    if spec.output:                # rank 0 alone writes; the gap of the file needs the serial B (as --check)
+        from ..api import _write_output
+        from ..prepared import prepare
+        _write_output(spec, prepare(spec, prob.topo.scene), result.u, sol.lam)
+    return result
+
+
+def _prepare_agreed(spec: ProblemSpec, comm: CountingComm, scene):
+    """:func:`prepare_rank`, with its input errors agreed on by every rank.
+
+    The rank setup communicates nothing, so every rank reaches the one allgather here: an
+    :class:`InputError` of any rank (a mesh file that is not a netgen mesh, fewer METIS parts of a
+    mesh file than ranks, a file that one rank cannot read) is raised on every rank, the lowest
+    failing rank's, marked ``every_rank`` (the command line then prints it and exits 2 on every
+    rank, with no ``MPI_Abort``). Any other exception propagates (and aborts the job).
+    """
+    from .setup import prepare_rank
+
+    prob, error = None, None
+    try:
+        prob = prepare_rank(spec, comm, scene)
+    except InputError as exc:
+        error = (exc.field, exc.message)
+    errors = [e for e in comm.comm.allgather(error) if e is not None]
+    if errors:
+        exc = InputError(*errors[0])
+        exc.every_rank = True
+        raise exc
+    return prob
 
 
 def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: bool = True) -> SolveResult | None:
@@ -237,7 +264,6 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
     from .fetidp import solve_fetidp_mpi
     from .fetifeti import solve_fetifeti_mpi
     from .hybrid import solve_hybrid_mpi
-    from .setup import prepare_rank
 
     if not isinstance(spec, ProblemSpec):
         spec = ProblemSpec.from_mapping(spec)
@@ -248,7 +274,7 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         comm = CountingComm(comm)
     with threadpool_limits(limits=1, user_api="blas"):
         t0 = time.perf_counter()
-        prob = prepare_rank(spec, comm, scene)
+        prob = _prepare_agreed(spec, comm, scene)
         prep_seconds = time.perf_counter() - t0
         fail = os.environ.get(FAIL_ENV)
         if fail is not None and fail == str(comm.rank):
@@ -257,9 +283,8 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
                   "feti-feti": solve_fetifeti_mpi, "hybrid": solve_hybrid_mpi, "active-set": None}[spec.method]
         t1 = time.perf_counter()
         from ..presets import solver_options
-        if prob.topo.n_sub < comm.size:
-            raise InputError("parts", f"{prob.topo.n_sub} subdomains for {comm.size} ranks")
         options = solver_options(spec.preset, spec.problem, spec.method)
+        gather = gather or bool(spec.output)
         if spec.problem == "contact":
             return _solve_contact(spec, prob, comm, prep_seconds, options, gather)
         if spec.method == "hybrid":
@@ -269,14 +294,20 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
                            gather=gather or spec.check, **options)
         total = time.perf_counter() - t1
         info = {**info, "mpi_seconds": comm.counters.seconds - mpi0}      # includes the method's own setup
-        return _result(spec, prob, out, info, prep_seconds + out.setup_seconds, total - out.setup_seconds, comm)
+        result = _result(spec, prob, out, info, prep_seconds + out.setup_seconds, total - out.setup_seconds, comm)
+        if result is not None and spec.output:        # rank 0 alone writes, after the timed solve (as serial)
+            from types import SimpleNamespace
+
+            from ..api import _write_output
+            _write_output(spec, SimpleNamespace(scene=prob.topo.scene, sub=prob.topo, contact=None), result.u)
+        return result
 
 
 def main(spec: ProblemSpec, as_json: bool, human) -> int:
     """Command-line solve under mpiexec; the input is already validated. Returns 0 (or aborts the job)."""
     try:
         from mpi4py import MPI
-    except ImportError as exc:
+    except Exception as exc:     # noqa: BLE001 - not installed, or broken (its MPI library fails to load)
         print(f"ddsolve: error: mpi: running under mpiexec with {mpi_world_size()} ranks needs mpi4py "
               f"({exc})", file=sys.stderr)
         return 2
@@ -286,12 +317,23 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int:
         if comm.Get_rank() == 0:
             summary = result.to_dict()
             print(json.dumps(summary) if as_json else human(summary), flush=True)
+    except InputError as exc:
+        if not getattr(exc, "every_rank", False):
+            _abort(comm, exc)
+        sys.stderr.flush()                                   # raised on every rank alike: no abort needed
+        os.write(2, f"ddsolve: error: {exc}\n".encode(errors="replace"))     # one write: lines never interleave
+        return 2
     except Exception as exc:     # noqa: BLE001 - any failure on any rank ends the whole job
-        line = f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n"
-        sys.stderr.flush()
-        os.write(2, line.encode(errors="replace"))                    # one unbuffered write
-        # MPI_Abort makes the launcher kill every process at once; give it time to forward the line
-        # first (without the pause a loaded machine lost it now and then).
-        time.sleep(ABORT_GRACE_SECONDS)
-        comm.Abort(1)
+        _abort(comm, exc)
     return 0
+
+
+def _abort(comm, exc: BaseException) -> None:
+    """One line ``ddsolve: error: rank <r>: <type>: <message>``, then ``MPI_Abort`` of the whole job."""
+    line = f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n"
+    sys.stderr.flush()
+    os.write(2, line.encode(errors="replace"))                    # one unbuffered write
+    # MPI_Abort makes the launcher kill every process at once; give it time to forward the line
+    # first (without the pause a loaded machine lost it now and then).
+    time.sleep(ABORT_GRACE_SECONDS)
+    comm.Abort(1)

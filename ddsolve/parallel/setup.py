@@ -67,6 +67,10 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     t1 = time.perf_counter()
     if spec.mesh != "unstructured" or scene.element_type != "P1":
         scene_timings["mesh"] = t1 - t0
+    if scene.n_subdomains < comm.size:          # a mesh file's parts are known only now (no communication yet)
+        from ..errors import InputError
+        raise InputError("parts", f"{scene.n_subdomains} subdomains for {comm.size} ranks: need at least one "
+                                  f"subdomain per rank")
     topo = topology(scene, spec.scaling, spec.gamma)
     gi = None
     if spec.problem in ("multibody", "contact"):

@@ -1,0 +1,100 @@
+"""Input errors found only while a rank builds its problem (a mesh file) exit 2 on every rank, one line each.
+
+Found by a black-box review of ``mpiexec -n P ddsolve solve``: these ended in ``MPI_Abort`` (exit 1,
+``rank r: InputError: ...``), a ``ValueError`` of the ranks that owned no subdomain, or a
+traceback (an mpi4py whose import fails with another exception than ImportError).
+"""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from launch import ROOT, MPI_MARKS, mpiexec  # noqa: E402
+
+pytestmark = MPI_MARKS
+
+
+def _square_mesh(path: Path) -> Path:
+    """A netgen mesh of the unit square (maxh 0.2, one material): 4 METIS parts at most make sense."""
+    from netgen.geom2d import unit_square
+
+    unit_square.GenerateMesh(maxh=0.2).Save(str(path))
+    return path
+
+
+def _one_error_per_rank(proc, n: int, line: str) -> None:
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("ddsolve: error: ") == n, proc.stderr
+    assert proc.stderr.count(f"ddsolve: error: {line}") == n, proc.stderr
+    assert "Traceback" not in proc.stderr and "rank " not in proc.stderr and "Abort" not in proc.stderr, proc.stderr
+    assert proc.stdout == ""
+
+
+def test_mesh_file_with_fewer_parts_than_ranks_exits_2(tmp_path):
+    mesh = _square_mesh(tmp_path / "square.vol")
+    proc = mpiexec(3, ["-m", "ddsolve", "solve", "--mesh", "unstructured", "--mesh-file", str(mesh),
+                       "--parts", "2"])
+    _one_error_per_rank(proc, 3, "parts: 2 subdomains for 3 ranks")
+
+
+def test_mesh_file_that_is_not_a_mesh_exits_2(tmp_path):
+    bad = tmp_path / "bad.vol"
+    bad.write_text("not a mesh\n")
+    proc = mpiexec(2, ["-m", "ddsolve", "solve", "--mesh", "unstructured", "--mesh-file", str(bad)])
+    _one_error_per_rank(proc, 2, "mesh_file: ")
+
+
+def test_input_error_of_one_rank_only_is_raised_on_every_rank(tmp_path):
+    """A mesh file that only rank 1 finds corrupt (as if ranks saw different files): no hang, exit 2."""
+    mesh = _square_mesh(tmp_path / "square.vol")
+    bad = tmp_path / "bad.vol"
+    bad.write_text("not a mesh\n")
+    code = ("import sys; from mpi4py import MPI; from ddsolve.spec import ProblemSpec; "
+            "from ddsolve.parallel.run import main; "
+            f"path = [{str(mesh)!r}, {str(bad)!r}][MPI.COMM_WORLD.Get_rank() == 1]; "
+            "spec = ProblemSpec.from_mapping(dict(mesh='unstructured', mesh_file=path, parts=2)); "
+            "sys.exit(main(spec, True, str))")
+    proc = mpiexec(2, ["-c", code])
+    _one_error_per_rank(proc, 2, f"mesh_file: {bad} is not a netgen mesh")
+
+
+def test_mpi4py_failing_with_another_exception_is_a_clear_error(tmp_path):
+    broken = tmp_path / "mpi4py"
+    broken.mkdir()
+    (broken / "__init__.py").write_text('raise RuntimeError("libmpi cannot be loaded (test)")\n')
+    proc = mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4"],
+                   PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT), str(ROOT / "studies")]))
+    _one_error_per_rank(proc, 2, "mpi: running under mpiexec with 2 ranks needs mpi4py (libmpi cannot be loaded")
+
+
+@pytest.mark.parametrize("method,problem", [("smalbe", "contact"), ("direct", "multibody")])
+def test_refused_method_message_is_whole(method, problem):
+    """The refusal names every distributed method in full (was clipped in the middle to 150 characters)."""
+    proc = mpiexec(2, ["-m", "ddsolve", "solve", "--problem", problem, "--method", method,
+                       "--subdomains", "2", "--elements", "2"])
+    _one_error_per_rank(proc, 2, f"method: {problem}/{method} is not distributed (mpiexec: poisson: fetidp, "
+                                 f"bddc, feti; multibody: feti-feti, hybrid; contact: active-set); "
+                                 f"run it without mpiexec\n")
+
+
+def test_error_line_is_one_write(monkeypatch):
+    """The command line writes its error line in one call (``print`` made two: the line, then the newline,
+    and under mpiexec the launcher joined the lines of two ranks: ``...'direct'ddsolve: error: ...``)."""
+    import io
+
+    from ddsolve.cli import main
+
+    calls: list[str] = []
+
+    class Recorder(io.StringIO):
+        def write(self, text: str) -> int:
+            calls.append(text)
+            return len(text)
+
+    monkeypatch.setattr(sys, "stderr", Recorder())
+    assert main(["solve", "--subdomains", "0"]) == 2
+    assert calls == ["ddsolve: error: subdomains: must be an integer in [1, 2147483647], got '0'\n"]
