@@ -41,6 +41,7 @@ from ..options import GEOMETRIES  # geometries of each problem (the first is the
 from .contact import DOSTAL_LOADS, NET_LOAD_FLOOR, dostal_loads
 from .partition import partition_elements
 from .scene import RightHandSide, Scene, sorted_unique
+from .volfile import check_vol_text
 
 log = logging.getLogger(__name__)
 
@@ -317,6 +318,9 @@ def split_bodies(data: NetgenData, body_of_material: np.ndarray, *, dirichlet: s
     dirichlet_mask = np.zeros(copy_key.size, dtype=bool)
     dirichlet_mask[copy_of(ebody[dir_slot], lo[dir_slot])] = True
     dirichlet_mask[copy_of(ebody[dir_slot], hi[dir_slot])] = True
+    if dirichlet_mask.all():
+        raise InputError("dirichlet", f"every node of the mesh lies on the Dirichlet boundary {dirichlet!r}: "
+                                      f"no unknowns are left (refine the mesh: --maxh or --refine)")
 
     if contact is not None:
         cid = _bc_index(data, contact, "contact")
@@ -492,7 +496,8 @@ def load_netgen_mesh(path: str | os.PathLike) -> Any:
     Raises
     ------
     InputError
-        ``mesh``: missing file or a file that is not a netgen mesh.
+        ``mesh``: missing file, a file that is not a netgen mesh, or one that netgen would
+        crash on (:func:`~ddsolve.scene.volfile.check_vol_text`).
     """
     import gzip
 
@@ -504,13 +509,10 @@ def load_netgen_mesh(path: str | os.PathLike) -> Any:
     opener = gzip.open if path.endswith(".gz") else open
     try:
         with opener(path, "rb") as fh:
-            head = fh.read(4096)
-    except OSError as exc:
+            text = fh.read().decode("latin-1")
+    except (OSError, EOFError) as exc:           # EOFError: a truncated .gz
         raise InputError("mesh", f"cannot read {path}: {exc}") from None
-    lines = [ln.strip() for ln in head.decode("latin-1").splitlines()]
-    words = [ln for ln in lines if ln and not ln.startswith("#")]
-    if not words or words[0] not in ("mesh3d", "mesh2d"):
-        raise InputError("mesh", f"{path} is not a netgen mesh (a .vol file starts with 'mesh3d')")
+    check_vol_text(text, path)                   # netgen crashes (SIGSEGV) on a truncated or inconsistent file
     ngmesh = NGMesh(dim=2)
     try:
         ngmesh.Load(path)

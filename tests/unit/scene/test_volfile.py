@@ -1,0 +1,94 @@
+"""A netgen .vol file that would crash netgen (SIGSEGV) is refused with one InputError first."""
+import gzip
+import subprocess
+import sys
+
+import pytest
+
+from ddsolve.errors import InputError
+from ddsolve.scene.unstructured import load_netgen_mesh
+from ddsolve.scene.volfile import check_vol_text
+
+
+@pytest.fixture(scope="module")
+def vol_text(tmp_path_factory) -> str:
+    from netgen.geom2d import unit_square
+
+    path = tmp_path_factory.mktemp("vol") / "square.vol"
+    unit_square.GenerateMesh(maxh=0.25).Save(str(path))
+    return path.read_text()
+
+
+def _replace_count(text: str, section: str, delta: int) -> str:
+    lines = text.splitlines()
+    i = lines.index(section)
+    lines[i + 1] = str(int(lines[i + 1]) + delta)
+    return "\n".join(lines) + "\n"
+
+
+def _first_element_point(text: str, value: int) -> str:
+    lines = text.splitlines()
+    i = lines.index("surfaceelements") + 2
+    fields = lines[i].split()
+    fields[5] = str(value)
+    lines[i] = " ".join(fields)
+    return "\n".join(lines) + "\n"
+
+
+def test_a_complete_mesh_passes(vol_text):
+    check_vol_text(vol_text)
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda t: t[: len(t) // 2], "incomplete"),
+    (lambda t: t.replace("endmesh", ""), "incomplete"),
+    (lambda t: _replace_count(t, "points", 1), "'points' announces"),
+    (lambda t: _replace_count(t, "surfaceelements", -1), "'surfaceelements' announces"),
+    (lambda t: _first_element_point(t, 10**6), "names point 1000000"),
+    (lambda t: _first_element_point(t, 0), "names point 0"),
+    (lambda t: t.replace("dimension\n2", "dimension\n3"), "only 2-D"),
+    (lambda t: "hello\n" + t, "not a netgen mesh"),
+])
+def test_inconsistent_files_are_refused(vol_text, mutate, message):
+    with pytest.raises(InputError, match=message) as info:
+        check_vol_text(mutate(vol_text), "m.vol")
+    assert info.value.field == "mesh"
+
+
+def test_loader_refuses_before_netgen_reads(tmp_path, vol_text):
+    """Each of these made netgen or NGSolve crash with a segmentation fault (measured: exit 139)."""
+    for k, text in enumerate([vol_text[:300], _first_element_point(vol_text, 80),
+                              _replace_count(vol_text, "edgesegmentsgi3", 1)]):
+        path = tmp_path / f"bad{k}.vol"
+        path.write_text(text)
+        with pytest.raises(InputError):
+            load_netgen_mesh(path)
+    gz = tmp_path / "cut.vol.gz"
+    gz.write_bytes(gzip.compress(vol_text.encode())[:200])
+    with pytest.raises(InputError, match="cannot read"):
+        load_netgen_mesh(gz)
+    good = tmp_path / "good.vol"
+    good.write_text(vol_text)
+    assert len(load_netgen_mesh(good).Elements2D()) > 0
+
+
+def test_cli_truncated_mesh_file_is_one_line_exit_2(tmp_path, vol_text):
+    path = tmp_path / "cut.vol"
+    path.write_text(vol_text[: len(vol_text) // 3])
+    proc = subprocess.run([sys.executable, "-m", "ddsolve", "solve", "--mesh", "unstructured",
+                           "--mesh-file", str(path), "--parts", "2"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "incomplete" in proc.stderr and proc.stdout == ""
+
+
+def test_mesh_without_free_nodes_is_refused(tmp_path):
+    """Every node on the Dirichlet boundary: no unknowns; an InputError naming dirichlet (was 'A: operator has size 0')."""
+    from netgen.geom2d import unit_square
+
+    from ddsolve.scene.unstructured import scene_from_mesh
+
+    path = tmp_path / "coarse.vol"
+    unit_square.GenerateMesh(maxh=0.5).Save(str(path))          # 8 nodes, all on the boundary
+    with pytest.raises(InputError, match="no unknowns") as info:
+        scene_from_mesh(path, parts=2)
+    assert info.value.field == "dirichlet"
