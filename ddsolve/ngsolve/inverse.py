@@ -28,12 +28,14 @@ from .dofs import (
     split_integrators,
     vertex_table,
 )
-from .local import boundary_vertex_dofs, condense, element_parts, part_matrices
+from .local import boundary_vertex_dofs, condense, element_parts, interface_edge_weights, part_matrices
 
 log = logging.getLogger(__name__)
 
 METHODS = ("bddc", "fetidp", "feti")
 SCALINGS = ("diagonal", "rho", "multiplicity")
+#: Weighted (integral) edge averages at order 1 too (at order >= 2 always; see ddsolve.dd.edges).
+EDGE_WEIGHTS_P1 = False
 
 
 def _free_mask(fes: Any, freedofs: Any) -> np.ndarray:
@@ -289,6 +291,8 @@ class DDInverse(ngsolve.BaseMatrix):
             d = sub.K_W.diagonal()
             total = np.bincount(sub.node_of_W, weights=d, minlength=sub.scene.n_nodes)
             sub.delta = d / total[sub.node_of_W]
+        if primal == "vertices+edges" and (fes.globalorder >= 2 or EDGE_WEIGHTS_P1):
+            sub.edge_weights = interface_edge_weights(fes, part, V, T)[pm.node_dof]
         self.sub = sub
         self.space = sub.primal_space()         # primal "vertices+edges": the edge-average basis (ddsolve.dd.edges)
         # global dof (of ddsolve: free nodes) -> H1 dof
