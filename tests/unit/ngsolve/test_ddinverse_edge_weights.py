@@ -94,7 +94,7 @@ def _line_integral(gfu, mesh, segments, n_gauss=6):
     return total
 
 
-@pytest.mark.parametrize("order", [2, 3])
+@pytest.mark.parametrize("order", [2, 3, 4])
 def test_primal_unknown_is_the_mean_along_the_edge(order):
     fes, a, f = poisson(order, 0.12)
     mesh = fes.mesh
