@@ -16,7 +16,8 @@ SOLVERS = {"fetidp": solve_fetidp, "bddc": solve_bddc}
 
 
 def _sub(weights=None, ns=3, m=5, rho="checkerboard:100"):
-    local = assemble(build_scene(ProblemSpec.from_mapping(dict(subdomains=ns, elements=m, rho=rho, f="random:1"))))
+    local = assemble(build_scene(ProblemSpec.from_mapping({"subdomains": ns, "elements": m, "rho": rho,
+                                                                 "f": "random:1"})))
     sub = Substructures(local, primal="vertices+edges")
     if weights is not None:
         sub.edge_weights = weights(sub.scene.n_nodes)

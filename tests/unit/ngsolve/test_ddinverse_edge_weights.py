@@ -48,7 +48,7 @@ def test_weighted_edges_match_direct(order, method):
 
 
 def test_order_one_keeps_the_nodal_average():
-    fes, a, f = poisson(1, 0.1)
+    _, a, _ = poisson(1, 0.1)
     inv = DDInverse(a, parts=8, primal="vertices+edges")
     assert inv.sub.edge_weights is None and inv.sub.edges.coef is None
 
@@ -131,7 +131,7 @@ def test_weighted_edges_lower_the_condition_number(order, ratio):
     # measured (unit square maxh 0.05, 40 METIS parts, scaling "diagonal"), vertices -> vertices+edges:
     # order 2: 3.29 -> 1.68 (0.51), order 3: 4.09 -> 1.73 (0.42), order 4: 4.75 -> 1.85 (0.39); with the
     # unweighted (nodal) edge averages the ratios were about 0.94 (order 1, nodal: 2.35 -> 1.55, 0.66)
-    fes, a, f = poisson(order, 0.05)
+    _, a, f = poisson(order, 0.05)
     conds = []
     for primal in ("vertices", "vertices+edges"):
         inv = DDInverse(a, parts=40, primal=primal, cond=True, rtol=1e-10)
@@ -143,7 +143,7 @@ def test_weighted_edges_lower_the_condition_number(order, ratio):
 def test_weighted_edges_stay_bounded_with_more_parts():
     # order 2, unit square maxh 0.03 (5277 dofs), 40 -> 300 METIS parts; measured: vertices 3.78 -> 3.71,
     # vertices+edges 1.64 -> 2.60 (x 1.59; the 300 parts have about 18 dofs each, so irregular)
-    fes, a, f = poisson(2, 0.03)
+    _, a, f = poisson(2, 0.03)
     cond = {}
     for parts in (40, 300):
         for primal in ("vertices", "vertices+edges"):
