@@ -35,6 +35,28 @@ an edge: measured +70 % nonzeros at H/h = 32). Why this design:
 * the back-maps are one sparse product each: loads f^ = T^T f, solutions
   u = T u^ (``T_W`` is block diagonal over the subdomains, applied to the
   whole W vector at once).
+
+Weighted edges (high-order bases). The unweighted sum above is the mean of u
+along E only for nodal (P1/Q1) bases. For a hierarchical basis (NGSolve's H1
+of order p >= 2: vertex hats and edge bubbles) the average is
+
+    u_E = sum_j w_j u_{e_j} / sum_j w_j,   w_j = int_E phi_{e_j} ds
+
+(w_j > 0 for the hats, w_j = 0 for bubbles that integrate to zero along E;
+``find_edges(sub, node_weight=w)``). Then the representative e_0 is the
+smallest node of non-zero weight, and with a(c) the nearest tree ancestor of
+c of non-zero weight (the root has weight)
+
+    T e_{e_0} = sum_j e_{e_j},
+    T e_c     = e_c - (w_c / w_{a(c)}) e_{a(c)}   (w_c != 0),
+    T e_c     = e_c                              (w_c  = 0),
+
+so that w^T T e_c = 0 for c != e_0 and w^T T e_{e_0} = sum_j w_j: the
+representative's new variable is u_E. The weights are a property of the
+global node (the same on every subdomain), so T keeps the properties above;
+a(c) = p(c) except below zero-weight nodes, so T^T K T stays tree-sparse. The
+constrained space {w^T u_i equal on all subdomains of E} and hence the
+preconditioner do not depend on the choice of the representative column.
 """
 from __future__ import annotations
 
@@ -62,6 +84,13 @@ class Edges:
         W entry, in the same subdomain, of the parent of the entry's node in a shortest-path
         tree of its edge rooted at the representative (-1 off the edges and at the root).
     n_edges : int
+    anchor_entry : ndarray of int, shape (n_W,), or None
+        Weighted edges only: W entry, in the same subdomain, of the nearest tree ancestor of the
+        entry's node whose weight is not zero (-1 off the edges, at the root and where the entry's
+        own weight is zero). None: ``parent_entry`` (unweighted edges).
+    coef : ndarray of float, shape (n_W,), or None
+        Weighted edges only: w_c / w_anchor(c) of every non-representative edge entry (0 where
+        w_c = 0 and off the edges). None: 1 (unweighted edges).
     """
 
     label: np.ndarray
@@ -69,15 +98,22 @@ class Edges:
     rep_entry: np.ndarray
     parent_entry: np.ndarray
     n_edges: int
+    anchor_entry: np.ndarray | None = None
+    coef: np.ndarray | None = None
 
 
-def find_edges(sub) -> Edges:
+def find_edges(sub, node_weight: np.ndarray | None = None, tol: float = 1e-10) -> Edges:
     """The edges of ``sub``: non-vertex interface nodes grouped by their subdomain set, split into
     connected pieces (nodes coupled by a stored entry of a subdomain matrix), O(n log n).
 
     Parameters
     ----------
     sub : Substructures
+    node_weight : ndarray of float, shape (n_nodes,), optional
+        w_j of every global node: the integral of its basis function along its edge (see the module
+        docstring, "Weighted edges"). None: the nodal average (w_j = 1), the P1 / Q1 case.
+    tol : float
+        Weights with |w_j| <= tol * max_E |w| are zero (e.g. odd edge bubbles, rounding).
 
     Returns
     -------
@@ -116,7 +152,13 @@ def find_edges(sub) -> Edges:
     edge_of_node[cand_nodes] = edge_of_cand.ravel()
     n_edges = int(edge_ids.size)
     rep_node = np.full(n_edges, n_nodes, dtype=np.int64)
-    np.minimum.at(rep_node, edge_of_node[cand_nodes], cand_nodes)
+    weight = None
+    if node_weight is None:
+        np.minimum.at(rep_node, edge_of_node[cand_nodes], cand_nodes)
+    else:
+        weight = _clean_weights(np.asarray(node_weight, dtype=float), cand_nodes, edge_of_node, n_edges, tol)
+        nonzero = cand_nodes[weight[cand_nodes] != 0]
+        np.minimum.at(rep_node, edge_of_node[nonzero], nonzero)     # the representative carries weight
     label[idx] = edge_of_node[sub.node_of_W[idx]]
     rep[idx] = sub.node_of_W[idx] == rep_node[label[idx]]
     # representative entry of each edge entry in its own subdomain: look up (subdomain, edge)
@@ -135,16 +177,54 @@ def find_edges(sub) -> Edges:
     key_w = sub.sub_of_W[idx] * n_nodes + sub.node_of_W[idx]
     srt_w = np.argsort(key_w)
     parent_entry[child] = idx[srt_w[np.searchsorted(key_w[srt_w], sub.sub_of_W[child] * n_nodes + parent_node)]]
-    return Edges(label, rep, rep_entry, parent_entry, n_edges)
+    if weight is None:
+        return Edges(label, rep, rep_entry, parent_entry, n_edges)
+    # anchors: the nearest ancestor of non-zero weight (pointer jumping; the root has weight)
+    child_node = sub.node_of_W[child]
+    anchor_node = parent_node.copy()
+    todo = weight[anchor_node] == 0
+    while todo.any():
+        anchor_node[todo] = pred[anchor_node[todo]]
+        todo = weight[anchor_node] == 0
+    live = weight[child_node] != 0
+    anchor_entry = np.full(n_W, -1, dtype=np.int64)
+    coef = np.zeros(n_W)
+    anchor_entry[child[live]] = idx[srt_w[np.searchsorted(
+        key_w[srt_w], sub.sub_of_W[child[live]] * n_nodes + anchor_node[live])]]
+    coef[child[live]] = weight[child_node[live]] / weight[anchor_node[live]]
+    return Edges(label, rep, rep_entry, parent_entry, n_edges, anchor_entry, coef)
 
 
-def basis_matrix(n: int, entries: np.ndarray, reps: np.ndarray, parents: np.ndarray) -> sp.csr_matrix:
+def _clean_weights(node_weight: np.ndarray, cand_nodes: np.ndarray, edge_of_node: np.ndarray, n_edges: int,
+                   tol: float) -> np.ndarray:
+    """Node weights with |w_j| <= tol * max_E |w| set to 0, and 1 on edges without any weight, (n_nodes,)."""
+    if node_weight.shape != edge_of_node.shape:
+        raise ValueError(f"primal: expected {edge_of_node.size} node weights, got shape {node_weight.shape}")
+    w = node_weight[cand_nodes]
+    e = edge_of_node[cand_nodes]
+    scale = np.zeros(n_edges)
+    np.maximum.at(scale, e, np.abs(w))
+    w = np.where(np.abs(w) > tol * scale[e], w, 0.0)
+    w = np.where(scale[e] > 0, w, 1.0)          # no weight on an edge: its nodal average
+    out = np.zeros(node_weight.size)
+    out[cand_nodes] = w
+    return out
+
+
+def basis_matrix(n: int, entries: np.ndarray, reps: np.ndarray, parents: np.ndarray,
+                 coef: np.ndarray | None = None) -> sp.csr_matrix:
     """T of the module docstring on a space of dimension n: identity, plus T[e, r] = 1 and
-    T[p, e] = -1 for every non-representative edge entry e with representative r and parent p
-    (arrays of equal size)."""
-    rows = np.r_[np.arange(n), entries, parents]
-    cols = np.r_[np.arange(n), reps, entries]
-    vals = np.r_[np.ones(n), np.ones(entries.size), -np.ones(entries.size)]
+    T[p, e] = -1 (weighted: -coef[e], omitted where coef is 0) for every non-representative
+    edge entry e with representative r and parent (weighted: anchor) p (arrays of equal size)."""
+    if coef is None:
+        rows = np.r_[np.arange(n), entries, parents]
+        cols = np.r_[np.arange(n), reps, entries]
+        vals = np.r_[np.ones(n), np.ones(entries.size), -np.ones(entries.size)]
+        return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
+    live = coef != 0
+    rows = np.r_[np.arange(n), entries, parents[live]]
+    cols = np.r_[np.arange(n), reps, entries[live]]
+    vals = np.r_[np.ones(n), np.ones(entries.size), -coef[live]]
     return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
 
 
@@ -177,8 +257,13 @@ class PrimalSpace:
             return
         s = original
         e = np.flatnonzero((edges.label >= 0) & ~edges.representative)
-        r, par = edges.rep_entry[e], edges.parent_entry[e]
-        self.T_W = basis_matrix(s.n_W, e, r, par)
+        r = edges.rep_entry[e]
+        if edges.coef is None:
+            par, cf = edges.parent_entry[e], None
+        else:                       # weighted: the anchor (-1 where the weight is 0: no entry, use e)
+            cf = edges.coef[e]
+            par = np.where(cf != 0, edges.anchor_entry[e], e)
+        self.T_W = basis_matrix(s.n_W, e, r, par, cf)
         self._T_W_T = self.T_W.T.tocsr()
         view = copy.copy(s)
         view._primal_space = self
@@ -195,11 +280,12 @@ class PrimalSpace:
             lo, hi = bounds[k], bounds[k + 1]
             t = int(s.template[k])
             key = (t.to_bytes(8, "little") + loc_e[lo:hi].tobytes() + loc_r[lo:hi].tobytes()
-                   + loc_p[lo:hi].tobytes())
+                   + loc_p[lo:hi].tobytes() + (b"" if cf is None else cf[lo:hi].tobytes()))
             hit = seen.get(key)
             if hit is None:
                 K = s.stiffness[t]
-                T = basis_matrix(K.shape[0], loc_e[lo:hi], loc_r[lo:hi], loc_p[lo:hi])
+                T = basis_matrix(K.shape[0], loc_e[lo:hi], loc_r[lo:hi], loc_p[lo:hi],
+                                 None if cf is None else cf[lo:hi])
                 hit = seen[key] = len(stiffness)
                 stiffness.append((T.T @ K @ T).tocsr())
             new_template[k] = hit

@@ -107,6 +107,7 @@ class Substructures:
         self._full_offsets, self._kept = full_off, keep
         self._edges = None
         self._primal_space = None
+        self.edge_weights = None            # node weights of the edge averages (ddsolve.dd.edges); None: nodal
         self._edges_in_vertex = False       # True on the transformed copy: the representatives are in ``vertex``
         self.scaling = scaling
         self.gamma = float(gamma)
@@ -249,7 +250,7 @@ class Substructures:
         """The edges of the decomposition (:func:`ddsolve.dd.edges.find_edges`), found on first use."""
         if self._edges is None:
             from .edges import find_edges
-            self._edges = find_edges(self)
+            self._edges = find_edges(self, self.edge_weights)
         return self._edges
 
     def primal_space(self):

@@ -282,3 +282,99 @@ def boundary_vertex_dofs(V: np.ndarray, ndof: int) -> np.ndarray:
     out[bnd // n] = True
     out[bnd % n] = True
     return out
+
+
+def interface_edge_weights(fes: Any, part: np.ndarray, V: np.ndarray | None = None,
+                           T: np.ndarray | None = None) -> np.ndarray:
+    """w_j = int over the part interface of phi_j, for every H1 dof j, shape (ndof,).
+
+    The weights of the edge averages (:mod:`ddsolve.dd.edges`, "Weighted
+    edges"): restricted to a subdomain edge E, w_j = int_E phi_j ds for the
+    dofs of E (a vertex hat's trace lives on the mesh edges at its vertex,
+    all of them on E; an edge shape's on its mesh edge). One linear form
+    ``0.5 * chi * v * dx(element_boundary=True)`` on the elements touching
+    the interface, with chi the indicator (a ``FacetFESpace`` order-0
+    GridFunction) of the mesh edges between two parts (each is integrated
+    from both of its elements, hence 0.5). On NGSolve's hierarchical basis
+    the hats get half the lengths of their interface mesh edges, the quadratic
+    edge shape -h/12 (its sign follows the edge orientation) and the higher
+    ones about 0 (orthogonal to the constants along the edge; zeroed by
+    :func:`ddsolve.dd.edges.find_edges`).
+
+    Parameters
+    ----------
+    fes : ngsolve.H1
+    part : ndarray of int, shape (n_elements,)
+        Part of every element.
+    V : ndarray of int, shape (n_elements, k), optional
+        :func:`~ddsolve.ngsolve.dofs.vertex_table` of the mesh.
+    T : ndarray of int, shape (n_elements, n_local), optional
+        :func:`~ddsolve.ngsolve.dofs.element_dofs` of ``fes`` (its edge dofs give the edge numbers).
+    """
+    import ngsolve
+
+    mesh = fes.mesh
+    F = ngsolve.FacetFESpace(mesh, order=0)
+    facet = mesh_edge_numbers(mesh, V, T, int(fes.globalorder))                           # (n_elements, edges per element)
+    # an edge is on the interface iff the parts of its (one or two) elements differ: zero variance test
+    # (exact in floating point: counts <= 2, labels < 2**26)
+    owner = np.broadcast_to(part[:, None].astype(float), facet.shape).ravel()
+    count = np.bincount(facet.ravel(), minlength=F.ndof)
+    s1 = np.bincount(facet.ravel(), weights=owner, minlength=F.ndof)
+    s2 = np.bincount(facet.ravel(), weights=owner * owner, minlength=F.ndof)
+    interface = count * s2 != s1 * s1
+    chi = ngsolve.GridFunction(F)
+    chi.vec.FV().NumPy()[:] = interface
+    touching = interface[facet].any(axis=1)
+    lf = ngsolve.LinearForm(fes)
+    lf += 0.5 * chi * fes.TestFunction() * ngsolve.dx(element_boundary=True,
+                                                      definedonelements=ngsolve.BitArray(list(touching)))
+    lf.Assemble()
+    return lf.vec.FV().NumPy().copy()
+
+
+def mesh_edge_numbers(mesh: Any, V: np.ndarray | None = None, T: np.ndarray | None = None,
+                      order: int = 1) -> np.ndarray:
+    """NGSolve edge number of every edge of every volume element, shape (n_elements, k).
+
+    With the element dof table ``T`` of an H1 space of uniform ``order`` >= 2
+    (n_v vertex dofs, then order - 1 dofs per edge in edge order), the first
+    dof d of each element edge gives (d - n_v) / (order - 1); else NGSolve's
+    numbering by the sorted (smaller, larger) vertex pair. Either is checked
+    on CHECK_ELEMENTS elements against ``mesh[el].edges``; failing both, the
+    table comes from the conversion operator of ``FacetFESpace(order=0)``
+    into its discontinuous version (slower).
+    """
+    import ngsolve
+
+    from .dofs import CHECK_ELEMENTS, vertex_table
+
+    V = vertex_table(mesh) if V is None else V
+    ne, k = V.shape
+    sample = np.unique(np.linspace(0, ne - 1, min(ne, CHECK_ELEMENTS)).astype(np.int64))
+
+    def valid(number: np.ndarray) -> bool:
+        return bool(number.size == 0 or (number.min() >= 0 and number.max() < mesh.nedge)) and all(
+            sorted(e.nr for e in mesh[ngsolve.ElementId(ngsolve.VOL, int(el))].edges) == sorted(number[el])
+            for el in sample)
+
+    if T is not None and order >= 2 and T.shape[1] >= k * order:
+        first = T[:, k:k + k * (order - 1):order - 1]
+        number = (first - mesh.nv) // (order - 1)
+        if valid(number):
+            return number
+    nv = np.int64(V.max() + 1) if V.size else np.int64(1)
+    pairs = np.stack([V, np.roll(V, -1, axis=1)], axis=2)
+    keys = (pairs.min(axis=2) * nv + pairs.max(axis=2)).ravel()
+    uniq, number = np.unique(keys, return_inverse=True)
+    number = number.reshape(ne, k)
+    if uniq.size == mesh.nedge and valid(number):
+        return number
+    log.info("NGSolve edge numbering differs from the sorted vertex pairs; using ConvertOperator")
+    F = ngsolve.FacetFESpace(mesh, order=0)
+    Fd = ngsolve.Discontinuous(F)
+    r, c, v = (np.asarray(x) for x in ngsolve.comp.ConvertOperator(F, Fd).COO())
+    keep = v > 0.5
+    facet = np.full(Fd.ndof, -1, dtype=np.int64)
+    facet[r[keep]] = c[keep]
+    return facet.reshape(ne, -1)
