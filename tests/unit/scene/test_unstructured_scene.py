@@ -112,7 +112,7 @@ def test_partition_bad_parts():
     with pytest.raises(InputError, match="maxh"):
         unstructured_scene("poisson", maxh=-1)
     with pytest.raises(InputError, match="rho"):
-        unstructured_scene("poisson", maxh=0.5, parts=2, rho=[1.0, 2.0, 3.0])
+        unstructured_scene("poisson", maxh=0.25, parts=2, rho=[1.0, 2.0, 3.0])   # (maxh 0.5: no interior node)
     with pytest.raises(InputError, match="bodies"):
         unstructured_scene("poisson", bodies=2)
     with pytest.raises(InputError, match="negative integral"):
