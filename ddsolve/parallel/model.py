@@ -128,7 +128,10 @@ def _serial_line(first: dict) -> str:
         return "Speed-ups against the P = 1 run (no serial run recorded).\n"
     return (f"Speed-up: against the distributed code on P = 1 ({first['solve_seconds']:.3f} s); vs serial: against "
             f"the serial solver without mpiexec in the same job ({serial['solve_seconds']:.3f} s, "
-            f"{serial['iterations']} iterations, load average {_loads(serial['load_average'])}).\n")
+            f"{serial['iterations']} iterations, load average {_loads(serial['load_average'])}).\n"
+            "Setup s: scene, topology, assembly, factorizations and the explicit local blocks (the maximum over "
+            "ranks); solve s: from the right-hand side to the solution; MPI s per rank: each rank's time inside "
+            "MPI calls during the method (transfers and waiting: the spread is the load imbalance).\n")
 
 
 def _measured_row(run: dict, first: dict) -> dict:
@@ -142,6 +145,9 @@ def _measured_row(run: dict, first: dict) -> dict:
             "bytes_per_iteration": comm["bytes_per_iteration"],
             "allreduces_per_iteration": comm["allreduces_per_iteration"],
             "coarse_seconds": comm["coarse_seconds"],
+            "setup_seconds": run["setup_seconds"],
+            # per rank, the time inside MPI calls in the solve: the spread is the load imbalance
+            "mpi_seconds": "/".join(f"{x:.3f}" for x in comm.get("mpi_seconds", [])) or "-",
             "load_average": _loads(run.get("load_average", []))}
 
 
@@ -161,12 +167,13 @@ def mpi_report(runs: list[dict], m: Machine = Machine(), strong_subdomains: floa
              f"{first['method']}, {first['ndof']} dofs, {n_sub} subdomains, H/h = {first['elements']}.", "",
              _serial_line(first),
              "| P | iterations | solve s | speed-up | vs serial | s/iteration (measured) | s/iteration (model) "
-             "| messages/it | bytes/it | allreduces/it | load average (before/after) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| messages/it | bytes/it | allreduces/it | MPI s per rank | setup s | load average (before/after) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['ranks']} | {r['iterations']} | {r['solve_seconds']:.3f} | {r['speedup_solve']:.2f} "
                      f"| {r['speedup_vs_serial']:.2f} | {r['t_iter_measured']:.4f} | {r['t_iter_model']:.4f} | {r['messages_per_iteration']:g} "
-                     f"| {r['bytes_per_iteration']:g} | {r['allreduces_per_iteration']:g} | {r['load_average']} |")
+                     f"| {r['bytes_per_iteration']:g} | {r['allreduces_per_iteration']:g} | {r['mpi_seconds']} "
+                     f"| {r['setup_seconds']:.2f} | {r['load_average']} |")
     lines += ["", "## Alpha-beta model (a model, not a measurement)", "",
               f"alpha = {m.alpha:g} s, beta = {m.beta:g} s/byte, coarse solve at {m.flops:g} flop/s; "
               f"t_sub = {cal.t_sub:.3e} s per subdomain and iteration (measured, P = 1). "
@@ -193,12 +200,13 @@ def measured_report(runs: list[dict]) -> tuple[list[dict], str]:
              f"{first['subdomains']} subdomains per body, H/h = {first['elements']} (measured only).", "",
              _serial_line(first),
              "| P | iterations | solve s | speed-up | vs serial | solve s/iteration | messages/it | bytes/it "
-             "| allreduces/it | load average (before/after) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| allreduces/it | MPI s per rank | setup s | load average (before/after) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['ranks']} | {r['iterations']} | {r['solve_seconds']:.3f} | {r['speedup_solve']:.2f} "
                      f"| {r['speedup_vs_serial']:.2f} | {r['t_iter_measured']:.4f} | {r['messages_per_iteration']:.1f} "
-                     f"| {r['bytes_per_iteration']:.0f} | {r['allreduces_per_iteration']:.1f} | {r['load_average']} |")
+                     f"| {r['bytes_per_iteration']:.0f} | {r['allreduces_per_iteration']:.1f} | {r['mpi_seconds']} "
+                     f"| {r['setup_seconds']:.2f} | {r['load_average']} |")
     return rows, "\n".join(lines) + "\n"
 
 
