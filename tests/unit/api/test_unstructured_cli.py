@@ -78,7 +78,7 @@ BAD = [
     (U + ["--maxh", "0.01", "--refine", "9"], "refine"),
     (U + ["--refine", "-1"], "refine"),
     (U + ["--parts", "0"], "parts"),
-    (U + ["--parts", "1000", "--maxh", "0.5"], "parts"),               # more parts than elements
+    (U + ["--parts", "1000", "--maxh", "0.25"], "parts"),              # more parts than elements
     (U + ["--geometry", "disc"], "geometry"),
     (U + ["--problem", "multibody", "--geometry", "lshape"], "geometry"),
     (U + ["--subdomains", "4"], "subdomains"),
