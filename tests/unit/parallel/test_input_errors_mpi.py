@@ -2,18 +2,18 @@
 
 Found by a black-box review of ``mpiexec -n P ddsolve solve``: these ended in ``MPI_Abort`` (exit 1,
 ``rank r: InputError: ...``), a ``ValueError`` of the ranks that owned no subdomain, or a
-traceback (an mpi4py whose import fails with another exception than ImportError).
+traceback (an mpi4py whose import fails with another exception than ImportError: tested in
+test_mpi.py::test_without_mpi4py_is_a_clear_error).
 """
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from launch import ROOT, MPI_MARKS, mpiexec  # noqa: E402
+from launch import MPI_MARKS, mpiexec  # noqa: E402
 
 pytestmark = MPI_MARKS
 
@@ -60,15 +60,6 @@ def test_input_error_of_one_rank_only_is_raised_on_every_rank(tmp_path):
             "sys.exit(main(spec, True, str))")
     proc = mpiexec(2, ["-c", code])
     _one_error_per_rank(proc, 2, f"mesh_file: {bad} is not a netgen mesh")
-
-
-def test_mpi4py_failing_with_another_exception_is_a_clear_error(tmp_path):
-    broken = tmp_path / "mpi4py"
-    broken.mkdir()
-    (broken / "__init__.py").write_text('raise RuntimeError("libmpi cannot be loaded (test)")\n')
-    proc = mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4"],
-                   PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT), str(ROOT / "studies")]))
-    _one_error_per_rank(proc, 2, "mpi: running under mpiexec with 2 ranks needs mpi4py (libmpi cannot be loaded")
 
 
 @pytest.mark.parametrize("method,problem", [("smalbe", "contact"), ("direct", "multibody")])

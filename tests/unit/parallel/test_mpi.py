@@ -193,14 +193,17 @@ def test_bad_input_exits_2_on_every_rank(args, field):
     assert proc.stderr.count(f"ddsolve: error: {field}: ") == 2, proc.stderr
 
 
-def test_without_mpi4py_is_a_clear_error(tmp_path):
+@pytest.mark.parametrize("failure", ['ImportError("mpi4py broken (test)")',
+                                     'RuntimeError("libmpi cannot be loaded (test)")'])   # a broken MPI library
+def test_without_mpi4py_is_a_clear_error(tmp_path, failure):
     broken = tmp_path / "mpi4py"
     broken.mkdir()
-    (broken / "__init__.py").write_text('raise ImportError("mpi4py broken (test)")\n')
+    (broken / "__init__.py").write_text(f"raise {failure}\n")
     proc = mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4"],
                     PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT), str(ROOT / "studies")]))
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.count("ddsolve: error: mpi: running under mpiexec with 2 ranks needs mpi4py") == 2
+    assert proc.stderr.count("(test)") == 2 and "Traceback" not in proc.stderr
 
 
 def test_serial_run_never_imports_mpi4py():
