@@ -14,7 +14,11 @@ Everything here is vectorised over the elements (no Python loop over them):
 """
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
+import sys
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -22,6 +26,32 @@ import numpy as np
 from ..errors import InputError
 
 log = logging.getLogger(__name__)
+
+
+@contextlib.contextmanager
+def _expected_proxy_notice() -> Iterator[None]:
+    """Silence NGSolve's notice "proxy not matching space, checking if it is working anyway".
+
+    NGSolve writes it (to the C-level stderr) whenever an integrator of ``a``, made with the
+    test and trial functions of ``fes``, is added to a form on another space: the broken
+    space ``Discontinuous(fes)`` and the boundary-only space, which is how the element
+    matrices are obtained here, by design. An integrator that does not work on them raises
+    ``NgException`` (reported as an :class:`~ddsolve.errors.InputError`), so nothing is lost.
+    """
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):          # no file descriptor 2 (embedded interpreters): say nothing
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
 
 #: Elements compared with ``fes.GetDofNrs`` to validate the vectorised triangle table.
 CHECK_ELEMENTS = 64
@@ -137,7 +167,8 @@ def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = 
     ad = ngsolve.BilinearForm(fesd, symmetric=False, check_unused=False)
     for k, integ in enumerate(a.integrators if integrators is None else integrators):
         try:
-            ad += integ
+            with _expected_proxy_notice():
+                ad += integ
         except NgException as exc:
             raise InputError("a", f"integrator {k} cannot be assembled element by element on "
                                   f"Discontinuous(fes): {exc}") from None
@@ -180,7 +211,8 @@ def split_integrators(a: Any, fes: Any) -> tuple[list, list]:
     volume, boundary = [], []
     for integ in a.integrators:
         ab = ngsolve.BilinearForm(fb, check_unused=False)
-        ab += integ
+        with _expected_proxy_notice():
+            ab += integ
         ab.Assemble()
         values = np.asarray(ab.mat.COO()[2])
         (boundary if values.size and np.abs(values).max() > 0 else volume).append(integ)
