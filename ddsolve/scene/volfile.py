@@ -100,7 +100,7 @@ def check_vol_text(text: str, name: str = "mesh file") -> None:
             vals = np.array(" ".join(lines).split(), dtype=float)
         except ValueError:
             raise InputError("mesh", f"{name}: section 'surfaceelements' holds a value that is not a number") from None
-        starts = np.concatenate([[0], np.cumsum(widths)[:-1]]).astype(np.int64)
+        starts = np.cumsum(widths) - widths                # first value of every line
         if lines and (widths < 5).any():
             raise InputError("mesh", f"{name}: a surface element line has fewer than 5 numbers")
         n_vertices = vals[starts + 4].astype(np.int64) if lines else np.zeros(0, dtype=np.int64)

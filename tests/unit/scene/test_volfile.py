@@ -92,3 +92,18 @@ def test_mesh_without_free_nodes_is_refused(tmp_path):
     with pytest.raises(InputError, match="no unknowns") as info:
         scene_from_mesh(path, parts=2)
     assert info.value.field == "dirichlet"
+
+
+def test_empty_element_section_is_structurally_valid_and_refused_later(tmp_path, vol_text):
+    """Zero surface elements: a consistent file (no crash in the check), refused as a mesh without elements."""
+    from ddsolve.scene.unstructured import scene_from_mesh
+
+    lines = vol_text.splitlines()
+    i = lines.index("surfaceelements")
+    n = int(lines[i + 1])
+    text = "\n".join(lines[: i + 1] + ["0"] + lines[i + 2 + n:]) + "\n"
+    check_vol_text(text)
+    path = tmp_path / "empty.vol"
+    path.write_text(text)
+    with pytest.raises(InputError, match="no 2-D elements"):
+        scene_from_mesh(path, parts=2)
