@@ -81,11 +81,14 @@ def netgen_arrays(ngmesh: Any) -> NetgenData:
     Raises
     ------
     InputError
-        ``mesh``: not a 2-D mesh, no elements, or elements other than triangles.
+        ``mesh``: not a 2-D mesh, no points, no elements, or elements other than triangles.
     """
     if ngmesh.dim != 2:
         raise InputError("mesh", f"need a 2-D netgen mesh, got dimension {ngmesh.dim}")
-    coords = np.asarray(ngmesh.Coordinates(), dtype=float)[:, :2]
+    if len(ngmesh.Points()) == 0:        # (Coordinates() of no points raises a ValueError of the buffer protocol)
+        raise InputError("mesh", "the mesh has no points")
+    # a copy: Coordinates() is a view of the mesh's memory, freed with the mesh (NetgenData may outlive it)
+    coords = np.array(ngmesh.Coordinates(), dtype=float)[:, :2]
     el = ngmesh.Elements2D().NumPy()
     if el.shape[0] == 0:
         raise InputError("mesh", "the mesh has no 2-D elements")
@@ -490,8 +493,17 @@ def _check_contact_load(scene: Scene, loads: np.ndarray) -> None:
                               f"has no unique solution")
 
 
-def load_netgen_mesh(path: str | os.PathLike) -> Any:
+def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
     """Load a netgen ``.vol`` (or ``.vol.gz``) file, checking that it is one.
+
+    Parameters
+    ----------
+    path : path
+    geometry : bool
+        Also read the geometry that a mesh of an OCC geometry carries after its mesh part
+        (needed by ``Refine()`` to put new boundary points on curved boundaries). Without it,
+        only the checked mesh part reaches netgen: a damaged geometry part made netgen's
+        reader loop for ever (measured: one line dropped from it), and it is not checked.
 
     Raises
     ------
@@ -500,6 +512,7 @@ def load_netgen_mesh(path: str | os.PathLike) -> Any:
         crash on (:func:`~ddsolve.scene.volfile.check_vol_text`).
     """
     import gzip
+    import tempfile
 
     from netgen.meshing import Mesh as NGMesh
 
@@ -512,10 +525,17 @@ def load_netgen_mesh(path: str | os.PathLike) -> Any:
             text = fh.read().decode("latin-1")
     except (OSError, EOFError) as exc:           # EOFError: a truncated .gz
         raise InputError("mesh", f"cannot read {path}: {exc}") from None
-    check_vol_text(text, path)                   # netgen crashes (SIGSEGV) on a truncated or inconsistent file
+    mesh_end = check_vol_text(text, path)        # netgen crashes (SIGSEGV) on a truncated or inconsistent file
     ngmesh = NGMesh(dim=2)
     try:
-        ngmesh.Load(path)
+        if geometry or not text[mesh_end:].strip():
+            ngmesh.Load(path)
+        else:                                    # the mesh part alone
+            with tempfile.TemporaryDirectory() as tmp:
+                part = os.path.join(tmp, "mesh.vol")
+                with open(part, "w", encoding="latin-1") as fh:
+                    fh.write(text[:mesh_end])
+                ngmesh.Load(part)
     except Exception as exc:  # netgen raises its own NgException
         raise InputError("mesh", f"netgen cannot read {path}: {exc}") from None
     return ngmesh
@@ -558,11 +578,11 @@ def scene_from_mesh(path_or_mesh: str | os.PathLike | Any, *, bodies: Sequence[s
         boundary name, a non-conforming contact interface (with its location).
     """
     t0 = time.perf_counter()
-    if isinstance(path_or_mesh, (str, os.PathLike)):
-        ngmesh = load_netgen_mesh(path_or_mesh)
+    _check_positive("refine", refine, integer=True, allow_zero=True)
+    if isinstance(path_or_mesh, (str, os.PathLike)):     # the geometry part only where Refine() needs it
+        ngmesh = load_netgen_mesh(path_or_mesh, geometry=int(refine) > 0)
     else:
         ngmesh = path_or_mesh
-    _check_positive("refine", refine, integer=True, allow_zero=True)
     for _ in range(int(refine)):
         ngmesh.Refine()
     data = netgen_arrays(ngmesh)

@@ -16,9 +16,13 @@ What is checked (the sections netgen writes for a 2-D mesh):
   ``edgesegments*``, ``pointelements``, ``materials``, ``bcnames``,
   ``facedescriptors``, ``edgedescriptors``) has a non-negative integer count
   and exactly that many data lines;
-* points have three finite coordinates; a surface element line has
-  ``5 + np`` integers with np in {3, 4, 6, 8}; every point number in the
-  surface elements, edge segments and point elements lies in 1..n_points.
+* a section header appears once, ``dimension`` and ``geomtype`` hold one integer;
+* points have three finite coordinates, surface elements, edge segments and point
+  elements hold finite numbers only; a surface element line has
+  ``5 + np`` integers with np in {3, 4, 6, 8}; the integer columns of surface
+  elements, edge segments and point elements are whole numbers in [-1, 2^31)
+  (netgen reads them as C ints: NaN or 1e308 there crashed it); every point
+  number in them lies in 1..n_points.
 
 Sections not listed are left to netgen.
 """
@@ -36,21 +40,19 @@ _HEADER = re.compile(r"^[ \t]*([A-Za-z][A-Za-z0-9_]*)[ \t]*\r?$", re.M)
 _COUNTED = ("points", "surfaceelements", "volumeelements", "pointelements", "materials", "bcnames",
             "facedescriptors", "edgedescriptors")
 _ELEMENT_SIZES = (3, 4, 6, 8)
+_SINGLE = ("dimension", "geomtype")                 # sections of one integer value
+_INT_MAX = 2**31 - 1                                # netgen reads these columns as C ints
 
 
 def _data_lines(block: str) -> list[str]:
     return [ln for ln in (raw.strip() for raw in block.splitlines()) if ln and not ln.startswith("#")]
 
 
-def _ints(lines: list[str], what: str, name: str) -> np.ndarray:
-    try:
-        return np.array(" ".join(lines).split(), dtype=np.int64)
-    except ValueError:
-        raise InputError("mesh", f"{name}: section {what!r} holds a value that is not an integer") from None
-
-
-def check_vol_text(text: str, name: str = "mesh file") -> None:
+def check_vol_text(text: str, name: str = "mesh file") -> int:
     """Raise :class:`InputError` (field ``mesh``) if ``text`` is not a complete 2-D netgen mesh.
+
+    Returns the length of the mesh part of ``text`` (up to and including the ``endmesh`` line; a
+    mesh of an OCC geometry continues with the serialised geometry, which is not checked).
 
     Parameters
     ----------
@@ -67,16 +69,24 @@ def check_vol_text(text: str, name: str = "mesh file") -> None:
         raise InputError("mesh", f"{name} is incomplete: the mesh part of a .vol file ends with 'endmesh' "
                                  f"(truncated file?)")
     sections: dict[str, list[str]] = {}
+    seen: set[str] = set()
     for k, (_, end, word) in enumerate(heads[:last]):
+        if word in seen:             # netgen reads the second one as data of the first: garbage after it
+            raise InputError("mesh", f"{name}: section {word!r} appears twice")
+        seen.add(word)
         block = text[end:heads[k + 1][0]]
         key = next((p for p in ("edgesegments", "surfaceelements") if word.startswith(p)), word)
-        if key in _COUNTED or key in ("edgesegments", "dimension"):
+        if key in _COUNTED or key in ("edgesegments",) + _SINGLE:
             sections[key] = _data_lines(block)
+    for key in _SINGLE:
+        value = sections.get(key)
+        if value is not None and (len(value) != 1 or not re.fullmatch(r"\d+", value[0])):
+            raise InputError("mesh", f"{name}: section {key!r} must hold one integer")
     dim = sections.get("dimension")
-    if dim is not None and dim[:1] != ["2"]:
-        raise InputError("mesh", f"{name}: only 2-D meshes are supported (dimension {' '.join(dim[:1]) or '?'})")
+    if dim is not None and dim != ["2"]:
+        raise InputError("mesh", f"{name}: only 2-D meshes are supported (dimension {dim[0]})")
     for key, lines in sections.items():
-        if key == "dimension":
+        if key in _SINGLE:
             continue
         if not lines or not re.fullmatch(r"\d+", lines[0]):
             raise InputError("mesh", f"{name}: section {key!r} has no count")
@@ -100,26 +110,51 @@ def check_vol_text(text: str, name: str = "mesh file") -> None:
             vals = np.array(" ".join(lines).split(), dtype=float)
         except ValueError:
             raise InputError("mesh", f"{name}: section 'surfaceelements' holds a value that is not a number") from None
+        if not np.isfinite(vals).all():
+            raise InputError("mesh", f"{name}: section 'surfaceelements' holds a value that is not finite")
         starts = np.cumsum(widths) - widths                # first value of every line
         if lines and (widths < 5).any():
             raise InputError("mesh", f"{name}: a surface element line has fewer than 5 numbers")
-        n_vertices = vals[starts + 4].astype(np.int64) if lines else np.zeros(0, dtype=np.int64)
+        header = vals[(starts[:, None] + np.arange(5)).ravel()] if lines else np.zeros(0)
+        _integers(header, "surfaceelements", name)
+        n_vertices = header[4::5].astype(np.int64)
         if not np.isin(n_vertices, _ELEMENT_SIZES).all() or (widths < 5 + n_vertices).any():
             raise InputError("mesh", f"{name}: a surface element has a bad number of points "
                                      f"(expected 3, 4, 6 or 8 after 5 header numbers)")
         take = np.repeat(starts + 5, n_vertices) + (np.arange(int(n_vertices.sum()))
                                                     - np.repeat(np.cumsum(n_vertices) - n_vertices, n_vertices))
         points = vals[take]
-        if not np.array_equal(points, np.round(points)):
-            raise InputError("mesh", f"{name}: section 'surfaceelements' names a point that is not an integer")
+        _integers(points, "surfaceelements", name)
         _in_range(points.astype(np.int64), n_points, "surfaceelements", name)
-    for key, n_cols in (("edgesegments", 2), ("pointelements", 1)):
+    # integer columns: edge segments p1 p2 trignum1 trignum2 (and the descriptor number, column 7, of
+    # the gi3 form), point elements pnum index; the first n_points of them name points
+    for key, int_cols, n_point_cols in (("edgesegments", (0, 1, 2, 3), 2), ("pointelements", (0, 1), 1)):
         lines = sections.get(key, [None])[1:]
         if lines:
-            firsts = [ln.split()[:n_cols] for ln in lines]
-            if any(len(f) < n_cols for f in firsts):
+            fields = [ln.split() for ln in lines]
+            cols = int_cols + ((6,) if key == "edgesegments" and all(len(f) >= 7 for f in fields) else ())
+            if any(len(f) < len(int_cols) for f in fields):
                 raise InputError("mesh", f"{name}: a line of section {key!r} is too short")
-            _in_range(_ints([" ".join(f) for f in firsts], key, name), n_points, key, name)
+            try:
+                table = np.array([[float(f[c]) for c in cols] for f in fields])
+                every = np.array(" ".join(lines).split(), dtype=float)       # the float columns too
+            except ValueError:
+                raise InputError("mesh", f"{name}: section {key!r} holds a value that is not a number") from None
+            if not np.isfinite(every).all():
+                raise InputError("mesh", f"{name}: section {key!r} holds a value that is not finite")
+            _integers(table, key, name)
+            _in_range(table[:, :n_point_cols].astype(np.int64), n_points, key, name)
+    end = text.find("\n", heads[last][1])
+    return len(text) if end < 0 else end + 1
+
+
+def _integers(values: np.ndarray, key: str, name: str) -> None:
+    """Integer columns: whole numbers in [-1, 2^31) (NaN, 1e308 or 2.5 made netgen crash)."""
+    ok = np.isfinite(values) & (values == np.round(values)) & (values >= -1) & (values <= _INT_MAX)
+    if not ok.all():
+        bad = values[~ok].ravel()[0]
+        raise InputError("mesh", f"{name}: section {key!r} holds {bad!r} where a whole number (at least -1) "
+                                 f"belongs")
 
 
 def _in_range(points: np.ndarray, n_points: int, key: str, name: str) -> None:

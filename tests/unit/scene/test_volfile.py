@@ -35,6 +35,16 @@ def _first_element_point(text: str, value: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _field(text: str, section: str, column: int, value: str) -> str:
+    """``text`` with one value of the first data line of ``section`` replaced."""
+    lines = text.splitlines()
+    i = lines.index(section) + 2
+    fields = lines[i].split()
+    fields[column] = value
+    lines[i] = " ".join(fields)
+    return "\n".join(lines) + "\n"
+
+
 def test_a_complete_mesh_passes(vol_text):
     check_vol_text(vol_text)
 
@@ -47,6 +57,10 @@ def test_a_complete_mesh_passes(vol_text):
     (lambda t: _first_element_point(t, 10**6), "names point 1000000"),
     (lambda t: _first_element_point(t, 0), "names point 0"),
     (lambda t: t.replace("dimension\n2", "dimension\n3"), "only 2-D"),
+    (lambda t: _field(t, "surfaceelements", 0, "nan"), "not finite"),             # each of these three
+    (lambda t: _field(t, "edgesegmentsgi3", 5, "nan"), "not finite"),             # crashed netgen (SIGSEGV)
+    (lambda t: t.replace("geomtype\n", "geomtype\ngeomtype\n", 1), "appears twice"),  # (a ValueError later)
+    (lambda t: _field(t, "surfaceelements", 2, "1e308"), "whole number"),
     (lambda t: "hello\n" + t, "not a netgen mesh"),
 ])
 def test_inconsistent_files_are_refused(vol_text, mutate, message):
@@ -107,3 +121,53 @@ def test_empty_element_section_is_structurally_valid_and_refused_later(tmp_path,
     path.write_text(text)
     with pytest.raises(InputError, match="no 2-D elements"):
         scene_from_mesh(path, parts=2)
+
+
+@pytest.fixture(scope="module")
+def occ_vol_text(tmp_path_factory) -> str:
+    """A mesh of an OCC geometry: its .vol file continues with the serialised geometry after 'endmesh'."""
+    from netgen.occ import Glue, MoveTo, OCCGeometry
+
+    shape = Glue([MoveTo(0, 0).Rectangle(1, 1).Face(), MoveTo(1, 0).Rectangle(1, 1).Face()])
+    path = tmp_path_factory.mktemp("occ") / "two.vol"
+    OCCGeometry(shape, dim=2).GenerateMesh(maxh=0.25).Save(str(path))
+    text = path.read_text()
+    assert "TextOutArchive" in text[text.index("endmesh"):]
+    return text
+
+
+def test_damaged_geometry_part_is_not_read_without_refine(tmp_path, occ_vol_text):
+    """One line dropped from the geometry part made netgen's reader loop for ever; without --refine only
+    the (checked) mesh part is read, and the scene equals that of the intact file."""
+    lines = occ_vol_text.splitlines()
+    k = lines.index("endmesh")
+    drop = next(i for i in range(k + 1, len(lines)) if lines[i].strip() == "1e-07")
+    damaged = tmp_path / "damaged.vol"
+    damaged.write_text("\n".join(lines[:drop] + lines[drop + 1:]) + "\n")
+    intact = tmp_path / "intact.vol"
+    intact.write_text(occ_vol_text)
+    code = ("import numpy as np; from ddsolve.scene.unstructured import scene_from_mesh; "
+            f"a = scene_from_mesh({str(intact)!r}, parts=2); b = scene_from_mesh({str(damaged)!r}, parts=2); "
+            "assert np.array_equal(a.coords, b.coords) and np.array_equal(a.elements, b.elements); print('ok')")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr
+
+
+def test_mesh_part_alone_gives_the_same_arrays(tmp_path, occ_vol_text):
+    import gc
+
+    import numpy as np
+
+    from ddsolve.scene.unstructured import netgen_arrays
+
+    path = tmp_path / "two.vol"
+    path.write_text(occ_vol_text)
+    full = netgen_arrays(load_netgen_mesh(path, geometry=True))
+    gc.collect()                                  # the meshes are gone: the arrays must not be views of them
+    part = netgen_arrays(load_netgen_mesh(path, geometry=False))
+    gc.collect()
+    _ = [np.ones(10_000) for _ in range(50)]     # reuse freed memory
+    for name in ("coords", "elements", "material", "segments", "segment_bc"):
+        assert np.array_equal(getattr(full, name), getattr(part, name)), name
+    assert full.material_names == part.material_names and full.bc_names == part.bc_names
+    assert np.isfinite(full.coords).all() and full.coords.min() >= -1e-12 and full.coords.max() <= 2.0 + 1e-12
