@@ -3,9 +3,13 @@
 netgen's ``Mesh.Load`` trusts the file: a truncated file, a section with fewer
 lines than its count, or an element that names a point beyond the point list
 makes it (or NGSolve, later) crash with a segmentation fault, which no Python
-``try`` catches. :func:`check_vol_text` reads the text once, in about the time
-netgen's own load takes, and raises an :class:`~ddsolve.errors.InputError`
-naming the first problem, so a bad file costs one line and exit status 2.
+``try`` catches. :func:`check_vol_text` reads the text once (0.29 s for 93k
+triangles, three times netgen's own load; linear in the size) and raises an
+:class:`~ddsolve.errors.InputError` naming the first problem, so a bad file
+costs one line and exit status 2. The checks were completed by a fuzz of
+mutated files (truncations, dropped and doubled lines, single values replaced
+by 0, -1, 99999, 1e308, nan or a word): every mutation that passes them loaded
+without a crash in 3 x 700 mutations of two files.
 
 What is checked (the sections netgen writes for a 2-D mesh):
 
