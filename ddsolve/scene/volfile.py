@@ -8,8 +8,9 @@ triangles, three times netgen's own load; linear in the size) and raises an
 :class:`~ddsolve.errors.InputError` naming the first problem, so a bad file
 costs one line and exit status 2. The checks were completed by a fuzz of
 mutated files (truncations, dropped and doubled lines, single values replaced
-by 0, -1, 99999, 1e308, nan or a word): every mutation that passes them loaded
-without a crash in 3 x 700 mutations of two files.
+by 0, -1, 99999, 1e308, nan or a word): with the final rules, three runs (700,
+700 and 500 mutations of a netgen and an OCC mesh file; the mutations that pass
+the checks, up to 150 per run, loaded in a subprocess) had no crash and no hang.
 
 What is checked (the sections netgen writes for a 2-D mesh):
 
