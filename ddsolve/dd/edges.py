@@ -216,11 +216,7 @@ def basis_matrix(n: int, entries: np.ndarray, reps: np.ndarray, parents: np.ndar
     """T of the module docstring on a space of dimension n: identity, plus T[e, r] = 1 and
     T[p, e] = -1 (weighted: -coef[e], omitted where coef is 0) for every non-representative
     edge entry e with representative r and parent (weighted: anchor) p (arrays of equal size)."""
-    if coef is None:
-        rows = np.r_[np.arange(n), entries, parents]
-        cols = np.r_[np.arange(n), reps, entries]
-        vals = np.r_[np.ones(n), np.ones(entries.size), -np.ones(entries.size)]
-        return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
+    coef = np.ones(entries.size) if coef is None else coef
     live = coef != 0
     rows = np.r_[np.arange(n), entries, parents[live]]
     cols = np.r_[np.arange(n), reps, entries[live]]

@@ -150,9 +150,8 @@ class HybridSolver:
         self._column_of_body = column
         #: (n_gamma,) column of R_c of every u_Gamma dof (its floating body), -1 on clamped bodies
         self.kernel_column = column[body_of_gamma]
-        self._kernel_count = np.bincount(self.kernel_column[self.kernel_column >= 0],
-                                         minlength=self.floating.size)
         self._floating_sums = FloatingSums(self.kernel_column, self.floating.size)
+        self._kernel_count = self._floating_sums.counts                     # R_c^T R_c (diagonal)
 
         # global multipliers in the u_Gamma and GL index spaces
         pair_dofs = sub.dof_of_node[gi.pair_nodes]           # (n_gl, 2)

@@ -45,6 +45,8 @@ class FloatingSums:
         sum_pos = on if summed is None else on[np.asarray(summed, dtype=bool)[on]]
         self._on, self._on_column = on, column[on]
         self._sum_pos, self._sum_column = sum_pos, column[sum_pos]
+        #: number of summed entries of every column, shape (n_float,) (R_c^T R_c on this rank's share)
+        self.counts = np.bincount(self._sum_column, minlength=self.n_float)
         self._single = self.n_float == 1
         if self._single:                              # one column: slices where the ranges are contiguous
             self._on, self._sum_pos = _as_slice(on), _as_slice(sum_pos)

@@ -200,10 +200,8 @@ class DistributedHybrid:
         column[self.floating] = np.arange(self.floating.size)
         self._column_of_body = column
         self.kernel_column = column[body_of_gamma]
-        kernel_owned = np.flatnonzero((self.kernel_column >= 0) & self.gamma.owned)
-        self._kernel_count = comm.allreduce_sum(np.bincount(self.kernel_column[kernel_owned],
-                                                            minlength=self.floating.size).astype(float))
         self._floating_sums = FloatingSums(self.kernel_column, self.floating.size, summed=self.gamma.owned)
+        self._kernel_count = comm.allreduce_sum(self._floating_sums.counts.astype(float))    # R_c^T R_c
         self.pair_dofs = topo.dof_of_node[gi.pair_nodes]                   # (n_gl, 2)
         self.pair_weight = gi.weight[gi.pairs]                             # (n_gl, 2)
         self.pair_body = topo.body_of_sub[topo.sub_of_W[gi.pairs]]         # (n_gl, 2)

@@ -36,6 +36,9 @@ def test_sums_and_subtract_bitwise_equal_to_bincount(layout):
     ref = _reference(column, n_float, u, summed)
     assert sums.shape == (n_float,)
     assert np.array_equal(sums, ref)                                  # bitwise, not approximately
+    on = column >= 0
+    assert np.array_equal(fs.counts, np.bincount(column[on if summed is None else on & summed],
+                                                 minlength=n_float))
     m = np.array([0.25, -3.5])[:n_float]
     out = fs.subtract(u, m)
     expect = u.copy()
