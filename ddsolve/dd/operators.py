@@ -265,6 +265,14 @@ class DirichletSchur:
             self._blocks = self._build_explicit()
         return self._blocks is not False
 
+    def explicit_blocks(self) -> DenseBlocks:
+        """The explicit local Schur complements S_i, formed now if they are not yet (e.g. for
+        :func:`ddsolve.dd.deluxe.deluxe_scaling`); later applications use them too."""
+        if not self.explicit:               # as explicit=True: one batch of solves, extensions kept in budget
+            self._explicit_option, self._switch_after = True, None
+            self._blocks = self._build_explicit()
+        return self._blocks
+
     def _use_explicit(self) -> bool:
         """:attr:`explicit` for one application, counting implicit ones and switching to the
         explicit blocks once they have paid off (see the ``explicit`` parameter)."""

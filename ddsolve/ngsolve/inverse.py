@@ -10,13 +10,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd import Substructures
+from ..dd.deluxe import DeluxeScaling, deluxe_scaling
 from ..dd.dual import dual_operators, projection_weights
 from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from ..dd.projection import Projection
 from ..errors import InputError
-from ..options import PRIMAL_METHODS, PRIMALS
 from ..krylov import KrylovResult, pcg
+from ..options import PRIMAL_METHODS, PRIMALS
 from ..scene.scene import sorted_unique
 from .dofs import (
     add_boundary_matrices,
@@ -28,12 +29,18 @@ from .dofs import (
     split_integrators,
     vertex_table,
 )
-from .local import boundary_vertex_dofs, condense, element_parts, interface_edge_weights, part_matrices
+from .local import (
+    boundary_vertex_dofs,
+    condense,
+    element_parts,
+    interface_edge_weights,
+    part_matrices,
+)
 
 log = logging.getLogger(__name__)
 
 METHODS = ("bddc", "fetidp", "feti")
-SCALINGS = ("diagonal", "rho", "multiplicity")
+SCALINGS = ("diagonal", "rho", "multiplicity", "deluxe")
 #: Weighted (integral) edge averages at order 1 too (at order >= 2 always; see ddsolve.dd.edges).
 #: Off: at order 1 the integral and the nodal mean gave condition numbers within 1.3 % of each
 #: other (docs/ngsolve.md), and the nodal one costs no extra assembly.
@@ -68,7 +75,7 @@ def _no_interface() -> KrylovResult:
 class _BDDC:
     """Persistent BDDC operators on the interface (Section 2.7), as in :func:`ddsolve.dd.solve_bddc`."""
 
-    def __init__(self, sub: Substructures) -> None:
+    def __init__(self, sub: Substructures, deluxe: bool = False) -> None:
         cache: dict = {}
         self.sub = sub
         self.schur = DirichletSchur(sub, sub.interface, cache)
@@ -79,6 +86,15 @@ class _BDDC:
         self.ge, self.gpos, self.delta_g = ge, np.searchsorted(dofs, sub.l2g[ge]), sub.delta[ge]
         self.S_hat = linear_operator(self.n_g, lambda u: self.gather(self.schur.matvec(self.scatter(u))))
         self.M = linear_operator(self.n_g, self._M)
+        self.deluxe: DeluxeScaling | None = None
+        if deluxe and self.n_g:
+            self.deluxe = deluxe_scaling(sub, self.schur.explicit_blocks(), sub.interface & ~sub.vertex, sub.delta)
+            self._DT = self.deluxe.D.T.tocsr()
+
+    @property
+    def R(self) -> sp.csr_matrix:
+        """The 0/1 scatter of interface values to their W copies, shape (n_W, n_g)."""
+        return sp.csr_matrix((np.ones(self.ge.size), (self.ge, self.gpos)), shape=(self.sub.n_W, self.n_g))
 
     def scatter(self, u: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
         w = np.zeros(self.sub.n_W)
@@ -90,6 +106,9 @@ class _BDDC:
         return np.bincount(self.gpos, weights=v, minlength=self.n_g)
 
     def _M(self, r: np.ndarray) -> np.ndarray:
+        """M^{-1} r = R_D^T Ã^{-1} R_D r: R_D = D^T R (deluxe, :mod:`ddsolve.dd.deluxe`) or delta R."""
+        if self.deluxe is not None:
+            return self.gather(self.deluxe.D @ self.primal.solve(self._DT @ self.scatter(r)))
         return self.gather(self.primal.solve(self.scatter(r, self.delta_g)), self.delta_g)
 
     def solve(self, f_W: np.ndarray, rtol: float, maxiter: int, cond: bool):
@@ -112,6 +131,9 @@ class _FETIDP:
 
     def __init__(self, sub: Substructures, bddc: _BDDC) -> None:
         self.B, B_D = sub.jump_operators(sub.interface & ~sub.vertex)
+        if bddc.deluxe is not None:
+            B_D = bddc.deluxe.jump(self.B, B_D, bddc.R)
+        self._B_D = B_D
         self.primal = bddc.primal
         self.BT = self.B.T.tocsr()
         F, M = dual_operators(self.B, B_D, self.primal.solve, bddc.schur.matvec)
@@ -217,10 +239,14 @@ class DDInverse(ngsolve.BaseMatrix):
         Defaults to ``fes.FreeDofs()``.
     cond : bool
         Lanczos condition-number estimate of the preconditioned operator.
-    scaling : {"diagonal", "rho", "multiplicity"}
+    scaling : {"diagonal", "rho", "multiplicity", "deluxe"}
         delta-dagger weights: per dof proportional to the diagonal of each
-        subdomain matrix (default, robust for coefficient jumps), per part by
-        the part's mean diagonal (rho-scaling of Section 2.3), or 1/multiplicity.
+        subdomain matrix (default), per part by the part's mean diagonal
+        (rho-scaling of Section 2.3), or 1/multiplicity; "deluxe" (bddc and
+        fetidp): dense face weights (S_i^F + S_j^F)^{-1} S_i^F from the local
+        Schur complements (:mod:`ddsolve.dd.deluxe`), for coefficients that jump
+        inside the parts (it forms the explicit local Schur complements, which
+        does not pay for a smooth coefficient; docs/ngsolve.md).
     seed : int
         METIS seed.
 
@@ -255,7 +281,10 @@ class DDInverse(ngsolve.BaseMatrix):
             raise InputError("rtol", f"must be in (0, 1), got {rtol!r}")
         if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
             raise InputError("maxiter", f"must be a positive integer, got {maxiter!r}")
+        if scaling == "deluxe" and method == "feti":
+            raise InputError("scaling", "'deluxe' needs method 'bddc' or 'fetidp'")
         self.fes, self.method, self.rtol, self.maxiter, self.want_cond = fes, method, rtol, int(maxiter), cond
+        self.scaling = scaling
         self.timings: dict[str, float] = {}
         self.iterations = 0
         self.residuals = np.zeros(0)
@@ -293,7 +322,7 @@ class DDInverse(ngsolve.BaseMatrix):
         self.n_parts = pm.n_parts
         sub = Substructures(pm.local, scaling="multiplicity" if scaling == "multiplicity" else "rho",
                             templates=False, primal=primal)
-        if scaling == "diagonal":
+        if scaling in ("diagonal", "deluxe"):      # deluxe: the diagonal weights off the faces
             d = sub.K_W.diagonal()
             total = np.bincount(sub.node_of_W, weights=d, minlength=sub.scene.n_nodes)
             sub.delta = d / total[sub.node_of_W]
@@ -321,7 +350,7 @@ class DDInverse(ngsolve.BaseMatrix):
 
     def _build_operators(self, method: str, sub: Substructures, pm: Any, fes: Any) -> None:
         """Factor the subdomain matrices once: the BDDC operators, and FETI-DP's or FETI's."""
-        self._bddc = _BDDC(self.space.sub)
+        self._bddc = _BDDC(self.space.sub, deluxe=self.scaling == "deluxe")
         self._fetidp = _FETIDP(self.space.sub, self._bddc) if method == "fetidp" else None
         self._feti: _FETI | None = None
         if method == "feti":

@@ -266,6 +266,13 @@ def main(argv: list[str] | None = None) -> int:
         results = {int(o): hh_study(int(o), int(argv[2]), refs) for o in argv[1].split(",")}
         sys.stdout.write(hh_table(results, int(argv[2])))
         return 0
+    if argv[:1] == ["--scaling-study"] and len(argv) == 5:
+        # python -m ddstudies.ngsolve_bench --scaling-study 1,2 0.06,0.03,0.015 12,30,100 stripes   (markdown)
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        rows = scaling_study([int(o) for o in argv[1].split(",")], [float(h) for h in argv[2].split(",")],
+                             [int(p) for p in argv[3].split(",")], argv[4])
+        sys.stdout.write(scaling_table(rows, argv[4]))
+        return 0
     if len(argv) != 4:
         print("usage: python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png", file=sys.stderr)
         return 2
@@ -282,7 +289,6 @@ def main(argv: list[str] | None = None) -> int:
     _write_atomic(argv[2], summary(rows))
     plot(rows, argv[3])
     return 0
-
 
 
 def hh_study(order: int = 1, parts: int = 16, refinements: tuple[int, ...] = (0, 1, 2), maxh: float = 0.05,
@@ -331,6 +337,70 @@ def _centroids(mesh) -> np.ndarray:
 
     pts = np.asarray(mesh.ngmesh.Coordinates())[:, :2]
     return pts[vertex_table(mesh)].mean(axis=1)
+
+
+def jump_form(mesh, order: int, pattern: str, jump: float = 1e4):
+    """-div(c grad u) = 1, u = 0 on left and bottom, c in {1, jump}: ``"stripes"`` (six horizontal
+    channels) or ``"checker"`` (a 5 x 5 checkerboard); (fes, a, f), a not assembled."""
+    import ngsolve as ngs
+
+    fes = ngs.H1(mesh, order=order, dirichlet="left|bottom")
+    u, v = fes.TnT()
+    if pattern == "stripes":
+        coef = ngs.IfPos(ngs.sin(6 * math.pi * ngs.y + 1), jump, 1.0)
+    elif pattern == "checker":
+        coef = ngs.IfPos(ngs.sin(5 * math.pi * ngs.x) * ngs.sin(5 * math.pi * ngs.y), jump, 1.0)
+    else:
+        raise ValueError(f"pattern: expected 'stripes' or 'checker', got {pattern!r}")
+    a = ngs.BilinearForm(fes)
+    a += coef * ngs.grad(u) * ngs.grad(v) * ngs.dx
+    f = ngs.LinearForm(fes)
+    f += v * ngs.dx
+    f.Assemble()
+    return fes, a, f
+
+
+def scaling_study(orders: list[int], maxhs: list[float], parts: list[int], pattern: str = "stripes",
+                  scalings: tuple[str, ...] = ("diagonal", "deluxe")) -> list[dict]:
+    """BDDC iterations and condition numbers (rtol 1e-10, ``cond=True``) of each scaling where METIS
+    parts cut the coefficient jumps of :func:`jump_form` (unit square, netgen mesh of ``maxh``)."""
+    import ngsolve as ngs
+    from netgen.geom2d import unit_square
+
+    from ddsolve.ngsolve import DDInverse
+
+    rows = []
+    for maxh in maxhs:
+        mesh = ngs.Mesh(unit_square.GenerateMesh(maxh=maxh))
+        for order in orders:
+            for p in parts:
+                row = {"order": order, "maxh": maxh, "parts": p}
+                for scaling in scalings:
+                    fes, a, f = jump_form(mesh, order, pattern)
+                    inv = DDInverse(a, parts=p, rtol=1e-10, cond=True, scaling=scaling)
+                    gfu = ngs.GridFunction(fes)
+                    t = time.perf_counter()
+                    gfu.vec.data = inv * f.vec
+                    row.update({"ndof": fes.ndof, "n_parts": inv.n_parts, f"{scaling}_its": inv.iterations,
+                                f"{scaling}_cond": inv.cond, f"{scaling}_setup_s": inv.timings["setup"],
+                                f"{scaling}_solve_s": time.perf_counter() - t})
+                rows.append(row)
+                log.info("scaling study: %s", row)
+    return rows
+
+
+def scaling_table(rows: list[dict], pattern: str) -> str:
+    """Markdown table of :func:`scaling_study`."""
+    lines = [f"Coefficient pattern: {pattern} (1 and 1e4), BDDC, rtol 1e-10.", "",
+             ("| order | maxh | dofs | parts | iterations diagonal / deluxe | cond diagonal / deluxe "
+              "| setup + solve s diagonal / deluxe |"),
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        t = [r[f"{s}_setup_s"] + r[f"{s}_solve_s"] for s in ("diagonal", "deluxe")]
+        lines.append(f"| {r['order']} | {r['maxh']} | {r['ndof']:,} | {r['n_parts']} | {r['diagonal_its']} / "
+                     f"{r['deluxe_its']} | {r['diagonal_cond']:.1f} / {r['deluxe_cond']:.1f} "
+                     f"| {t[0]:.2f} / {t[1]:.2f} |")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

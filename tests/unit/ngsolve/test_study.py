@@ -69,3 +69,16 @@ def test_parts_sweep_table():
     assert all(0 < r.iterations < 40 for r in rows)
     table = sweep_table(rows)
     assert table.count("\n") == 4 and "| 1 | " in table
+
+
+def test_scaling_study_table():
+    from ddstudies.ngsolve_bench import main, scaling_study, scaling_table
+
+    rows = scaling_study([1], [0.1], [6], "stripes")
+    assert len(rows) == 1 and rows[0]["ndof"] > 0
+    assert rows[0]["deluxe_its"] <= rows[0]["diagonal_its"]
+    table = scaling_table(rows, "stripes")
+    assert table.count("\n") == 5 and "| 1 | 0.1 |" in table
+    with pytest.raises(ValueError, match="pattern"):
+        scaling_study([1], [0.2], [4], "spots")
+    assert main(["--scaling-study", "1", "0.2", "4", "checker"]) == 0
