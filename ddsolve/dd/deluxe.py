@@ -63,10 +63,6 @@ class DeluxeScaling:
     n_faces: int
     largest_face: int
 
-    def average(self, w: np.ndarray, scatter, gather) -> np.ndarray:
-        """E_D w = scatter(gather(D w)) for a W vector (``scatter``/``gather`` of the interface)."""
-        return scatter(gather(self.D @ w))
-
     def jump(self, B: sp.csr_matrix, B_D: sp.csr_matrix, R: sp.csr_matrix) -> sp.csr_matrix:
         """The deluxe B_D (n_lambda, n_W) from the jump operator B and its diagonal version.
 
@@ -108,21 +104,23 @@ def deluxe_scaling(sub, blocks, dual: np.ndarray, delta: np.ndarray) -> DeluxeSc
     DeluxeScaling
     """
     n_W = sub.n_W
-    # where every W position sits in the blocks: (flat A offset, row, block size, member scale)
+    # where every W position sits in the blocks: (flat A offset, row, block size, member scale);
+    # blocks.flat holds group k's positions as an (n_k, members_k) C-order array from offset o_k
+    n = np.array([p[2] for p in blocks.parts], dtype=np.int64)
+    n_m = np.array([p[3] for p in blocks.parts], dtype=np.int64)
+    group = np.repeat(np.arange(n.size), n * n_m)                          # group of each flat entry
+    local = np.arange(blocks.size) - np.repeat(np.array([p[1] for p in blocks.parts], dtype=np.int64), n * n_m)
+    member = local % n_m[group]
     a_off = np.full(n_W, -1, dtype=np.int64)
     row = np.zeros(n_W, dtype=np.int64)
     size = np.zeros(n_W, dtype=np.int64)
     scale = np.zeros(n_W)
-    flats, off = [], 0
-    for A, o, n, n_m, s in blocks.parts:
-        index = blocks.flat[o:o + n * n_m].reshape(n, n_m)
-        a_off[index] = off
-        row[index] = np.arange(n)[:, None]
-        size[index] = n
-        scale[index] = s[None, :]
-        flats.append(A.ravel())
-        off += n * n
-    A_flat = np.concatenate(flats) if flats else np.zeros(0)
+    a_off[blocks.flat] = np.concatenate([[0], np.cumsum(n * n)])[group]
+    row[blocks.flat] = local // n_m[group]
+    size[blocks.flat] = n[group]
+    scale[blocks.flat] = np.concatenate([p[4] for p in blocks.parts] or [np.zeros(0)])[
+        np.concatenate([[0], np.cumsum(n_m)])[group] + member]
+    A_flat = np.concatenate([p[0].ravel() for p in blocks.parts] or [np.zeros(0)])
 
     entries = np.flatnonzero(dual & (a_off >= 0))
     node = sub.node_of_W[entries]
