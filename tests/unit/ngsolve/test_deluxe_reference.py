@@ -281,3 +281,55 @@ def test_solution_equals_sparsecholesky(case, method):
     inv, x = ddinverse(case, method, "deluxe")
     assert inv.converged or "below the attainable accuracy" in inv.reason
     assert np.linalg.norm(x - direct) <= 1e-9 * np.linalg.norm(direct)
+
+
+def _lshape(maxh: float):
+    from netgen.geom2d import SplineGeometry
+    geo = SplineGeometry()
+    pts = [geo.AppendPoint(*p) for p in [(0, 0), (1, 0), (1, 1), (0.5, 1), (0.5, 0.5), (0, 0.5)]]
+    for i in range(6):
+        geo.Append(["line", pts[i], pts[(i + 1) % 6]], bc="outer")
+    return ngs.Mesh(geo.GenerateMesh(maxh=maxh))
+
+
+def _stripes_laplace(u, v):
+    return PATTERNS["stripes"]() * ngs.grad(u) * ngs.grad(v) * ngs.dx
+
+
+# black-box cases of the review (name, mesh, order, dirichlet, form, keywords)
+REVIEW = [
+    ("robin-no-dirichlet", lambda: ngs.Mesh(unit_square.GenerateMesh(maxh=0.1)), 2, "",
+     lambda u, v: _stripes_laplace(u, v) + 5 * u * v * ngs.ds, {"parts": 6}),
+    ("reaction-neumann", lambda: ngs.Mesh(unit_square.GenerateMesh(maxh=0.1)), 2, "",
+     lambda u, v: ngs.grad(u) * ngs.grad(v) * ngs.dx + 10 * u * v * ngs.dx, {"parts": 6}),
+    ("quads-order3", lambda: ngs.Mesh(unit_square.GenerateMesh(maxh=0.12, quad_dominated=True)), 3, "left|bottom",
+     _stripes_laplace, {"parts": 6}),
+    ("lshape-order4-edges", lambda: _lshape(0.12), 4, "outer", _stripes_laplace,
+     {"parts": 6, "primal": "vertices+edges"}),
+]
+
+
+@pytest.mark.parametrize("method", ["bddc", "fetidp"])
+@pytest.mark.parametrize("case", REVIEW, ids=lambda c: c[0])
+def test_review_cases_against_sparsecholesky(case, method):
+    """Robin and reaction terms (no Dirichlet dof), quadrilaterals with condensed bubbles, edge averages
+    at order 4: deluxe DDInverse and its preconditioner in NGSolve's CGSolver against sparsecholesky."""
+    _, make_mesh, order, dirichlet, form, kw = case
+    fes = ngs.H1(make_mesh(), order=order, dirichlet=dirichlet)
+    u, v = fes.TnT()
+    a = ngs.BilinearForm(fes)
+    a += form(u, v)
+    a.Assemble()
+    f = ngs.LinearForm(fes)
+    f += (1 + ngs.x * ngs.y) * v * ngs.dx
+    f.Assemble()
+    direct, gfu = ngs.GridFunction(fes), ngs.GridFunction(fes)
+    direct.vec.data = a.mat.Inverse(fes.FreeDofs(), inverse="sparsecholesky") * f.vec
+    x0 = direct.vec.FV().NumPy()
+    inv = DDInverse(a, method=method, scaling="deluxe", rtol=1e-10, **kw)
+    gfu.vec.data = inv * f.vec
+    assert inv.converged
+    assert np.linalg.norm(gfu.vec.FV().NumPy() - x0) <= 1e-8 * np.linalg.norm(x0)
+    solver = ngs.krylovspace.CGSolver(a.mat, inv.preconditioner, tol=1e-10, maxiter=200)
+    gfu.vec.data = solver * f.vec
+    assert np.linalg.norm(gfu.vec.FV().NumPy() - x0) <= 1e-8 * np.linalg.norm(x0)
