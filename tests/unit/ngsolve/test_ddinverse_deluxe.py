@@ -6,41 +6,21 @@ import numpy as np
 import pytest
 
 ngs = pytest.importorskip("ngsolve")
+from ddstudies.ngsolve_bench import jump_form
 from netgen.geom2d import unit_square
+from test_ddinverse import dd, direct
 
 from ddsolve.errors import InputError
 from ddsolve.ngsolve import DDInverse
 
 
-def jump_problem(order: int, maxh: float, pattern: str, jump: float = 1e4):
-    """-div(c grad u) = 1, u = 0 on left and bottom; c jumps inside the METIS parts."""
-    mesh = ngs.Mesh(unit_square.GenerateMesh(maxh=maxh))
-    fes = ngs.H1(mesh, order=order, dirichlet="left|bottom")
-    u, v = fes.TnT()
-    if pattern == "stripes":            # horizontal channels of high coefficient
-        coef = ngs.IfPos(ngs.sin(6 * np.pi * ngs.y + 1), jump, 1.0)
-    else:                               # 5 x 5 checkerboard
-        coef = ngs.IfPos(ngs.sin(5 * np.pi * ngs.x) * ngs.sin(5 * np.pi * ngs.y), jump, 1.0)
-    a = ngs.BilinearForm(fes)
-    a += coef * ngs.grad(u) * ngs.grad(v) * ngs.dx
-    f = ngs.LinearForm(fes)
-    f += v * ngs.dx
-    f.Assemble()
-    return fes, a, f
+def jump_problem(order: int, maxh: float, pattern: str):
+    """-div(c grad u) = 1, u = 0 on left and bottom; c in {1, 1e4} jumps inside the METIS parts
+    (``"stripes"``: horizontal channels, ``"checker"``: a 5 x 5 checkerboard)."""
+    return jump_form(ngs.Mesh(unit_square.GenerateMesh(maxh=maxh)), order, pattern)
 
 
-def direct(fes, a, f):
-    a.Assemble()
-    gfu = ngs.GridFunction(fes)
-    gfu.vec.data = a.mat.Inverse(fes.FreeDofs(), inverse="sparsecholesky") * f.vec
-    return gfu.vec.FV().NumPy().copy()
-
-
-def solve(fes, a, f, **kw):
-    inv = DDInverse(a, rtol=1e-10, **kw)
-    gfu = ngs.GridFunction(fes)
-    gfu.vec.data = inv * f.vec
-    return gfu.vec.FV().NumPy().copy(), inv
+solve = dd          # (u, inv) of DDInverse(a, rtol=1e-10, **kw)
 
 
 @pytest.mark.parametrize("order,method,primal", [(1, "bddc", "vertices"), (1, "fetidp", "vertices"),
