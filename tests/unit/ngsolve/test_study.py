@@ -79,6 +79,7 @@ def test_scaling_study_table():
     assert rows[0]["deluxe_its"] <= rows[0]["diagonal_its"]
     table = scaling_table(rows, "stripes")
     assert table.count("\n") == 5 and "| 1 | 0.1 |" in table
+    assert rows[0]["ngs_bddc_its"] > 0
     with pytest.raises(ValueError, match="pattern"):
         scaling_study([1], [0.2], [4], "spots")
     assert main(["--scaling-study", "1", "0.2", "4", "checker"]) == 0
