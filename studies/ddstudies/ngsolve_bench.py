@@ -286,7 +286,11 @@ def main(argv: list[str] | None = None) -> int:
         writer.writeheader()
         writer.writerows(asdict(r) for r in rows)
     os.replace(tmp, argv[1])
-    _write_atomic(argv[2], summary(rows))
+    text = summary(rows)
+    for block in cfg.get("scaling_study", []) or []:
+        study = scaling_study(block["orders"], block["maxh"], block["parts"], block["pattern"])
+        text += "\n## Scaling where METIS parts cut coefficient jumps (bddc)\n\n" + scaling_table(study, block["pattern"])
+    _write_atomic(argv[2], text)
     plot(rows, argv[3])
     return 0
 

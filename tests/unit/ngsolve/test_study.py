@@ -25,6 +25,10 @@ def test_config_validates_and_schema_is_closed():
         validate({**config, "extra": 1}, SCHEMA)
     with pytest.raises(ConfigError, match="solvers/0"):
         validate({**config, "solvers": ["umfpack"]}, SCHEMA)
+    assert [b["pattern"] for b in config["scaling_study"]] == ["stripes", "checker"]
+    with pytest.raises(ConfigError, match="scaling_study/0"):
+        validate({**config, "scaling_study": [{"pattern": "spots", "orders": [1], "maxh": [0.1], "parts": [4]}]},
+                 SCHEMA)
 
 
 def test_small_study_agrees_with_the_direct_solution():
@@ -51,7 +55,8 @@ def test_summary_targets():
 def test_workflow_runs_the_study(tmp_path):
     copy_workflow(tmp_path)
     cfg = {"kind": "ngsolve", "study": "ngs_tiny", "orders": [{"order": 1, "ndofs": [1500]}],
-           "solvers": ["ddinverse-bddc", "sparsecholesky"], "dofs_per_part": 300}
+           "solvers": ["ddinverse-bddc", "sparsecholesky"], "dofs_per_part": 300,
+           "scaling_study": [{"pattern": "stripes", "orders": [1], "maxh": [0.1], "parts": [6]}]}
     (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(cfg))
     run_snakemake(tmp_path, "--cores", "1", "--configfile", "tiny.yaml", timeout=600)
     with open(tmp_path / "results" / "ngs_tiny" / "ngsolve.csv") as fh:
@@ -59,6 +64,8 @@ def test_workflow_runs_the_study(tmp_path):
     assert [r["solver"] for r in rows] == ["ddinverse-bddc", "sparsecholesky"]
     assert float(rows[0]["relerr"]) < 1e-6
     assert (tmp_path / "reports" / "ngs_tiny" / "ngsolve.png").stat().st_size > 1000
+    report = (tmp_path / "reports" / "ngs_tiny" / "ngsolve.md").read_text()
+    assert "## Scaling where METIS parts cut coefficient jumps" in report and "| 1 | 0.1 |" in report
 
 
 def test_parts_sweep_table():
