@@ -50,6 +50,7 @@ import pytest
 
 ngs = pytest.importorskip("ngsolve")
 from netgen.geom2d import unit_square
+from test_ddinverse import lshape
 
 from ddsolve.ngsolve import DDInverse
 
@@ -283,15 +284,6 @@ def test_solution_equals_sparsecholesky(case, method):
     assert np.linalg.norm(x - direct) <= 1e-9 * np.linalg.norm(direct)
 
 
-def _lshape(maxh: float):
-    from netgen.geom2d import SplineGeometry
-    geo = SplineGeometry()
-    pts = [geo.AppendPoint(*p) for p in [(0, 0), (1, 0), (1, 1), (0.5, 1), (0.5, 0.5), (0, 0.5)]]
-    for i in range(6):
-        geo.Append(["line", pts[i], pts[(i + 1) % 6]], bc="outer")
-    return ngs.Mesh(geo.GenerateMesh(maxh=maxh))
-
-
 def _stripes_laplace(u, v):
     return PATTERNS["stripes"]() * ngs.grad(u) * ngs.grad(v) * ngs.dx
 
@@ -304,7 +296,7 @@ REVIEW = [
      lambda u, v: ngs.grad(u) * ngs.grad(v) * ngs.dx + 10 * u * v * ngs.dx, {"parts": 6}),
     ("quads-order3", lambda: ngs.Mesh(unit_square.GenerateMesh(maxh=0.12, quad_dominated=True)), 3, "left|bottom",
      _stripes_laplace, {"parts": 6}),
-    ("lshape-order4-edges", lambda: _lshape(0.12), 4, "outer", _stripes_laplace,
+    ("lshape-order4-edges", lambda: lshape(0.12), 4, "outer", _stripes_laplace,
      {"parts": 6, "primal": "vertices+edges"}),
 ]
 
