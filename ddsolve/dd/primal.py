@@ -31,6 +31,29 @@ log = logging.getLogger(__name__)
 
 #: Interface solves (one per mask) kept by a :class:`PrimalConstrainedSolver`, least recently used dropped.
 MAX_INTERFACES = 4
+#: Coarse matrices S_PiPi of at least this many primal unknowns are factored by MKL PARDISO (SPD
+#: Cholesky, METIS ordering; :mod:`ddsolve.dd.pardiso`) when it loads, smaller ones by SuperLU, as
+#: before (every structured and unstructured study has fewer). Measured on a 3D DDInverse (order 2,
+#: 290,448 dofs, 290 METIS parts, 10,987 primal dofs, one thread): SuperLU 44.0 s; PARDISO
+#: 0.6 s (docs/ngsolve.md, "3D meshes").
+COARSE_PARDISO_MIN = 4000
+
+
+def coarse_factor(S: sp.spmatrix):
+    """A factorization of the coarse matrix ``S`` (n_primal, n_primal) with a ``solve`` method.
+
+    PARDISO's Cholesky for large ``S`` (:data:`COARSE_PARDISO_MIN`); SuperLU (minimum degree on
+    S^T + S) otherwise, and when PARDISO finds ``S`` not positive definite (SuperLU then factors or
+    reports the singular matrix, as it always did).
+    """
+    from . import pardiso
+
+    if S.shape[0] >= COARSE_PARDISO_MIN and pardiso.available() and S.nnz <= pardiso.MAX_NNZ:
+        try:
+            return pardiso.PardisoCholesky(S)
+        except RuntimeError as exc:
+            log.info("coarse problem: PARDISO failed (%s); using SuperLU", exc)
+    return spla.splu(sp.csc_matrix(S), permc_spec="MMD_AT_PLUS_A")
 
 
 class PrimalConstrainedSolver:
@@ -144,7 +167,7 @@ class PrimalConstrainedSolver:
             D = sp.diags(keep)
             S_PiPi = D @ S_PiPi @ D + sp.diags(1.0 - keep)
         self.S_PiPi = S_PiPi.tocsc()
-        self.coarse = spla.splu(self.S_PiPi, permc_spec="MMD_AT_PLUS_A") if self.n_primal else None
+        self.coarse = coarse_factor(self.S_PiPi) if self.n_primal else None
         self.n_factorizations = self.rr.n_new_factorizations + (1 if self.n_primal else 0)
         self._psi_global: sp.csr_matrix | None = None      # Psi as sparse (n_W, n_primal), on first use
         self._psi_global_T: sp.csr_matrix | None = None

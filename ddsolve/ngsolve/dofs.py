@@ -58,7 +58,7 @@ CHECK_ELEMENTS = 64
 
 
 def check_space(fes: Any) -> None:
-    """Raise :class:`InputError` unless ``fes`` is a scalar H1 space on a 2D mesh."""
+    """Raise :class:`InputError` unless ``fes`` is a scalar H1 space on a 2D or 3D mesh."""
     import ngsolve
 
     name = type(fes).__name__
@@ -70,12 +70,25 @@ def check_space(fes: Any) -> None:
         raise InputError("fes", f"space {name} ({fes.type}) is not supported; give a scalar H1 space")
     if fes.is_complex:
         raise InputError("fes", "complex H1 spaces are not supported")
-    if fes.mesh.dim != 2:
-        raise InputError("fes", f"only 2D meshes are supported, got a {fes.mesh.dim}D mesh")
+    if fes.mesh.dim not in (2, 3):
+        raise InputError("fes", f"only 2D and 3D meshes are supported, got a {fes.mesh.dim}D mesh")
 
 
 def vertex_table(mesh: Any) -> np.ndarray:
-    """Vertex numbers of each volume element (0-based), shape (n_elements, k), k = 3 or 4."""
+    """Vertex numbers of each volume element (0-based), shape (n_elements, k).
+
+    2D: triangles (k = 3) or quadrilaterals (k = 4), vertices listed around the
+    element. 3D: tetrahedra (k = 4); other 3D element types raise
+    :class:`InputError`.
+    """
+    if mesh.dim == 3:
+        els = mesh.ngmesh.Elements3D().NumPy()
+        nodes = np.asarray(els["nodes"], dtype=np.int64)
+        nodes = nodes.reshape(nodes.shape[0], -1)
+        if nodes.shape[1] < 4 or (nodes.shape[1] > 4 and (nodes[:, 4:] != 0).any()):
+            raise InputError("mesh", "only tetrahedral 3D meshes are supported (hexahedra, prisms or pyramids "
+                                     "found)")
+        return nodes[:, :4] - 1
     els = mesh.ngmesh.Elements2D().NumPy()
     nodes = np.asarray(els["nodes"], dtype=np.int64)
     nodes = nodes.reshape(nodes.shape[0], -1)
@@ -85,11 +98,17 @@ def vertex_table(mesh: Any) -> np.ndarray:
     return nodes[:, :k] - 1
 
 
+def element_index(mesh: Any) -> np.ndarray:
+    """The material index of every volume element (netgen's ``index``, 1-based), shape (n_elements,)."""
+    els = mesh.ngmesh.Elements3D() if mesh.dim == 3 else mesh.ngmesh.Elements2D()
+    return np.asarray(els.NumPy()["index"], dtype=np.int64)
+
+
 def element_dofs(fes: Any) -> np.ndarray:
     """Global H1 dofs of every volume element in element-local order, shape (n_elements, n_local)."""
     mesh = fes.mesh
     V = vertex_table(mesh)
-    if V.shape[1] == 3:
+    if mesh.dim == 2 and V.shape[1] == 3:
         table = _triangle_dofs(fes, V)
         if table is not None:
             return table
@@ -223,8 +242,9 @@ def boundary_element_matrices(fes: Any, integrators: list) -> tuple[np.ndarray, 
     """Element matrices of boundary (``ds``) integrators, or None if there are none.
 
     They are computed on the boundary elements of each integrator's region
-    (``GetDefinedOn``); there are O(sqrt(n_elements)) of them in 2D, so the
-    loop over them costs little next to the volume assembly.
+    (``GetDefinedOn``); there are O(n_elements^(1/2)) of them in 2D and
+    O(n_elements^(2/3)) in 3D, so the loop over them costs little next to the
+    volume assembly.
 
     Returns
     -------
@@ -232,8 +252,8 @@ def boundary_element_matrices(fes: Any, integrators: list) -> tuple[np.ndarray, 
         Summed boundary element matrices, in the local order of ``fes.GetDofNrs``.
     Tb : ndarray of int, shape (n_b, n_lb)
         Their global H1 dofs.
-    Vb : ndarray of int, shape (n_b, 2)
-        The two vertices of each boundary element (to find the volume element it bounds).
+    Vb : ndarray of int, shape (n_b, dim)
+        The vertices of each boundary element (to find the volume element it bounds).
     """
     import ngsolve
 
@@ -258,11 +278,11 @@ def boundary_element_matrices(fes: Any, integrators: list) -> tuple[np.ndarray, 
 
 
 def add_boundary_matrices(Ke: np.ndarray, T: np.ndarray, V: np.ndarray, Kb: np.ndarray, Tb: np.ndarray,
-                          Vb: np.ndarray) -> None:
+                          Vb: np.ndarray, dim: int = 2) -> None:
     """Add each boundary element matrix to the element matrix of the volume element it bounds (in place).
 
-    A = sum_e K_e + sum_b K_b with every boundary element b inside one volume
-    element e(b) (the one sharing its edge), so adding K_b to K_e(b) keeps the
+    A = sum_e K_e + sum_b K_b with every boundary element b on a facet (edge in
+    2D, face in 3D) of one volume element e(b), so adding K_b to K_e(b) keeps the
     assembled matrix and every subdomain matrix symmetric positive semidefinite.
 
     Parameters
@@ -271,18 +291,12 @@ def add_boundary_matrices(Ke: np.ndarray, T: np.ndarray, V: np.ndarray, Kb: np.n
     T : ndarray of int, shape (n_elements, n_local)
     V : ndarray of int, shape (n_elements, k)
     Kb, Tb, Vb : as returned by :func:`boundary_element_matrices`
+    dim : int
+        Dimension of the mesh (2 or 3).
     """
-    k = V.shape[1]
-    nv = np.int64(max(int(V.max()), int(Vb.max())) + 1)
-    lo = np.minimum(V, np.roll(V, -1, axis=1)).ravel()
-    hi = np.maximum(V, np.roll(V, -1, axis=1)).ravel()
-    key = lo * nv + hi
-    order = np.argsort(key)
-    bkey = Vb.min(axis=1) * nv + Vb.max(axis=1)
-    at = np.minimum(np.searchsorted(key[order], bkey), key.size - 1)
-    if not np.array_equal(key[order][at], bkey):
-        raise InputError("a", "a boundary element does not lie on an edge of a volume element")
-    parent = order[at] // k
+    from .facets import facet_owner
+
+    parent = facet_owner(V, dim, Vb)
     hit = T[parent][:, None, :] == Tb[:, :, None]           # (n_b, n_lb, n_local)
     if not hit.any(axis=2).all():
         raise InputError("a", "boundary element dofs are not dofs of the neighbouring volume element")

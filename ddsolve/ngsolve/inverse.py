@@ -209,7 +209,11 @@ class DDInverse(ngsolve.BaseMatrix):
     """Substructuring inverse of an NGSolve BilinearForm on a scalar H1 space (any order).
 
     ``gfu.vec.data = DDInverse(a) * f.vec`` solves A u = f on the free dofs
-    (zero on the others), like ``a.mat.Inverse(fes.FreeDofs())``.
+    (zero on the others), like ``a.mat.Inverse(fes.FreeDofs())``. The mesh is
+    2D (triangles or quadrilaterals) or 3D (tetrahedra). In 3D the primal dofs
+    are those shared by three or more parts (the nodes of the subdomain edges
+    and vertices, at every order) and those shared by two parts on the domain
+    boundary: a vertex-only coarse space would not be scalable in 3D.
 
     Parameters
     ----------
@@ -228,7 +232,7 @@ class DDInverse(ngsolve.BaseMatrix):
         ``mesh.Refine()`` hierarchy, children inherit the part; "materials":
         one part per material; an array: the part of every element.
     primal : {"vertices", "vertices+edges"}
-        Primal constraints; edge averages for bddc and fetidp only. At order >= 2 an
+        Primal constraints; edge averages for bddc and fetidp on 2D meshes only. At order >= 2 an
         edge average is the mean of u along the edge, sum_j w_j u_j / sum_j w_j with
         w_j the integral of the shape j along it
         (:func:`~ddsolve.ngsolve.local.interface_edge_weights`); at order 1 the mean of
@@ -283,6 +287,10 @@ class DDInverse(ngsolve.BaseMatrix):
             raise InputError("maxiter", f"must be a positive integer, got {maxiter!r}")
         if scaling == "deluxe" and method == "feti":
             raise InputError("scaling", "'deluxe' needs method 'bddc' or 'fetidp'")
+        dim = int(fes.mesh.dim)
+        if primal == "vertices+edges" and dim != 2:
+            raise InputError("primal", "'vertices+edges' is for 2D meshes; in 3D the default 'vertices' already "
+                                       "makes every dof shared by three or more parts primal")
         self.fes, self.method, self.rtol, self.maxiter, self.want_cond = fes, method, rtol, int(maxiter), cond
         self.scaling = scaling
         self.timings: dict[str, float] = {}
@@ -303,7 +311,7 @@ class DDInverse(ngsolve.BaseMatrix):
         Ke = element_matrices(a, fes, T.shape[1], volume)
         bnd = boundary_element_matrices(fes, boundary)   # ds terms (Robin): added to the element they bound
         if bnd is not None:
-            add_boundary_matrices(Ke, T, V, *bnd)
+            add_boundary_matrices(Ke, T, V, *bnd, dim=dim)
         self.timings["assembly"] = time.perf_counter() - t
         if not is_symmetric(Ke):
             raise InputError("a", f"the form is not symmetric; method {method!r} needs a symmetric form")
@@ -318,7 +326,7 @@ class DDInverse(ngsolve.BaseMatrix):
         self.timings["condense"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        pm = part_matrices(c.S, self.T_w, part, self.free, ndof, boundary_vertex_dofs(V, ndof))
+        pm = part_matrices(c.S, self.T_w, part, self.free, ndof, boundary_vertex_dofs(V, ndof, dim))
         self.n_parts = pm.n_parts
         sub = Substructures(pm.local, scaling="multiplicity" if scaling == "multiplicity" else "rho",
                             templates=False, primal=primal)

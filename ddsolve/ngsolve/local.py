@@ -25,7 +25,8 @@ from scipy.sparse.csgraph import connected_components
 
 from ..errors import InputError
 from ..scene.assembly import LocalProblems
-from ..scene.partition import element_graph, partition_elements
+from ..scene.partition import partition_elements
+from .facets import boundary_vertices, facet_graph
 from ..scene.scene import sorted_unique
 
 log = logging.getLogger(__name__)
@@ -66,23 +67,26 @@ def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: in
     ``partition``: None (METIS on the element graph into ``parts``), ``"coarse"``
     (METIS into ``parts`` on the coarsest mesh of a ``mesh.Refine()`` hierarchy,
     inherited by the children), ``"materials"`` (the mesh's materials), or an
-    array of length n_elements. Parts that are
-    not connected through element edges are split into their connected pieces.
+    array of length n_elements. The element graph joins elements that share a
+    facet (an edge in 2D, a face in 3D); parts that are not connected through
+    facets are split into their connected pieces.
     """
-    ne = V.shape[0]
+    from .dofs import element_index
+
+    ne, dim = V.shape[0], int(mesh.dim)
     if partition is None:
         if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
             raise InputError("parts", f"must be a positive integer, got {parts!r}")
         if parts > ne:
             raise InputError("parts", f"{parts} parts requested but the mesh has only {ne} elements")
-        return partition_elements(V, int(parts), seed=seed, field="parts")
+        adjacency = None if dim == 2 else facet_graph(V, dim)
+        return partition_elements(V, int(parts), seed=seed, field="parts", adjacency=adjacency)
     if isinstance(partition, str) and partition == "coarse":
         return coarse_partition(mesh, V, parts, seed=seed)
     if isinstance(partition, str):
         if partition != "materials":
             raise InputError("partition", f"expected None, 'materials', 'coarse' or an array, got {partition!r}")
-        index = np.asarray(mesh.ngmesh.Elements2D().NumPy()["index"], dtype=np.int64)
-        _, label = np.unique(index, return_inverse=True)
+        _, label = np.unique(element_index(mesh), return_inverse=True)
     else:
         label = np.asarray(partition)
         if label.ndim != 1 or label.shape[0] != ne:
@@ -93,17 +97,19 @@ def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: in
         if (counts == 0).any():
             raise InputError("partition", f"{int((counts == 0).sum())} empty parts (labels must be 0..P-1, "
                                           f"each used)")
-    return split_disconnected(V, label.astype(np.int64))
+    return split_disconnected(V, label.astype(np.int64), facet_graph(V, dim))
 
 
 def refinement_roots(mesh: Any) -> np.ndarray:
     """Coarsest ancestor of every element of a mesh refined by ``mesh.Refine()``, shape (n_elements,).
 
-    netgen keeps the parent of each element (``parentsurfaceelements``, -1 for
-    the elements that replaced their parent in place), so the ancestors are
-    found by pointer jumping, one vectorised step per refinement level.
+    netgen keeps the parent of each element (``parentsurfaceelements`` in 2D,
+    ``parentelements`` in 3D; -1 for the elements that replaced their parent in
+    place), so the ancestors are found by pointer jumping, one vectorised step
+    per refinement level.
     """
-    parent = np.asarray(mesh.ngmesh.parentsurfaceelements, dtype=np.int64).reshape(-1)
+    parents = mesh.ngmesh.parentelements if mesh.dim == 3 else mesh.ngmesh.parentsurfaceelements
+    parent = np.asarray(parents, dtype=np.int64).reshape(-1)
     ne = mesh.ne
     if parent.size != ne:
         return np.arange(ne)
@@ -137,7 +143,7 @@ def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0) -> np.
         raise InputError("parts", f"{parts} parts requested but the coarse mesh has only {n_c} elements")
     if parts == 1:
         return np.zeros(V.shape[0], dtype=np.int64)
-    graph = element_graph(V)
+    graph = facet_graph(V, int(mesh.dim))
     first, second = graph
     a, b = coarse[first], coarse[second]
     keep = a != b
@@ -154,10 +160,10 @@ def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0) -> np.
 
 def split_disconnected(V: np.ndarray, label: np.ndarray,
                        graph: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """Relabel so that every part is one connected piece (element-edge adjacency; ``graph``: the
-    :func:`~ddsolve.scene.partition.element_graph` of V when the caller has it)."""
+    """Relabel so that every part is one connected piece (facet adjacency; ``graph``: the
+    :func:`~ddsolve.ngsolve.facets.facet_graph` of V, by default that of a 2D mesh)."""
     ne = V.shape[0]
-    first, second = element_graph(V) if graph is None else graph
+    first, second = facet_graph(V, 2) if graph is None else graph
     same = label[first] == label[second]
     G = sp.coo_matrix((np.ones(int(same.sum())), (first[same], second[same])), shape=(ne, ne))
     n, comp = connected_components(G, directed=False)
@@ -270,18 +276,10 @@ def _diagonal_block(A: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
                          shape=(hi - lo, hi - lo))
 
 
-def boundary_vertex_dofs(V: np.ndarray, ndof: int) -> np.ndarray:
-    """Vertex dofs (= vertex numbers) on edges that belong to one element only, shape (ndof,) bool."""
-    k = V.shape[1]
-    e = np.stack([np.sort(np.stack([V[:, i], V[:, (i + 1) % k]], axis=1), axis=1) for i in range(k)], axis=1)
-    e = e.reshape(-1, 2)
-    uniq, count = sorted_unique(e[:, 0] * (V.max() + 1) + e[:, 1], return_counts=True)
-    bnd = uniq[count == 1]
-    out = np.zeros(ndof, dtype=bool)
-    n = V.max() + 1
-    out[bnd // n] = True
-    out[bnd % n] = True
-    return out
+def boundary_vertex_dofs(V: np.ndarray, ndof: int, dim: int = 2) -> np.ndarray:
+    """Vertex dofs (= vertex numbers) on facets (edges in 2D, faces in 3D) that belong to one element
+    only, shape (ndof,) bool."""
+    return boundary_vertices(V, dim, ndof)
 
 
 def interface_edge_weights(fes: Any, part: np.ndarray, V: np.ndarray | None = None,

@@ -1,0 +1,125 @@
+"""Facets of the volume elements of a 2D or 3D mesh: adjacency, boundary vertices, lookup.
+
+A *facet* is an edge of a triangle or quadrilateral (2D) or a triangular face
+of a tetrahedron (3D). Everything is vectorised over the elements:
+
+* :func:`element_facets`: the vertices of every facet of every element;
+* :func:`facet_graph`: pairs of elements sharing a facet (the element graph
+  that METIS partitions, and in which a part must be connected);
+* :func:`boundary_vertices`: vertices on facets of one element only (the
+  boundary of the domain);
+* :func:`facet_owner`: the volume element and facet of each given facet (a
+  boundary element of a ``ds`` integrator).
+
+In 2D :func:`facet_graph` is :func:`ddsolve.scene.partition.element_graph`
+itself, so 2D partitions are those of the structured and unstructured scenes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..scene.partition import element_graph
+
+__all__ = ["element_facets", "facet_graph", "boundary_vertices", "facet_owner"]
+
+#: The faces of a tetrahedron (vertex positions), each the vertices but one.
+TET_FACES = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
+
+
+def element_facets(V: np.ndarray, dim: int) -> np.ndarray:
+    """Vertices of the facets of every element, each facet's vertices sorted.
+
+    Parameters
+    ----------
+    V : ndarray of int, shape (n_elements, k)
+        Vertex table (:func:`~ddsolve.ngsolve.dofs.vertex_table`): k = 3 or 4 in
+        2D (listed around the element), k = 4 (tetrahedra) in 3D.
+    dim : int
+        2 or 3.
+
+    Returns
+    -------
+    ndarray of int, shape (n_elements, n_facets, dim)
+        n_facets = k in 2D (edge i joins vertices i and i + 1), 4 in 3D (face i
+        omits vertex i).
+    """
+    V = np.asarray(V, dtype=np.int64)
+    if dim == 2:
+        F = np.stack([V, np.roll(V, -1, axis=1)], axis=2)
+    elif dim == 3:
+        F = V[:, np.array(TET_FACES)]
+    else:
+        raise ValueError(f"dim must be 2 or 3, got {dim}")
+    return np.sort(F, axis=2)
+
+
+def _sorted_rows(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Order of the rows of F (n, m) sorted lexicographically, and where each row equals the next."""
+    order = np.lexsort(F.T[::-1])
+    Fs = F[order]
+    same = np.all(Fs[1:] == Fs[:-1], axis=1)
+    return order, same
+
+
+def facet_graph(V: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (e, f), e < f, of elements sharing a facet, each pair once.
+
+    Returns
+    -------
+    first, second : ndarray of int, shape (n_pairs,)
+    """
+    if dim == 2:
+        return element_graph(V)
+    F = element_facets(V, dim)
+    n_el, n_f, _ = F.shape
+    order, same = _sorted_rows(F.reshape(-1, dim))
+    owner = order // n_f
+    at = np.flatnonzero(same)
+    a, b = owner[at], owner[at + 1]
+    return np.minimum(a, b), np.maximum(a, b)
+
+
+def boundary_vertices(V: np.ndarray, dim: int, n: int) -> np.ndarray:
+    """Vertices on a facet of exactly one element, as a mask of shape (n,)."""
+    F = element_facets(V, dim).reshape(-1, dim)
+    order, same = _sorted_rows(F)
+    single = np.ones(F.shape[0], dtype=bool)
+    single[np.flatnonzero(same)] = False
+    single[np.flatnonzero(same) + 1] = False
+    out = np.zeros(n, dtype=bool)
+    out[F[order][single].ravel()] = True
+    return out
+
+
+def facet_owner(V: np.ndarray, dim: int, facets: np.ndarray) -> np.ndarray:
+    """The element of every given facet, shape (n_given,).
+
+    Parameters
+    ----------
+    facets : ndarray of int, shape (n_given, dim)
+        Vertices of facets of the mesh (e.g. of boundary elements), in any order.
+
+    Raises
+    ------
+    InputError
+        A given facet is no facet of any element.
+    """
+    F = element_facets(V, dim).reshape(-1, dim)
+    n_f = F.shape[0] // max(V.shape[0], 1)
+    G = np.sort(np.asarray(facets, dtype=np.int64), axis=1)
+    both = np.concatenate([F, G])
+    order = np.lexsort(both.T[::-1])
+    is_given = order >= F.shape[0]
+    # each given facet sorts right after the element facets equal to it (lexsort is stable)
+    rows = both[order]
+    last_elem = np.maximum.accumulate(np.where(~is_given, np.arange(order.size), -1))
+    pos = np.flatnonzero(is_given)
+    src = last_elem[pos]
+    ok = src >= 0
+    ok[ok] = np.all(rows[src[ok]] == rows[pos[ok]], axis=1)
+    if not ok.all():
+        raise InputError("a", "a boundary element does not lie on a facet of a volume element")
+    result = np.empty(G.shape[0], dtype=np.int64)
+    result[order[pos] - F.shape[0]] = order[src] // n_f
+    return result
