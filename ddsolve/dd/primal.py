@@ -35,7 +35,7 @@ MAX_INTERFACES = 4
 #: Cholesky, METIS ordering; :mod:`ddsolve.dd.pardiso`) when it loads, smaller ones by SuperLU, as
 #: before (every structured and unstructured study has fewer). Measured on a 3D DDInverse (order 2,
 #: 290,448 dofs, 290 METIS parts, 10,987 primal dofs, one thread): SuperLU 44.0 s; PARDISO
-#: 0.6 s (docs/ngsolve.md, "3D meshes").
+#: 0.92 s (docs/ngsolve.md, "3D meshes").
 COARSE_PARDISO_MIN = 4000
 
 

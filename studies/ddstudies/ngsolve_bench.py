@@ -19,7 +19,9 @@ Run: ``python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png``; t
 against the number of parts on one mesh:
 ``python -m ddstudies.ngsolve_bench --parts-sweep ORDER NDOF 64,256,1024`` (a markdown table); the
 condition numbers against H/h at a fixed coarse partition, per order (:func:`hh_study`):
-``python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3`` (a markdown table).
+``python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3`` (a markdown table); the same
+problem on the unit cube (3D, tetrahedra; :func:`cube_study`):
+``python -m ddstudies.ngsolve_bench --cube-study 1,2,3 250000 [DOFS_PER_PART]`` (a markdown table).
 """
 from __future__ import annotations
 
@@ -67,6 +69,26 @@ def make_mesh(order: int, ndof: int):
     for _ in range(refine):
         ngmesh.Refine()
     return ngs.Mesh(ngmesh)
+
+
+def make_cube_mesh(order: int, ndof: int):
+    """Unit-cube tetrahedral mesh with about ``ndof`` H1 dofs of order ``order``.
+
+    A netgen mesh of about ``ndof / order^3`` vertices (an order-p space has about p^3 dofs per
+    vertex on tetrahedra; netgen gives about 1 / maxh^3 vertices in the unit cube), made with
+    ``mesh.Refine()`` (8x the vertices each) from a mesh of at most 40,000 vertices, since
+    netgen's 3D mesher is slow.
+    """
+    import ngsolve as ngs
+    from netgen.csg import unit_cube
+
+    nv = max(ndof / order ** 3, 64.0)
+    refine = max(0, math.ceil(math.log(max(nv / 40000.0, 1.0), 8)))
+    h = (nv / 8 ** refine) ** (-1.0 / 3.0)
+    mesh = ngs.Mesh(unit_cube.GenerateMesh(maxh=h))
+    for _ in range(refine):
+        mesh.Refine()
+    return mesh
 
 
 def _forms(mesh, order):
@@ -119,13 +141,16 @@ def run_solver(name: str, mesh, order: int, parts: int, rtol: float, maxiter: in
     return t1 - t0, t2 - t1, its, gfu.vec.FV().NumPy().copy()
 
 
-def run_study(cfg: dict) -> list[Row]:
+def run_study(cfg: dict, mesh_of=None) -> list[Row]:
+    """Rows of every solver for every (order, ndof) of ``cfg["orders"]``; ``mesh_of(order, ndof)``
+    builds the mesh (default :func:`make_mesh`, the unit square)."""
+    mesh_of = make_mesh if mesh_of is None else mesh_of
     rows: list[Row] = []
     solvers = cfg.get("solvers", list(SOLVERS))
     for order_cfg in cfg["orders"]:
         order = int(order_cfg["order"])
         for ndof in order_cfg["ndofs"]:
-            mesh = make_mesh(order, int(ndof))
+            mesh = mesh_of(order, int(ndof))
             parts = max(2, round(int(ndof) / int(cfg["dofs_per_part"])))
             ref = None
             results = []
@@ -144,7 +169,7 @@ def run_study(cfg: dict) -> list[Row]:
                        if (x is not None and ref is not None) else math.nan)
                 rows.append(Row(name, order, n, parts if name.startswith("ddinverse") else 0, s, t, s + t, its,
                                 rel, os.getloadavg()[0], err))
-    for sweep in cfg.get("parts_sweep", []) or []:
+    for sweep in cfg.get("parts_sweep", []) if mesh_of is make_mesh else []:
         mesh = make_mesh(int(sweep["order"]), int(sweep["ndof"]))
         for parts in sweep["parts"]:
             s, t, its, _ = run_solver("ddinverse-bddc", mesh, int(sweep["order"]), int(parts),
@@ -154,14 +179,20 @@ def run_study(cfg: dict) -> list[Row]:
     return rows
 
 
-def summary(rows: list[Row]) -> str:
-    """Markdown table and the target checks of the issue (reported, not tuned for)."""
+def rows_table(rows: list[Row]) -> list[str]:
+    """Markdown lines of a table of rows (one per solver and case)."""
     lines = ["| solver | order | ndof | parts | setup s | solve s | total s | its | rel. error | load |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r.solver} | {r.order} | {r.ndof} | {r.parts} | {r.setup_s:.2f} | {r.solve_s:.2f} | "
                      f"{r.total_s:.2f} | {r.iterations} | {r.relerr:.1e} | {r.load:.1f} |"
                      + (f" {r.error}" if r.error else ""))
+    return lines
+
+
+def summary(rows: list[Row]) -> str:
+    """Markdown table and the target checks of the issue (reported, not tuned for)."""
+    lines = rows_table(rows)
     lines += ["", "Targets:"]
     by = {(r.solver, r.order, r.ndof): r for r in rows}
     for order in sorted({r.order for r in rows}):
@@ -238,6 +269,35 @@ def sweep_table(rows: list[Row]) -> str:
     return "\n".join(lines) + "\n"
 
 
+CUBE_SOLVERS = ("ddinverse-bddc", "ddinverse-fetidp", "ngs-bddc-cg", "ngs-h1amg-cg", "sparsecholesky")
+
+
+def cube_study(block: dict, cfg: dict) -> list[Row]:
+    """The solvers of ``block["solvers"]`` (default :data:`CUBE_SOLVERS`) on the unit cube
+    (:func:`make_cube_mesh`) for every (order, ndofs) of ``block["orders"]``, with ``cfg``'s
+    ``dofs_per_part``, ``rtol`` and ``maxiter`` (same problem and timings as :func:`run_study`)."""
+    sub = {"orders": block["orders"], "solvers": block.get("solvers", list(CUBE_SOLVERS)),
+           "dofs_per_part": block.get("dofs_per_part", cfg.get("dofs_per_part", 4000)),
+           "rtol": cfg.get("rtol", 1e-8), "maxiter": cfg.get("maxiter", 1000)}
+    return run_study(sub, make_cube_mesh)
+
+
+def cube_table(rows: list[Row]) -> str:
+    """Markdown of :func:`cube_study` rows, with each case's DDInverse time over NGSolve's."""
+    lines = rows_table(rows) + [""]
+    by = {(r.solver, r.order, r.ndof): r for r in rows}
+    for order, n in sorted({(r.order, r.ndof) for r in rows}):
+        dd = [by[(s, order, n)] for s in ("ddinverse-bddc", "ddinverse-fetidp") if (s, order, n) in by
+              and math.isfinite(by[(s, order, n)].total_s)]
+        ngs_rows = [by[(s, order, n)] for s in ("ngs-bddc-cg", "ngs-h1amg-cg", "sparsecholesky")
+                    if (s, order, n) in by and math.isfinite(by[(s, order, n)].total_s)]
+        if dd and ngs_rows:
+            best, ref = min(dd, key=lambda r: r.total_s), min(ngs_rows, key=lambda r: r.total_s)
+            lines.append(f"- order {order}, {n} dofs: {best.solver} {best.total_s:.2f} s / {ref.solver} "
+                         f"{ref.total_s:.2f} s = {best.total_s / ref.total_s:.2f} (fastest of each)")
+    return "\n".join(lines) + "\n"
+
+
 def hh_table(results: dict[int, dict], parts: int) -> str:
     """Markdown of :func:`hh_study` results per order: cond and iterations against H/h, and the fit
     cond = c0 + c1 (1 + log(H/h))^2 (H/h nominal, 4 * 2^r)."""
@@ -273,6 +333,14 @@ def main(argv: list[str] | None = None) -> int:
                              [int(p) for p in argv[3].split(",")], argv[4])
         sys.stdout.write(scaling_table(rows, argv[4]))
         return 0
+    if argv[:1] == ["--cube-study"] and len(argv) in (3, 4):
+        # python -m ddstudies.ngsolve_bench --cube-study 1,2,3 250000 [DOFS_PER_PART]   (markdown on stdout)
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        block = {"orders": [{"order": int(o), "ndofs": [int(n) for n in argv[2].split(",")]}
+                            for o in argv[1].split(",")]}
+        cfg = {"dofs_per_part": int(argv[3])} if len(argv) == 4 else {}
+        sys.stdout.write(cube_table(cube_study(block, cfg)))
+        return 0
     if len(argv) != 4:
         print("usage: python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png", file=sys.stderr)
         return 2
@@ -290,6 +358,9 @@ def main(argv: list[str] | None = None) -> int:
     for block in cfg.get("scaling_study", []) or []:
         study = scaling_study(block["orders"], block["maxh"], block["parts"], block["pattern"])
         text += "\n## Scaling where METIS parts cut coefficient jumps (bddc)\n\n" + scaling_table(study, block["pattern"])
+    if cfg.get("cube"):
+        text += ("\n## 3D: the same problem on the unit cube (tetrahedra)\n\n"
+                 + cube_table(cube_study(cfg["cube"], cfg)))
     _write_atomic(argv[2], text)
     plot(rows, argv[3])
     return 0

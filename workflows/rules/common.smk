@@ -284,7 +284,7 @@ if KIND == "scaling":
 import json
 
 #: Config keys handed to ddstudies.ngsolve_bench.
-NGSOLVE_KEYS = ("orders", "solvers", "dofs_per_part", "rtol", "maxiter", "parts_sweep", "scaling_study")
+NGSOLVE_KEYS = ("orders", "solvers", "dofs_per_part", "rtol", "maxiter", "parts_sweep", "scaling_study", "cube")
 
 
 # --- kind unstructured (unstructured.smk) -----------------------------------------------------

@@ -29,6 +29,9 @@ def test_config_validates_and_schema_is_closed():
     with pytest.raises(ConfigError, match="scaling_study/0"):
         validate({**config, "scaling_study": [{"pattern": "spots", "orders": [1], "maxh": [0.1], "parts": [4]}]},
                  SCHEMA)
+    assert [o["order"] for o in config["cube"]["orders"]] == [1, 2, 3]
+    with pytest.raises(ConfigError, match="cube"):
+        validate({**config, "cube": {"orders": [{"order": 1, "ndofs": [1000]}], "maxh": 0.1}}, SCHEMA)
 
 
 def test_small_study_agrees_with_the_direct_solution():
@@ -56,7 +59,8 @@ def test_workflow_runs_the_study(tmp_path):
     copy_workflow(tmp_path)
     cfg = {"kind": "ngsolve", "study": "ngs_tiny", "orders": [{"order": 1, "ndofs": [1500]}],
            "solvers": ["ddinverse-bddc", "sparsecholesky"], "dofs_per_part": 300,
-           "scaling_study": [{"pattern": "stripes", "orders": [1], "maxh": [0.1], "parts": [6]}]}
+           "scaling_study": [{"pattern": "stripes", "orders": [1], "maxh": [0.1], "parts": [6]}],
+           "cube": {"orders": [{"order": 1, "ndofs": [800]}], "solvers": ["ddinverse-fetidp", "sparsecholesky"]}}
     (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(cfg))
     run_snakemake(tmp_path, "--cores", "1", "--configfile", "tiny.yaml", timeout=600)
     with open(tmp_path / "results" / "ngs_tiny" / "ngsolve.csv") as fh:
@@ -66,6 +70,24 @@ def test_workflow_runs_the_study(tmp_path):
     assert (tmp_path / "reports" / "ngs_tiny" / "ngsolve.png").stat().st_size > 1000
     report = (tmp_path / "reports" / "ngs_tiny" / "ngsolve.md").read_text()
     assert "## Scaling where METIS parts cut coefficient jumps" in report and "| 1 | 0.1 |" in report
+    assert "## 3D: the same problem on the unit cube" in report and "| ddinverse-fetidp | 1 |" in report
+
+
+def test_cube_study_agrees_with_the_direct_solution():
+    from ddstudies.ngsolve_bench import cube_study, cube_table, make_cube_mesh
+
+    assert make_cube_mesh(1, 2000).dim == 3
+    rows = cube_study({"orders": [{"order": 1, "ndofs": [1500]}, {"order": 2, "ndofs": [3000]}],
+                       "solvers": ["ddinverse-bddc", "ddinverse-fetidp", "ngs-bddc-cg", "sparsecholesky"]},
+                      {"dofs_per_part": 300, "rtol": 1e-10, "maxiter": 200})
+    assert [(r.solver, r.order) for r in rows][:4] == [("ddinverse-bddc", 1), ("ddinverse-fetidp", 1),
+                                                       ("ngs-bddc-cg", 1), ("sparsecholesky", 1)]
+    for r in rows:
+        assert 700 < r.ndof < 6000 and r.error == ""
+        if r.solver.startswith("ddinverse"):
+            assert r.relerr < 1e-8 and 0 < r.iterations < 30 and r.parts >= 3
+    table = cube_table(rows)
+    assert table.count("(fastest of each)") == 2 and "| ddinverse-fetidp | 2 |" in table
 
 
 def test_parts_sweep_table():
