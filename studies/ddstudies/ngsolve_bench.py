@@ -19,7 +19,8 @@ Run: ``python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png``; t
 against the number of parts on one mesh:
 ``python -m ddstudies.ngsolve_bench --parts-sweep ORDER NDOF 64,256,1024`` (a markdown table); the
 condition numbers against H/h at a fixed coarse partition, per order (:func:`hh_study`):
-``python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3`` (a markdown table); the same
+``python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3 [DIM MAXH]`` (a markdown table; DIM 3: the
+unit cube); the same
 problem on the unit cube (3D, tetrahedra; :func:`cube_study`):
 ``python -m ddstudies.ngsolve_bench --cube-study 1,2,3 250000 [DOFS_PER_PART]`` (a markdown table).
 """
@@ -319,11 +320,12 @@ def main(argv: list[str] | None = None) -> int:
         rows = parts_sweep(int(argv[1]), int(argv[2]), [int(p) for p in argv[3].split(",")])
         sys.stdout.write(sweep_table(rows))
         return 0
-    if argv[:1] == ["--hh-study"] and len(argv) == 4:
-        # python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3   (markdown on stdout)
+    if argv[:1] == ["--hh-study"] and len(argv) in (4, 6):
+        # python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3 [DIM MAXH]   (markdown on stdout)
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         refs = tuple(int(r) for r in argv[3].split(","))
-        results = {int(o): hh_study(int(o), int(argv[2]), refs) for o in argv[1].split(",")}
+        dim, maxh = (int(argv[4]), float(argv[5])) if len(argv) == 6 else (2, 0.05)
+        results = {int(o): hh_study(int(o), int(argv[2]), refs, maxh=maxh, dim=dim) for o in argv[1].split(",")}
         sys.stdout.write(hh_table(results, int(argv[2])))
         return 0
     if argv[:1] == ["--scaling-study"] and len(argv) == 5:
@@ -367,12 +369,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def hh_study(order: int = 1, parts: int = 16, refinements: tuple[int, ...] = (0, 1, 2), maxh: float = 0.05,
-             method: str = "bddc") -> dict:
+             method: str = "bddc", dim: int = 2) -> dict:
     """Condition numbers at a fixed METIS partition of the coarse mesh while h halves (H/h doubles).
 
     The partition is computed once on the coarse mesh; a refined element gets
     the part of the coarse element containing its centroid (a point search
-    per element: a study, not a timed path). Fits
+    per element: a study, not a timed path). ``dim=3``: the unit cube, refined
+    by ``mesh.Refine()``, whose elements inherit the part of their coarse
+    ancestor (:func:`ddsolve.ngsolve.local.refinement_roots`). Fits
     cond = c0 + c1 (1 + log(H/h))^2, with H/h = 4 * 2^r as a nominal value,
     and returns the sizes, iterations, condition numbers and the fit.
     """
@@ -383,16 +387,32 @@ def hh_study(order: int = 1, parts: int = 16, refinements: tuple[int, ...] = (0,
     from ddsolve.ngsolve.dofs import vertex_table
     from ddsolve.scene.partition import partition_elements
 
-    coarse = ngs.Mesh(unit_square.GenerateMesh(maxh=maxh))
-    label = partition_elements(vertex_table(coarse), parts)
+    if dim == 3:
+        from netgen.csg import unit_cube
+
+        from ddsolve.ngsolve.facets import facet_graph
+        from ddsolve.ngsolve.local import refinement_roots
+
+        geometry = unit_cube
+    else:
+        geometry = unit_square
+    coarse = ngs.Mesh(geometry.GenerateMesh(maxh=maxh))
+    V = vertex_table(coarse)
+    label = partition_elements(V, parts, adjacency=facet_graph(V, 3) if dim == 3 else None)
     out = {"ndof": [], "iterations": [], "cond": [], "h_ratio": []}
     for r in refinements:
-        ngmesh = unit_square.GenerateMesh(maxh=maxh)
-        for _ in range(r):
-            ngmesh.Refine()
-        mesh = ngs.Mesh(ngmesh)
-        centroids = _centroids(mesh)
-        coarse_el = np.array([coarse(float(x), float(y)).nr for x, y in centroids])
+        if dim == 3:
+            mesh = ngs.Mesh(geometry.GenerateMesh(maxh=maxh))
+            for _ in range(r):
+                mesh.Refine()
+            coarse_el = refinement_roots(mesh)
+        else:
+            ngmesh = geometry.GenerateMesh(maxh=maxh)
+            for _ in range(r):
+                ngmesh.Refine()
+            mesh = ngs.Mesh(ngmesh)
+            centroids = _centroids(mesh)
+            coarse_el = np.array([coarse(float(x), float(y)).nr for x, y in centroids])
         fes, a, f = _forms(mesh, order)
         inv = DDInverse(a, method=method, partition=label[coarse_el], rtol=1e-10, cond=True)
         gfu = ngs.GridFunction(fes)

@@ -112,3 +112,17 @@ def test_scaling_study_table():
     with pytest.raises(ValueError, match="pattern"):
         scaling_study([1], [0.2], [4], "spots")
     assert main(["--scaling-study", "1", "0.2", "4", "checker"]) == 0
+
+
+@pytest.mark.parametrize("dim, maxh", [(2, 0.2), (3, 0.5)])
+def test_hh_study_refines_at_a_fixed_partition(dim, maxh):
+    """H/h doubles at a fixed coarse partition: the dofs grow by about 2^dim, the condition number grows
+    slowly (polylogarithmic), and the fit is returned."""
+    from ddstudies.ngsolve_bench import hh_study, hh_table
+
+    out = hh_study(1, 4, (0, 1), maxh=maxh, dim=dim)
+    growth = out["ndof"][1] / out["ndof"][0]
+    assert 2 ** dim / 2 < growth < 2 ** dim * 2
+    assert 1.0 < out["cond"][0] < out["cond"][1] < 4.0
+    assert out["fit"]["c1"] > 0
+    assert hh_table({1: out}, 4).count("\n") == 4
