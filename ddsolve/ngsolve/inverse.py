@@ -67,6 +67,28 @@ def _check_vector(name: str, v: np.ndarray, ndof: int) -> np.ndarray:
     return v
 
 
+def _check_not_singular(Ke: np.ndarray, T: np.ndarray, free: np.ndarray, nv: int) -> None:
+    """Refuse a form that annihilates the constants when no dof is fixed (a pure Neumann problem).
+
+    In NGSolve's hierarchical H1 basis the constant 1 is 1 on the vertex dofs
+    (``dof < nv``) and 0 on the edge, face and bubble dofs. With every dof free
+    and A c = 0 the assembled matrix is singular; the substructuring solvers
+    would then fail in one of several ways (a singular coarse or projection
+    factorization, a PCG breakdown), so one ``InputError`` names ``a`` instead.
+
+    Ke : (n_elements, n_local, n_local) element matrices (``ds`` terms added);
+    T : (n_elements, n_local) element-to-dof table; free : (ndof,) bool.
+    """
+    if not free.all():
+        return
+    c = (T < nv).astype(float)
+    Ac = np.bincount(T.ravel(), weights=np.einsum("eij,ej->ei", Ke, c).ravel(), minlength=free.size)
+    diag = np.einsum("eii->ei", Ke)
+    if np.abs(Ac).max() <= 1e-10 * np.abs(diag).max():
+        raise InputError("a", "the form is singular: it annihilates the constants and no dof is fixed (a pure "
+                              "Neumann problem); give Dirichlet boundaries, freedofs, or a reaction or Robin term")
+
+
 def _no_interface() -> KrylovResult:
     return KrylovResult(x=np.zeros(0), converged=True, reason="no interface: solved directly", iterations=0,
                         residuals=np.zeros(1))
@@ -318,6 +340,7 @@ class DDInverse(ngsolve.BaseMatrix):
         t = time.perf_counter()
         part = element_parts(fes.mesh, V, parts, partition, seed=seed)
         self.timings["partition"] = time.perf_counter() - t
+        _check_not_singular(Ke, T, self.free, fes.mesh.nv)     # after the argument checks of the partition
         t = time.perf_counter()
         self.cond_data = condense(Ke, T, self.free)
         del Ke
