@@ -112,6 +112,8 @@ def element_dofs(fes: Any) -> np.ndarray:
         table = _triangle_dofs(fes, V)
         if table is not None:
             return table
+    elif mesh.dim == 3 and int(fes.globalorder) == 1 and fes.ndof == mesh.nv and _matches(fes, V):
+        return V.copy()                 # order 1 on tetrahedra: the dofs are the vertices
     return _converted_dofs(fes)
 
 

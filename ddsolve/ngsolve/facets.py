@@ -55,11 +55,24 @@ def element_facets(V: np.ndarray, dim: int) -> np.ndarray:
 
 
 def _sorted_rows(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Order of the rows of F (n, m) sorted lexicographically, and where each row equals the next."""
+    """Order of the rows of F (n, m), sorted within each row, so that equal rows are adjacent, and
+    whether each row in that order equals the next.
+
+    Rows are encoded as one int64 key (m = 2 or 3 numbers below 2^21 each: meshes of up to
+    about two million vertices) and sorted by one argsort (equal rows in any order); larger
+    meshes use ``np.lexsort`` (about 4x slower).
+    """
+    n = int(F.max()) + 1 if F.size else 1
+    if n ** F.shape[1] < 2 ** 63:
+        key = F[:, 0].astype(np.int64)
+        for j in range(1, F.shape[1]):
+            key = key * n + F[:, j]
+        order = np.argsort(key)
+        key = key[order]
+        return order, key[1:] == key[:-1]
     order = np.lexsort(F.T[::-1])
     Fs = F[order]
-    same = np.all(Fs[1:] == Fs[:-1], axis=1)
-    return order, same
+    return order, np.all(Fs[1:] == Fs[:-1], axis=1)
 
 
 def facet_graph(V: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:
