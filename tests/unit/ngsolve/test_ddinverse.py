@@ -34,7 +34,7 @@ def two_materials(maxh: float):
     return ngs.Mesh(geo.GenerateMesh(maxh=maxh))
 
 
-def forms(mesh, order, coef, reaction=0.0, dirichlet="outer"):
+def forms(mesh, order, coef, reaction=0.0, dirichlet="outer", load=None):
     fes = ngs.H1(mesh, order=order, dirichlet=dirichlet)
     u, v = fes.TnT()
     a = ngs.BilinearForm(fes)
@@ -42,7 +42,7 @@ def forms(mesh, order, coef, reaction=0.0, dirichlet="outer"):
     if reaction:
         a += reaction * u * v * ngs.dx
     f = ngs.LinearForm(fes)
-    f += (1 + ngs.x * ngs.y) * v * ngs.dx
+    f += ((1 + ngs.x * ngs.y) if load is None else load) * v * ngs.dx
     f.Assemble()
     return fes, a, f
 

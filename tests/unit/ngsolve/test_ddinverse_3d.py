@@ -12,7 +12,7 @@ from ddsolve.ngsolve import DDInverse
 from ddsolve.ngsolve.dofs import vertex_table
 from ddsolve.ngsolve.facets import boundary_vertices, facet_graph, facet_owner
 
-from test_ddinverse import dd, direct, relerr
+from test_ddinverse import dd, direct, forms, relerr
 
 
 @pytest.fixture(scope="module")
@@ -36,16 +36,7 @@ def two_materials(maxh: float):
 
 
 def forms3d(mesh, order, coef, reaction=0.0, dirichlet=".*"):
-    fes = ngs.H1(mesh, order=order, dirichlet=dirichlet)
-    u, v = fes.TnT()
-    a = ngs.BilinearForm(fes)
-    a += coef * ngs.grad(u) * ngs.grad(v) * ngs.dx
-    if reaction:
-        a += reaction * u * v * ngs.dx
-    f = ngs.LinearForm(fes)
-    f += (1 + ngs.x * ngs.y - ngs.z) * v * ngs.dx
-    f.Assemble()
-    return fes, a, f
+    return forms(mesh, order, coef, reaction, dirichlet, load=1 + ngs.x * ngs.y - ngs.z)
 
 
 @pytest.mark.parametrize("order", [1, 2, 3])
