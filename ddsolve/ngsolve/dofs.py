@@ -112,8 +112,10 @@ def element_dofs(fes: Any) -> np.ndarray:
         table = _triangle_dofs(fes, V)
         if table is not None:
             return table
-    elif mesh.dim == 3 and int(fes.globalorder) == 1 and fes.ndof == mesh.nv and _matches(fes, V):
-        return V.copy()                 # order 1 on tetrahedra: the dofs are the vertices
+    elif mesh.dim == 3:
+        table = _tetrahedron_dofs(fes, V)
+        if table is not None:
+            return table
     return _converted_dofs(fes)
 
 
@@ -137,6 +139,45 @@ def _triangle_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     if nb:
         parts.append(nv + ned * (p - 1) + np.arange(ne)[:, None] * nb + np.arange(nb))
     table = np.concatenate(parts, axis=1)
+    return table if _matches(fes, table) else None
+
+
+def _numbered(keys: np.ndarray) -> tuple[np.ndarray, int]:
+    """Rank of every key among the distinct keys (sorted), and their number."""
+    uniq, number = np.unique(keys, return_inverse=True)
+    return number, uniq.size
+
+
+def _tetrahedron_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
+    """Vectorised table for a uniform-order H1 space on tetrahedra, None if NGSolve numbers differently.
+
+    NGSolve numbers the vertex dofs first, then p - 1 dofs per edge, (p-1)(p-2)/2 per face and
+    (p-1)(p-2)(p-3)/6 per cell, edges and faces in the order of their sorted vertex numbers; an
+    element lists its edges as (0,3), (1,3), (2,3), (0,1), (0,2), (1,2) and its face i without
+    vertex i. Checked against ``fes.GetDofNrs`` on CHECK_ELEMENTS elements (else None).
+    """
+    p = int(fes.globalorder)
+    ne, nv = V.shape[0], fes.mesh.nv
+    n = np.int64(nv)
+    if p == 1:                          # vertex dofs only: dof = vertex number
+        return V.copy() if fes.ndof == nv and _matches(fes, V) else None
+    E = np.sort(V[:, np.array(((0, 3), (1, 3), (2, 3), (0, 1), (0, 2), (1, 2)))], axis=2)
+    edge_num, ned = _numbered((E[:, :, 0] * n + E[:, :, 1]).ravel())
+    ne_dofs, nf_dofs, nc_dofs = p - 1, (p - 1) * (p - 2) // 2, (p - 1) * (p - 2) * (p - 3) // 6
+    parts = [V, (nv + edge_num.reshape(ne, 6)[:, :, None] * ne_dofs + np.arange(ne_dofs)).reshape(ne, -1)]
+    nface = 0
+    if nf_dofs and nv >= 2 ** 21:       # the face keys would overflow int64
+        return None
+    if nf_dofs:
+        F = np.sort(V[:, np.array(((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)))], axis=2)
+        face_num, nface = _numbered(((F[:, :, 0] * n + F[:, :, 1]) * n + F[:, :, 2]).ravel())
+        parts.append((nv + ned * ne_dofs + face_num.reshape(ne, 4)[:, :, None] * nf_dofs
+                      + np.arange(nf_dofs)).reshape(ne, -1))
+    if nc_dofs:
+        parts.append(nv + ned * ne_dofs + nface * nf_dofs + np.arange(ne)[:, None] * nc_dofs + np.arange(nc_dofs))
+    table = np.concatenate(parts, axis=1)
+    if fes.ndof != nv + ned * ne_dofs + nface * nf_dofs + ne * nc_dofs:
+        return None
     return table if _matches(fes, table) else None
 
 

@@ -162,3 +162,17 @@ def test_facets_of_two_tetrahedra():
     np.testing.assert_array_equal(facet_owner(V, 3, np.array([[3, 2, 0], [4, 3, 1]])), [0, 1])
     with pytest.raises(InputError, match="does not lie on a facet"):
         facet_owner(V, 3, np.array([[0, 1, 4]]))
+
+
+@pytest.mark.parametrize("order", [1, 2, 3, 4])
+def test_vectorised_tetrahedron_table_is_ngsolves(order):
+    """The element-to-dof table built from the vertex table equals the one of ConvertOperator."""
+    from ngsolve.meshes import MakeStructured3DMesh
+
+    from ddsolve.ngsolve.dofs import _converted_dofs, _tetrahedron_dofs
+
+    for mesh in (ngs.Mesh(unit_cube.GenerateMesh(maxh=0.3)), MakeStructured3DMesh(hexes=False, nx=2, ny=3, nz=2)):
+        fes = ngs.H1(mesh, order=order)
+        table = _tetrahedron_dofs(fes, vertex_table(mesh))
+        assert table is not None
+        np.testing.assert_array_equal(table, _converted_dofs(fes))
