@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import InputError
 from ..scene.partition import element_graph
 
-__all__ = ["element_facets", "facet_graph", "boundary_vertices", "facet_owner"]
+__all__ = ["boundary_vertices", "element_facets", "facet_graph", "facet_owner"]
 
 #: The faces of a tetrahedron (vertex positions), each the vertices but one.
 TET_FACES = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
@@ -85,7 +85,7 @@ def facet_graph(V: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:
     if dim == 2:
         return element_graph(V)
     F = element_facets(V, dim)
-    n_el, n_f, _ = F.shape
+    n_f = F.shape[1]
     order, same = _sorted_rows(F.reshape(-1, dim))
     owner = order // n_f
     at = np.flatnonzero(same)

@@ -26,8 +26,9 @@ from scipy.sparse.csgraph import connected_components
 from ..errors import InputError
 from ..scene.assembly import LocalProblems
 from ..scene.partition import partition_elements
-from .facets import boundary_vertices, facet_graph
 from ..scene.scene import sorted_unique
+from .dofs import element_index
+from .facets import boundary_vertices, facet_graph
 
 log = logging.getLogger(__name__)
 
@@ -71,8 +72,6 @@ def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: in
     facet (an edge in 2D, a face in 3D); parts that are not connected through
     facets are split into their connected pieces.
     """
-    from .dofs import element_index
-
     ne, dim = V.shape[0], int(mesh.dim)
     if partition is None:
         if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:

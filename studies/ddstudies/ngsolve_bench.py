@@ -302,7 +302,7 @@ def cube_table(rows: list[Row]) -> str:
 def hh_table(results: dict[int, dict], parts: int) -> str:
     """Markdown of :func:`hh_study` results per order: cond and iterations against H/h, and the fit
     cond = c0 + c1 (1 + log(H/h))^2 (H/h nominal, 4 * 2^r)."""
-    lines = [f"| order | H/h (nominal) | dofs | parts | iterations | cond | fit c0 + c1 (1 + log(H/h))^2 |",
+    lines = ["| order | H/h (nominal) | dofs | parts | iterations | cond | fit c0 + c1 (1 + log(H/h))^2 |",
              "|---|---|---|---|---|---|---|"]
     for order, out in results.items():
         fit = out["fit"]

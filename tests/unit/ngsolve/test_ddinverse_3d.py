@@ -6,13 +6,12 @@ import pytest
 
 ngs = pytest.importorskip("ngsolve")
 from netgen.csg import CSGeometry, OrthoBrick, Pnt, Sphere, unit_cube
+from test_ddinverse import dd, direct, forms, relerr
 
 from ddsolve.errors import InputError
 from ddsolve.ngsolve import DDInverse
 from ddsolve.ngsolve.dofs import vertex_table
 from ddsolve.ngsolve.facets import boundary_vertices, facet_graph, facet_owner
-
-from test_ddinverse import dd, direct, forms, relerr
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +132,7 @@ def test_deluxe_in_3d():
 
 
 def test_bad_input_in_3d(cube):
-    fes, a, f = forms3d(cube, 1, 1.0)
+    _, a, _ = forms3d(cube, 1, 1.0)
     with pytest.raises(InputError, match="primal: 'vertices\\+edges' is for 2D meshes"):
         DDInverse(a, primal="vertices+edges")
     with pytest.raises(InputError, match=f"parts: {cube.ne + 1} parts requested"):
