@@ -189,8 +189,11 @@ class PrimalConstrainedSolver:
             sub = self.sub
             entry_cols = self.coarse_cols[sub.sub_of_W] if self.p_max else np.zeros((sub.n_W, 0), dtype=int)
             ok = entry_cols >= 0
-            rows = np.broadcast_to(np.arange(sub.n_W)[:, None], ok.shape)[ok]
-            P = sp.csr_matrix((self.Psi[ok], (rows, entry_cols[ok])), shape=(sub.n_W, self.n_primal))
+            # CSR written directly (rows in order; no (row, column) pair twice), columns sorted in each row:
+            # the matrix of the COO construction, without its conversion of n_W x p_max triplets
+            indptr = np.concatenate([[0], np.cumsum(ok.sum(axis=1))])
+            P = sp.csr_matrix((self.Psi[ok], entry_cols[ok], indptr), shape=(sub.n_W, self.n_primal))
+            P.sort_indices()
             self._psi_global, self._psi_global_T = P, P.T.tocsr()
         return self._psi_global
 
