@@ -31,24 +31,26 @@ log = logging.getLogger(__name__)
 
 #: Interface solves (one per mask) kept by a :class:`PrimalConstrainedSolver`, least recently used dropped.
 MAX_INTERFACES = 4
-#: Coarse matrices S_PiPi of at least this many primal unknowns are factored by MKL PARDISO (SPD
-#: Cholesky, METIS ordering; :mod:`ddsolve.dd.pardiso`) when it loads, smaller ones by SuperLU, as
-#: before (every structured and unstructured study has fewer). Measured on a 3D DDInverse (order 2,
-#: 290,448 dofs, 290 METIS parts, 10,987 primal dofs, one thread): SuperLU 44.0 s; PARDISO
+#: Coarse matrices S_PiPi with at least this many stored entries are factored by MKL PARDISO (SPD
+#: Cholesky, METIS ordering; :mod:`ddsolve.dd.pardiso`) when it loads, sparser ones by SuperLU, as
+#: before. The dense coupling of 3D coarse problems (every edge node primal) is what SuperLU's
+#: minimum degree handles badly; 2D coarse matrices stay far below (Table 4's largest, FETI-FETI
+#: with 9,212 primal dofs: 80,628 entries). Measured on a 3D DDInverse (order 2, 290,448 dofs,
+#: 290 METIS parts, 10,987 primal dofs, 3,677,215 entries, one thread): SuperLU 44.0 s, PARDISO
 #: 0.92 s (docs/ngsolve.md, "3D meshes").
-COARSE_PARDISO_MIN = 4000
+COARSE_PARDISO_MIN_NNZ = 1_000_000
 
 
 def coarse_factor(S: sp.spmatrix):
     """A factorization of the coarse matrix ``S`` (n_primal, n_primal) with a ``solve`` method.
 
-    PARDISO's Cholesky for large ``S`` (:data:`COARSE_PARDISO_MIN`); SuperLU (minimum degree on
-    S^T + S) otherwise, and when PARDISO finds ``S`` not positive definite (SuperLU then factors or
-    reports the singular matrix, as it always did).
+    PARDISO's Cholesky for a ``S`` with many entries (:data:`COARSE_PARDISO_MIN_NNZ`); SuperLU
+    (minimum degree on S^T + S) otherwise, and when PARDISO finds ``S`` not positive definite
+    (SuperLU then factors or reports the singular matrix, as it always did).
     """
     from . import pardiso
 
-    if S.shape[0] >= COARSE_PARDISO_MIN and pardiso.available() and S.nnz <= pardiso.MAX_NNZ:
+    if COARSE_PARDISO_MIN_NNZ <= S.nnz <= pardiso.MAX_NNZ and pardiso.available():
         try:
             return pardiso.PardisoCholesky(S)
         except RuntimeError as exc:

@@ -123,3 +123,28 @@ def test_subdomain_ordering_and_pardiso_ordering_agree(monkeypatch):
     rhs = np.random.default_rng(8).standard_normal((sub.n_W, 2))
     xa, xb = a.solve(rhs), b.solve(rhs)
     assert np.linalg.norm(xb - xa) <= 1e-12 * np.linalg.norm(xa)
+
+
+@needs_mkl
+def test_coarse_factor_backend_by_stored_entries(monkeypatch):
+    """ddsolve.dd.primal.coarse_factor: PARDISO from COARSE_PARDISO_MIN_NNZ entries, SuperLU below and
+    for a matrix PARDISO finds not positive definite; each solves like a direct solve."""
+    from ddsolve.dd import primal
+
+    K = _laplacian(20, 1e-2)
+    rng = np.random.default_rng(5)
+    b = rng.standard_normal(K.shape[0])
+    ref = spla.spsolve(sp.csc_matrix(K), b)
+    monkeypatch.setattr(primal, "COARSE_PARDISO_MIN_NNZ", K.nnz)
+    dense_coupling = primal.coarse_factor(K)
+    assert isinstance(dense_coupling, pardiso.PardisoCholesky)
+    np.testing.assert_allclose(dense_coupling.solve(b), ref, rtol=1e-10)
+    monkeypatch.setattr(primal, "COARSE_PARDISO_MIN_NNZ", K.nnz + 1)
+    sparse = primal.coarse_factor(K)
+    assert not isinstance(sparse, pardiso.PardisoCholesky)
+    np.testing.assert_allclose(sparse.solve(b), ref, rtol=1e-10)
+    monkeypatch.setattr(primal, "COARSE_PARDISO_MIN_NNZ", 1)
+    indefinite = sp.csr_matrix(K - 2.0 * sp.eye(K.shape[0]))
+    fallback = primal.coarse_factor(indefinite)
+    assert not isinstance(fallback, pardiso.PardisoCholesky)
+    np.testing.assert_allclose(indefinite @ fallback.solve(b), b, rtol=1e-8, atol=1e-10)
