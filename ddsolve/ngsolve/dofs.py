@@ -127,9 +127,8 @@ def _triangle_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
         return V.copy() if fes.ndof == nv and _matches(fes, V) else None
     edges = np.stack([np.sort(V[:, list(e)], axis=1) for e in ((2, 0), (1, 2), (0, 1))], axis=1)
     keys = (edges[:, :, 0] * nv + edges[:, :, 1]).ravel()
-    uniq, edge_num = np.unique(keys, return_inverse=True)
+    edge_num, ned = _numbered(keys)
     edge_num = edge_num.reshape(ne, 3)
-    ned = uniq.size
     nb = (p - 1) * (p - 2) // 2
     if fes.ndof != nv + ned * (p - 1) + ne * nb:
         return None
@@ -156,6 +155,8 @@ def _tetrahedron_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     element lists its edges as (0,3), (1,3), (2,3), (0,1), (0,2), (1,2) and its face i without
     vertex i. Checked against ``fes.GetDofNrs`` on CHECK_ELEMENTS elements (else None).
     """
+    from .facets import element_facets
+
     p = int(fes.globalorder)
     ne, nv = V.shape[0], fes.mesh.nv
     n = np.int64(nv)
@@ -169,7 +170,7 @@ def _tetrahedron_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     if nf_dofs and nv >= 2 ** 21:       # the face keys would overflow int64
         return None
     if nf_dofs:
-        F = np.sort(V[:, np.array(((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)))], axis=2)
+        F = element_facets(V, 3)       # face i without vertex i, sorted
         face_num, nface = _numbered(((F[:, :, 0] * n + F[:, :, 1]) * n + F[:, :, 2]).ravel())
         parts.append((nv + ned * ne_dofs + face_num.reshape(ne, 4)[:, :, None] * nf_dofs
                       + np.arange(nf_dofs)).reshape(ne, -1))

@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import InputError
 from ..scene.partition import element_graph
 
-__all__ = ["boundary_vertices", "element_facets", "facet_graph", "facet_owner"]
+__all__ = ["boundary_vertices", "element_facets", "facet_adjacency", "facet_graph", "facet_owner"]
 
 #: The faces of a tetrahedron (vertex positions), each the vertices but one.
 TET_FACES = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
@@ -75,6 +75,29 @@ def _sorted_rows(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order, np.all(Fs[1:] == Fs[:-1], axis=1)
 
 
+def facet_adjacency(V: np.ndarray, dim: int, n: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """:func:`facet_graph` and :func:`boundary_vertices` from one sort of the facets (3D; 2D: the
+    element graph of :func:`~ddsolve.scene.partition.element_graph` and the boundary vertices)."""
+    if dim == 2:
+        return element_graph(V), boundary_vertices(V, 2, n)
+    F = element_facets(V, dim).reshape(-1, dim)
+    order, same = _sorted_rows(F)
+    at = np.flatnonzero(same)
+    owner = order // (F.shape[0] // max(V.shape[0], 1))
+    a, b = owner[at], owner[at + 1]
+    return (np.minimum(a, b), np.maximum(a, b)), _single_facet_vertices(F, order, at, n)
+
+
+def _single_facet_vertices(F: np.ndarray, order: np.ndarray, at: np.ndarray, n: int) -> np.ndarray:
+    """Mask (n,) of the vertices of the facets that occur once (``at``: where row order[k] equals the next)."""
+    single = np.ones(F.shape[0], dtype=bool)
+    single[at] = False
+    single[at + 1] = False
+    out = np.zeros(n, dtype=bool)
+    out[F[order][single].ravel()] = True
+    return out
+
+
 def facet_graph(V: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (e, f), e < f, of elements sharing a facet, each pair once.
 
@@ -84,25 +107,14 @@ def facet_graph(V: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:
     """
     if dim == 2:
         return element_graph(V)
-    F = element_facets(V, dim)
-    n_f = F.shape[1]
-    order, same = _sorted_rows(F.reshape(-1, dim))
-    owner = order // n_f
-    at = np.flatnonzero(same)
-    a, b = owner[at], owner[at + 1]
-    return np.minimum(a, b), np.maximum(a, b)
+    return facet_adjacency(V, dim, int(V.max()) + 1 if V.size else 0)[0]
 
 
 def boundary_vertices(V: np.ndarray, dim: int, n: int) -> np.ndarray:
     """Vertices on a facet of exactly one element, as a mask of shape (n,)."""
     F = element_facets(V, dim).reshape(-1, dim)
     order, same = _sorted_rows(F)
-    single = np.ones(F.shape[0], dtype=bool)
-    single[np.flatnonzero(same)] = False
-    single[np.flatnonzero(same) + 1] = False
-    out = np.zeros(n, dtype=bool)
-    out[F[order][single].ravel()] = True
-    return out
+    return _single_facet_vertices(F, order, np.flatnonzero(same), n)
 
 
 def facet_owner(V: np.ndarray, dim: int, facets: np.ndarray) -> np.ndarray:

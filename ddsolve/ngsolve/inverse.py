@@ -29,8 +29,8 @@ from .dofs import (
     split_integrators,
     vertex_table,
 )
+from .facets import facet_adjacency
 from .local import (
-    boundary_vertex_dofs,
     condense,
     element_parts,
     interface_edge_weights,
@@ -338,7 +338,8 @@ class DDInverse(ngsolve.BaseMatrix):
         if not is_symmetric(Ke):
             raise InputError("a", f"the form is not symmetric; method {method!r} needs a symmetric form")
         t = time.perf_counter()
-        part = element_parts(fes.mesh, V, parts, partition, seed=seed)
+        graph, boundary = facet_adjacency(V, dim, ndof)     # facet graph, boundary vertex dofs (= vertex numbers)
+        part = element_parts(fes.mesh, V, parts, partition, seed=seed, graph=graph)
         self.timings["partition"] = time.perf_counter() - t
         _check_not_singular(Ke, T, self.free, fes.mesh.nv)     # after the argument checks of the partition
         t = time.perf_counter()
@@ -349,7 +350,7 @@ class DDInverse(ngsolve.BaseMatrix):
         self.timings["condense"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        pm = part_matrices(c.S, self.T_w, part, self.free, ndof, boundary_vertex_dofs(V, ndof, dim))
+        pm = part_matrices(c.S, self.T_w, part, self.free, ndof, boundary)
         self.n_parts = pm.n_parts
         sub = Substructures(pm.local, scaling="multiplicity" if scaling == "multiplicity" else "rho",
                             templates=False, primal=primal)

@@ -28,7 +28,7 @@ from ..scene.assembly import LocalProblems
 from ..scene.partition import partition_elements
 from ..scene.scene import sorted_unique
 from .dofs import element_index
-from .facets import boundary_vertices, facet_graph
+from .facets import facet_graph
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,8 @@ class DofScene:
         return self.boundary
 
 
-def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: int = 0) -> np.ndarray:
+def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: int = 0,
+                  graph: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Part label of every element, shape (n_elements,), labels 0..n_parts-1, every part connected.
 
     ``partition``: None (METIS on the element graph into ``parts``), ``"coarse"``
@@ -70,18 +71,19 @@ def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: in
     inherited by the children), ``"materials"`` (the mesh's materials), or an
     array of length n_elements. The element graph joins elements that share a
     facet (an edge in 2D, a face in 3D); parts that are not connected through
-    facets are split into their connected pieces.
+    facets are split into their connected pieces. ``graph``: the
+    :func:`~ddsolve.ngsolve.facets.facet_graph` of V, if the caller has it.
     """
     ne, dim = V.shape[0], int(mesh.dim)
+    graph = facet_graph(V, dim) if graph is None else graph
     if partition is None:
         if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
             raise InputError("parts", f"must be a positive integer, got {parts!r}")
         if parts > ne:
             raise InputError("parts", f"{parts} parts requested but the mesh has only {ne} elements")
-        adjacency = None if dim == 2 else facet_graph(V, dim)
-        return partition_elements(V, int(parts), seed=seed, field="parts", adjacency=adjacency)
+        return partition_elements(V, int(parts), seed=seed, field="parts", adjacency=graph)
     if isinstance(partition, str) and partition == "coarse":
-        return coarse_partition(mesh, V, parts, seed=seed)
+        return coarse_partition(mesh, V, parts, seed=seed, graph=graph)
     if isinstance(partition, str):
         if partition != "materials":
             raise InputError("partition", f"expected None, 'materials', 'coarse' or an array, got {partition!r}")
@@ -96,7 +98,7 @@ def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: in
         if (counts == 0).any():
             raise InputError("partition", f"{int((counts == 0).sum())} empty parts (labels must be 0..P-1, "
                                           f"each used)")
-    return split_disconnected(V, label.astype(np.int64), facet_graph(V, dim))
+    return split_disconnected(V, label.astype(np.int64), graph)
 
 
 def refinement_roots(mesh: Any) -> np.ndarray:
@@ -121,7 +123,8 @@ def refinement_roots(mesh: Any) -> np.ndarray:
         nxt = jumped
 
 
-def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0) -> np.ndarray:
+def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0,
+                     graph: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """METIS on the coarsest mesh of the refinement hierarchy; children inherit the part.
 
     The coarse element graph is the fine element graph contracted by the
@@ -142,7 +145,7 @@ def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0) -> np.
         raise InputError("parts", f"{parts} parts requested but the coarse mesh has only {n_c} elements")
     if parts == 1:
         return np.zeros(V.shape[0], dtype=np.int64)
-    graph = facet_graph(V, int(mesh.dim))
+    graph = facet_graph(V, int(mesh.dim)) if graph is None else graph
     first, second = graph
     a, b = coarse[first], coarse[second]
     keep = a != b
@@ -273,12 +276,6 @@ def _diagonal_block(A: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
     start, stop = A.indptr[lo], A.indptr[hi]
     return sp.csr_matrix((A.data[start:stop], A.indices[start:stop] - lo, A.indptr[lo:hi + 1] - start),
                          shape=(hi - lo, hi - lo))
-
-
-def boundary_vertex_dofs(V: np.ndarray, ndof: int, dim: int = 2) -> np.ndarray:
-    """Vertex dofs (= vertex numbers) on facets (edges in 2D, faces in 3D) that belong to one element
-    only, shape (ndof,) bool."""
-    return boundary_vertices(V, dim, ndof)
 
 
 def interface_edge_weights(fes: Any, part: np.ndarray, V: np.ndarray | None = None,
