@@ -102,7 +102,8 @@ class Edges:
     coef: np.ndarray | None = None
 
 
-def find_edges(sub, node_weight: np.ndarray | None = None, tol: float = 1e-10) -> Edges:
+def find_edges(sub, node_weight: np.ndarray | None = None, tol: float = 1e-10,
+               candidates: np.ndarray | None = None) -> Edges:
     """The edges of ``sub``: non-vertex interface nodes grouped by their subdomain set, split into
     connected pieces (nodes coupled by a stored entry of a subdomain matrix), O(n log n).
 
@@ -114,43 +115,24 @@ def find_edges(sub, node_weight: np.ndarray | None = None, tol: float = 1e-10) -
         docstring, "Weighted edges"). None: the nodal average (w_j = 1), the P1 / Q1 case.
     tol : float
         Weights with |w_j| <= tol * max_E |w| are zero (e.g. odd edge bubbles, rounding).
+    candidates : ndarray of bool, shape (n_W,), optional
+        The W entries that may lie on an edge (whole nodes, no vertex among them). None:
+        ``sub.interface & ~sub.vertex`` (2D: every non-vertex interface node). In 3D the faces
+        (nodes of two subdomains) are left out: :func:`subdomain_edges_3d`.
 
     Returns
     -------
     Edges
     """
     n_W, n_nodes = sub.n_W, sub.scene.n_nodes
-    idx = np.flatnonzero(sub.interface & ~sub.vertex)
+    idx = np.flatnonzero(sub.interface & ~sub.vertex if candidates is None else candidates)
     label = np.full(n_W, -1, dtype=np.int64)
     rep = np.zeros(n_W, dtype=bool)
     rep_entry = np.full(n_W, -1, dtype=np.int64)
     parent_entry = np.full(n_W, -1, dtype=np.int64)
     if idx.size == 0:
         return Edges(label, rep, rep_entry, parent_entry, 0)
-    # subdomain set of every candidate node: its subdomains sorted, one row per node of each multiplicity
-    order = idx[np.lexsort((sub.sub_of_W[idx], sub.node_of_W[idx]))]
-    node_sorted = sub.node_of_W[order]
-    starts = np.flatnonzero(np.r_[True, node_sorted[1:] != node_sorted[:-1]])
-    sizes = np.diff(np.r_[starts, node_sorted.size])
-    set_of_node = np.full(n_nodes, -1, dtype=np.int64)
-    n_sets = 0
-    for m in np.unique(sizes):
-        first = starts[sizes == m]
-        subs = sub.sub_of_W[order[first[:, None] + np.arange(m)[None, :]]]        # (k, m), sorted rows
-        _, inverse = np.unique(subs, axis=0, return_inverse=True)
-        set_of_node[node_sorted[first]] = n_sets + inverse.ravel()
-        n_sets += int(inverse.max()) + 1
-    # connected pieces: candidate nodes of the same set coupled in some subdomain matrix
-    Kc = sub.K_W[idx][:, idx].tocoo()
-    a, b = sub.node_of_W[idx[Kc.row]], sub.node_of_W[idx[Kc.col]]
-    same = set_of_node[a] == set_of_node[b]
-    G = sp.coo_matrix((np.ones(int(same.sum())), (a[same], b[same])), shape=(n_nodes, n_nodes))
-    _, comp = csgraph.connected_components(G, directed=False)
-    cand_nodes = np.unique(sub.node_of_W[idx])
-    edge_ids, edge_of_cand = np.unique(comp[cand_nodes], return_inverse=True)
-    edge_of_node = np.full(n_nodes, -1, dtype=np.int64)
-    edge_of_node[cand_nodes] = edge_of_cand.ravel()
-    n_edges = int(edge_ids.size)
+    G, cand_nodes, edge_of_node, n_edges = _node_classes(sub, idx)
     rep_node = np.full(n_edges, n_nodes, dtype=np.int64)
     weight = None
     if node_weight is None:
@@ -193,6 +175,85 @@ def find_edges(sub, node_weight: np.ndarray | None = None, tol: float = 1e-10) -
         key_w[srt_w], sub.sub_of_W[child[live]] * n_nodes + anchor_node[live])]]
     coef[child[live]] = weight[child_node[live]] / weight[anchor_node[live]]
     return Edges(label, rep, rep_entry, parent_entry, n_edges, anchor_entry, coef)
+
+
+def _node_classes(sub, idx: np.ndarray) -> tuple[sp.coo_matrix, np.ndarray, np.ndarray, int]:
+    """The nodes of the W entries ``idx`` grouped by subdomain set and split into connected pieces.
+
+    Returns
+    -------
+    G : scipy.sparse.coo_matrix, shape (n_nodes, n_nodes)
+        Couplings (stored entries of a subdomain matrix) between nodes of the same set.
+    cand_nodes : ndarray of int
+        The distinct nodes of ``idx``, sorted.
+    class_of_node : ndarray of int, shape (n_nodes,)
+        Piece of every node (-1: not in ``idx``).
+    n_classes : int
+    """
+    n_nodes = sub.scene.n_nodes
+    # subdomain set of every candidate node: its subdomains sorted, one row per node of each multiplicity
+    order = idx[np.lexsort((sub.sub_of_W[idx], sub.node_of_W[idx]))]
+    node_sorted = sub.node_of_W[order]
+    starts = np.flatnonzero(np.r_[True, node_sorted[1:] != node_sorted[:-1]])
+    sizes = np.diff(np.r_[starts, node_sorted.size])
+    set_of_node = np.full(n_nodes, -1, dtype=np.int64)
+    n_sets = 0
+    for m in np.unique(sizes):
+        first = starts[sizes == m]
+        subs = sub.sub_of_W[order[first[:, None] + np.arange(m)[None, :]]]        # (k, m), sorted rows
+        _, inverse = np.unique(subs, axis=0, return_inverse=True)
+        set_of_node[node_sorted[first]] = n_sets + inverse.ravel()
+        n_sets += int(inverse.max()) + 1
+    # connected pieces: candidate nodes of the same set coupled in some subdomain matrix
+    Kc = sub.K_W[idx][:, idx].tocoo()
+    a, b = sub.node_of_W[idx[Kc.row]], sub.node_of_W[idx[Kc.col]]
+    same = set_of_node[a] == set_of_node[b]
+    G = sp.coo_matrix((np.ones(int(same.sum())), (a[same], b[same])), shape=(n_nodes, n_nodes))
+    _, comp = csgraph.connected_components(G, directed=False)
+    cand_nodes = np.unique(sub.node_of_W[idx])
+    class_ids, class_of_cand = np.unique(comp[cand_nodes], return_inverse=True)
+    class_of_node = np.full(n_nodes, -1, dtype=np.int64)
+    class_of_node[cand_nodes] = class_of_cand.ravel()
+    return G, cand_nodes, class_of_node, int(class_ids.size)
+
+
+def subdomain_edges_3d(sub) -> tuple[np.ndarray, np.ndarray]:
+    """Subdomain vertices and edge candidates of a 3D decomposition, for edge averages (2.22).
+
+    In 3D the nodes shared by three or more subdomains (or by two on the body's
+    boundary: ``sub.cross_point``) form the subdomain *edges*, curves of
+    nodes with the same subdomain set, and their end points. Section 2.6 of
+    the thesis (after Klawonn, Widlund & Dryja 2002) makes the vertex values
+    and the edge averages primal: this splits ``cross_point`` into the pieces
+    of :func:`_node_classes` of a single node (the *vertices*) and those of
+    several nodes (the edges, whose averages :class:`PrimalSpace` makes
+    primal). The faces (two subdomains) stay dual. The anchors that
+    :meth:`~ddsolve.dd.substructure.Substructures._anchor_floating` added to
+    ``sub.vertex`` (face nodes where a component of subdomains would float
+    with all of its edges primal) stay vertices, so A~ is as regular as with
+    every edge node primal.
+
+    Parameters
+    ----------
+    sub : Substructures
+        With ``vertex`` as built (``cross_point`` plus anchors).
+
+    Returns
+    -------
+    vertex : ndarray of bool, shape (n_W,)
+        The primal vertices.
+    candidates : ndarray of bool, shape (n_W,)
+        The entries on the edges: the ``candidates`` of :func:`find_edges`.
+    """
+    idx = np.flatnonzero(sub.cross_point)
+    vertex = sub.vertex & ~sub.cross_point                   # the anchors
+    if idx.size:
+        _, cand_nodes, class_of_node, n_classes = _node_classes(sub, idx)
+        size = np.bincount(class_of_node[cand_nodes], minlength=n_classes)
+        single = np.zeros(sub.scene.n_nodes, dtype=bool)
+        single[cand_nodes] = size[class_of_node[cand_nodes]] == 1
+        vertex = vertex | single[sub.node_of_W]
+    return vertex, sub.cross_point & ~vertex
 
 
 def _clean_weights(node_weight: np.ndarray, cand_nodes: np.ndarray, edge_of_node: np.ndarray, n_edges: int,

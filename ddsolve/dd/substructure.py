@@ -78,6 +78,11 @@ class Substructures:
     n_primal : int
         Number of primal dofs: distinct global dofs of ``vertex``, plus the
         number of edges with ``primal="vertices+edges"``.
+    edge_weights : ndarray of float, shape (n_nodes,), or None
+        Node weights of the edge averages (:func:`ddsolve.dd.edges.find_edges`); None: nodal.
+    edge_candidates : ndarray of bool, shape (n_W,), or None
+        The entries that may lie on an edge; None: ``interface & ~vertex`` (2D). Set with
+        ``vertex`` from :func:`ddsolve.dd.edges.subdomain_edges_3d` for 3D edge averages.
     delta : ndarray, shape (n_W,)
         delta-dagger_i(x) = rho_i^gamma / sum_{j in N_x} rho_j^gamma.
     K_W : scipy.sparse.csr_matrix, shape (n_W, n_W)
@@ -108,6 +113,7 @@ class Substructures:
         self._edges = None
         self._primal_space = None
         self.edge_weights = None            # node weights of the edge averages (ddsolve.dd.edges); None: nodal
+        self.edge_candidates = None         # W entries that may lie on an edge; None: interface & ~vertex (2D)
         self._edges_in_vertex = False       # True on the transformed copy: the representatives are in ``vertex``
         self.scaling = scaling
         self.gamma = float(gamma)
@@ -250,7 +256,7 @@ class Substructures:
         """The edges of the decomposition (:func:`ddsolve.dd.edges.find_edges`), found on first use."""
         if self._edges is None:
             from .edges import find_edges
-            self._edges = find_edges(self, self.edge_weights)
+            self._edges = find_edges(self, self.edge_weights, candidates=self.edge_candidates)
         return self._edges
 
     def primal_space(self):

@@ -12,6 +12,7 @@ import scipy.sparse as sp
 from ..dd import Substructures
 from ..dd.deluxe import DeluxeScaling, deluxe_scaling
 from ..dd.dual import dual_operators, projection_weights
+from ..dd.edges import subdomain_edges_3d
 from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from ..dd.projection import Projection
@@ -254,11 +255,18 @@ class DDInverse(ngsolve.BaseMatrix):
         ``mesh.Refine()`` hierarchy, children inherit the part; "materials":
         one part per material; an array: the part of every element.
     primal : {"vertices", "vertices+edges"}
-        Primal constraints; edge averages for bddc and fetidp on 2D meshes only. At order >= 2 an
+        Primal constraints; edge averages for bddc and fetidp only. 2D: "vertices" are the
+        dofs shared by three or more parts (or two on the boundary); at order >= 2 an
         edge average is the mean of u along the edge, sum_j w_j u_j / sum_j w_j with
         w_j the integral of the shape j along it
         (:func:`~ddsolve.ngsolve.local.interface_edge_weights`); at order 1 the mean of
         the nodal values (the same condition numbers within about 1 %, no extra assembly).
+        3D: "vertices" makes every dof shared by three or more parts primal (all of the
+        subdomain edges); "vertices+edges" is the thesis's 3D space (Section 2.6, (2.22)):
+        the subdomain vertices and one average per subdomain edge
+        (:func:`~ddsolve.dd.edges.subdomain_edges_3d`; at order >= 2 the mean of the
+        edge's vertex values), a coarse problem about a third as large, but not robust
+        for coefficient jumps inside the parts (docs/ngsolve.md, "3D meshes").
     rtol, maxiter : float, int
         Krylov stopping rule ||r_k|| <= rtol ||r_0|| on the interface / dual problem.
     freedofs : BitArray or array of bool, optional
@@ -310,9 +318,6 @@ class DDInverse(ngsolve.BaseMatrix):
         if scaling == "deluxe" and method == "feti":
             raise InputError("scaling", "'deluxe' needs method 'bddc' or 'fetidp'")
         dim = int(fes.mesh.dim)
-        if primal == "vertices+edges" and dim != 2:
-            raise InputError("primal", "'vertices+edges' is for 2D meshes; in 3D the default 'vertices' already "
-                                       "makes every dof shared by three or more parts primal")
         self.fes, self.method, self.rtol, self.maxiter, self.want_cond = fes, method, rtol, int(maxiter), cond
         self.scaling = scaling
         self.timings: dict[str, float] = {}
@@ -358,7 +363,12 @@ class DDInverse(ngsolve.BaseMatrix):
             d = sub.K_W.diagonal()
             total = np.bincount(sub.node_of_W, weights=d, minlength=sub.scene.n_nodes)
             sub.delta = d / total[sub.node_of_W]
-        if primal == "vertices+edges" and (fes.globalorder >= 2 or EDGE_WEIGHTS_P1):
+        if primal == "vertices+edges" and dim == 3:
+            # the thesis's 3D primal space (Section 2.6, (2.22)): vertex values and edge averages
+            sub.vertex, sub.edge_candidates = subdomain_edges_3d(sub)
+            if fes.globalorder >= 2:      # the average of the vertex values (the linear interpolant's nodal mean)
+                sub.edge_weights = (pm.node_dof < fes.mesh.nv).astype(float)
+        elif primal == "vertices+edges" and (fes.globalorder >= 2 or EDGE_WEIGHTS_P1):
             sub.edge_weights = interface_edge_weights(fes, part, V, T)[pm.node_dof]
         self.sub = sub
         self.space = sub.primal_space()         # primal "vertices+edges": the edge-average basis (ddsolve.dd.edges)

@@ -19,8 +19,8 @@ Run: ``python -m ddstudies.ngsolve_bench CONFIG.json OUT.csv OUT.md OUT.png``; t
 against the number of parts on one mesh:
 ``python -m ddstudies.ngsolve_bench --parts-sweep ORDER NDOF 64,256,1024`` (a markdown table); the
 condition numbers against H/h at a fixed coarse partition, per order (:func:`hh_study`):
-``python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3 [DIM MAXH]`` (a markdown table; DIM 3: the
-unit cube); the same
+``python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3 [DIM MAXH [PRIMAL]]`` (a markdown table;
+DIM 3: the unit cube; PRIMAL ``vertices+edges``: edge averages); the same
 problem on the unit cube (3D, tetrahedra; :func:`cube_study`):
 ``python -m ddstudies.ngsolve_bench --cube-study 1,2,3 250000 [DOFS_PER_PART]`` (a markdown table).
 """
@@ -117,7 +117,9 @@ def run_solver(name: str, mesh, order: int, parts: int, rtol: float, maxiter: in
     if name.startswith("ddinverse-"):
         from ddsolve.ngsolve import DDInverse
 
-        inv = DDInverse(a, method=name.split("-", 1)[1], parts=parts, rtol=rtol, maxiter=maxiter)
+        method, _, variant = name.split("-", 1)[1].partition("-")      # ddinverse-fetidp-edges: edge averages
+        inv = DDInverse(a, method=method, parts=parts, rtol=rtol, maxiter=maxiter,
+                        primal="vertices+edges" if variant == "edges" else "vertices")
         t1 = time.perf_counter()
         gfu.vec.data = inv * f.vec
         its = inv.iterations
@@ -270,7 +272,8 @@ def sweep_table(rows: list[Row]) -> str:
     return "\n".join(lines) + "\n"
 
 
-CUBE_SOLVERS = ("ddinverse-bddc", "ddinverse-fetidp", "ngs-bddc-cg", "ngs-h1amg-cg", "sparsecholesky")
+CUBE_SOLVERS = ("ddinverse-bddc", "ddinverse-fetidp", "ddinverse-bddc-edges", "ddinverse-fetidp-edges",
+                "ngs-bddc-cg", "ngs-h1amg-cg", "sparsecholesky")
 
 
 def cube_study(block: dict, cfg: dict) -> list[Row]:
@@ -288,7 +291,7 @@ def cube_table(rows: list[Row]) -> str:
     lines = rows_table(rows) + [""]
     by = {(r.solver, r.order, r.ndof): r for r in rows}
     for order, n in sorted({(r.order, r.ndof) for r in rows}):
-        dd = [by[(s, order, n)] for s in ("ddinverse-bddc", "ddinverse-fetidp") if (s, order, n) in by
+        dd = [by[(s, order, n)] for s in CUBE_SOLVERS if s.startswith("ddinverse") and (s, order, n) in by
               and math.isfinite(by[(s, order, n)].total_s)]
         ngs_rows = [by[(s, order, n)] for s in ("ngs-bddc-cg", "ngs-h1amg-cg", "sparsecholesky")
                     if (s, order, n) in by and math.isfinite(by[(s, order, n)].total_s)]
@@ -320,12 +323,14 @@ def main(argv: list[str] | None = None) -> int:
         rows = parts_sweep(int(argv[1]), int(argv[2]), [int(p) for p in argv[3].split(",")])
         sys.stdout.write(sweep_table(rows))
         return 0
-    if argv[:1] == ["--hh-study"] and len(argv) in (4, 6):
-        # python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3 [DIM MAXH]   (markdown on stdout)
+    if argv[:1] == ["--hh-study"] and len(argv) in (4, 6, 7):
+        # python -m ddstudies.ngsolve_bench --hh-study 1,2,3,4 PARTS 0,1,2,3 [DIM MAXH [PRIMAL]]   (markdown)
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         refs = tuple(int(r) for r in argv[3].split(","))
-        dim, maxh = (int(argv[4]), float(argv[5])) if len(argv) == 6 else (2, 0.05)
-        results = {int(o): hh_study(int(o), int(argv[2]), refs, maxh=maxh, dim=dim) for o in argv[1].split(",")}
+        dim, maxh = (int(argv[4]), float(argv[5])) if len(argv) >= 6 else (2, 0.05)
+        primal = argv[6] if len(argv) == 7 else "vertices"
+        results = {int(o): hh_study(int(o), int(argv[2]), refs, maxh=maxh, dim=dim, primal=primal)
+                   for o in argv[1].split(",")}
         sys.stdout.write(hh_table(results, int(argv[2])))
         return 0
     if argv[:1] == ["--scaling-study"] and len(argv) == 5:
@@ -369,14 +374,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def hh_study(order: int = 1, parts: int = 16, refinements: tuple[int, ...] = (0, 1, 2), maxh: float = 0.05,
-             method: str = "bddc", dim: int = 2) -> dict:
+             method: str = "bddc", dim: int = 2, primal: str = "vertices") -> dict:
     """Condition numbers at a fixed METIS partition of the coarse mesh while h halves (H/h doubles).
 
     The partition is computed once on the coarse mesh; a refined element gets
     the part of the coarse element containing its centroid (a point search
     per element: a study, not a timed path). ``dim=3``: the unit cube, refined
     by ``mesh.Refine()``, whose elements inherit the part of their coarse
-    ancestor (:func:`ddsolve.ngsolve.local.refinement_roots`). Fits
+    ancestor (:func:`ddsolve.ngsolve.local.refinement_roots`). ``primal`` as for
+    :class:`~ddsolve.ngsolve.DDInverse`. Fits
     cond = c0 + c1 (1 + log(H/h))^2, with H/h = 4 * 2^r as a nominal value,
     and returns the sizes, iterations, condition numbers and the fit.
     """
@@ -414,7 +420,7 @@ def hh_study(order: int = 1, parts: int = 16, refinements: tuple[int, ...] = (0,
             centroids = _centroids(mesh)
             coarse_el = np.array([coarse(float(x), float(y)).nr for x, y in centroids])
         fes, a, f = _forms(mesh, order)
-        inv = DDInverse(a, method=method, partition=label[coarse_el], rtol=1e-10, cond=True)
+        inv = DDInverse(a, method=method, partition=label[coarse_el], rtol=1e-10, cond=True, primal=primal)
         gfu = ngs.GridFunction(fes)
         gfu.vec.data = inv * f.vec
         out["ndof"].append(fes.ndof)

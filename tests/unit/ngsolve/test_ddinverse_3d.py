@@ -133,8 +133,8 @@ def test_deluxe_in_3d():
 
 def test_bad_input_in_3d(cube):
     _, a, _ = forms3d(cube, 1, 1.0)
-    with pytest.raises(InputError, match="primal: 'vertices\\+edges' is for 2D meshes"):
-        DDInverse(a, primal="vertices+edges")
+    with pytest.raises(InputError, match="primal: expected one of"):
+        DDInverse(a, primal="vertices+edges", method="feti")
     with pytest.raises(InputError, match=f"parts: {cube.ne + 1} parts requested"):
         DDInverse(a, parts=cube.ne + 1)
 

@@ -78,10 +78,12 @@ def test_cube_study_agrees_with_the_direct_solution():
 
     assert make_cube_mesh(1, 2000).dim == 3
     rows = cube_study({"orders": [{"order": 1, "ndofs": [1500]}, {"order": 2, "ndofs": [3000]}],
-                       "solvers": ["ddinverse-bddc", "ddinverse-fetidp", "ngs-bddc-cg", "sparsecholesky"]},
+                       "solvers": ["ddinverse-bddc", "ddinverse-fetidp", "ddinverse-fetidp-edges", "ngs-bddc-cg",
+                                   "sparsecholesky"]},
                       {"dofs_per_part": 300, "rtol": 1e-10, "maxiter": 200})
-    assert [(r.solver, r.order) for r in rows][:4] == [("ddinverse-bddc", 1), ("ddinverse-fetidp", 1),
-                                                       ("ngs-bddc-cg", 1), ("sparsecholesky", 1)]
+    assert [(r.solver, r.order) for r in rows][:5] == [("ddinverse-bddc", 1), ("ddinverse-fetidp", 1),
+                                                       ("ddinverse-fetidp-edges", 1), ("ngs-bddc-cg", 1),
+                                                       ("sparsecholesky", 1)]
     for r in rows:
         assert 700 < r.ndof < 6000 and r.error == ""
         if r.solver.startswith("ddinverse"):
@@ -114,13 +116,14 @@ def test_scaling_study_table():
     assert main(["--scaling-study", "1", "0.2", "4", "checker"]) == 0
 
 
-@pytest.mark.parametrize("dim, maxh", [(2, 0.2), (3, 0.5)])
-def test_hh_study_refines_at_a_fixed_partition(dim, maxh):
+@pytest.mark.parametrize("dim, maxh, primal", [(2, 0.2, "vertices"), (3, 0.5, "vertices"),
+                                               (3, 0.5, "vertices+edges")])
+def test_hh_study_refines_at_a_fixed_partition(dim, maxh, primal):
     """H/h doubles at a fixed coarse partition: the dofs grow by about 2^dim, the condition number grows
     slowly (polylogarithmic), and the fit is returned."""
     from ddstudies.ngsolve_bench import hh_study, hh_table
 
-    out = hh_study(1, 4, (0, 1), maxh=maxh, dim=dim)
+    out = hh_study(1, 4, (0, 1), maxh=maxh, dim=dim, primal=primal)
     growth = out["ndof"][1] / out["ndof"][0]
     assert 2 ** dim / 2 < growth < 2 ** dim * 2
     assert 1.0 < out["cond"][0] < out["cond"][1] < 4.0
