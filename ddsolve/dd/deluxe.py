@@ -133,7 +133,7 @@ def deluxe_scaling(sub, blocks, dual: np.ndarray, delta: np.ndarray) -> DeluxeSc
     key = sub.sub_of_W[first].astype(np.int64) * sub.n_sub + sub.sub_of_W[second]
     by_face = np.lexsort((sub.node_of_W[first], key))   # faces, dofs in node order
     first, second, key = first[by_face], second[by_face], key[by_face]
-    face_start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    face_start = np.flatnonzero(np.r_[key.size > 0, key[1:] != key[:-1]])   # no faces: none
     face_size = np.diff(np.r_[face_start, key.size])
 
     rows_i, cols_i, vals = [], [], []
