@@ -70,7 +70,7 @@ class DeluxeScaling:
     face_entries: np.ndarray
     n_faces: int
     largest_face: int
-    copies: np.ndarray | None = None
+    copies: np.ndarray
 
     def jump(self, B: sp.csr_matrix, B_D: sp.csr_matrix, R: sp.csr_matrix) -> sp.csr_matrix:
         """The deluxe B_D (n_lambda, n_W) from the jump operator B and its diagonal version.
@@ -87,8 +87,7 @@ class DeluxeScaling:
             rows = np.repeat(np.arange(B.shape[0]), entries)
             hits = np.bincount(rows, weights=self.face_entries[B.indices].astype(float), minlength=B.shape[0])
             on_face = (entries == 2) & (hits == 2)
-            copies = np.full(B.shape[0], 2) if self.copies is None else self.copies[B.indices[B.indptr[:-1]]]
-            m[on_face] = copies[on_face]
+            m[on_face] = self.copies[B.indices[B.indptr[:-1][on_face]]]     # copies of the row's dof
         Bf = sp.diags(on_face / m) @ B                  # 1/2 on a face: exact, as (1/2) (B - B E_D^T)
         E_T = (self.D.T @ R) @ R.T                      # E_D^T = D^T R R^T
         deluxe_rows = Bf - Bf @ E_T
