@@ -32,7 +32,7 @@ docs/ngsolve.md ("3D meshes"), and the operators are dense numpy matrices on tin
   B_D = (1/m) B (I - E_D^T), E_D = R R^T D; the spectrum of M F on the range of F (L^T M L with
   F = L L^T of full column rank). Its rank equals that of DDInverse's F (also singular for m >= 3).
 
-Measured (this file, 7 cases x 4 scalings, load average about 1.5): DDInverse's dense operators
+Measured (this file, 7 cases x 4 scalings, load average under 1): DDInverse's dense operators
 reproduce the reference's spectra to 2.6e-11 relative at most, for every scaling (rho, multiplicity,
 diagonal with its edge means, deluxe) and both methods; BDDC and FETI-DP eigenvalues above 1 agree to
 2.6e-11 (the theory: equal but for the eigenvalue 1, whose multiplicities differ, so their condition
