@@ -113,6 +113,18 @@ def part_matrices(mesh, fes, c, part: np.ndarray) -> list[np.ndarray]:
     return K
 
 
+def local_schur(K: list[np.ndarray], dofs: list[np.ndarray], mult: np.ndarray):
+    """S_i = K_GG - K_GI K_II^-1 K_IG of every part (G: its dofs in more than one part, I: the others),
+    and the unassembled interface W: the part and dof of every entry, in part order."""
+    S_blocks, W_part, W_dof = [], [], []
+    for p, (Kp, d) in enumerate(zip(K, dofs)):
+        g, i = d[mult[d] > 1], d[mult[d] == 1]
+        S_blocks.append(Kp[np.ix_(g, g)] - Kp[np.ix_(g, i)] @ np.linalg.solve(Kp[np.ix_(i, i)], Kp[np.ix_(i, g)]))
+        W_part += [p] * g.size
+        W_dof += list(g)
+    return S_blocks, np.array(W_part), np.array(W_dof)
+
+
 @functools.lru_cache(maxsize=None)
 def reference(case: tuple, scaling: str) -> dict:
     """Exact BDDC and FETI-DP spectra of ``case`` with ``scaling`` ("diagonal" or "deluxe")."""
@@ -135,15 +147,7 @@ def reference(case: tuple, scaling: str) -> dict:
     interface = np.flatnonzero(mult > 1)
 
     # local Schur complements and the unassembled interface W (part, dof) in part order
-    S_blocks, W_part, W_dof = [], [], []
-    for p in range(n_parts):
-        d = dofs[p]
-        g, i = d[mult[d] > 1], d[mult[d] == 1]
-        Kp = K[p]
-        S_blocks.append(Kp[np.ix_(g, g)] - Kp[np.ix_(g, i)] @ np.linalg.solve(Kp[np.ix_(i, i)], Kp[np.ix_(i, g)]))
-        W_part += [p] * g.size
-        W_dof += list(g)
-    W_part, W_dof = np.array(W_part), np.array(W_dof)
+    S_blocks, W_part, W_dof = local_schur(K, dofs, mult)
     n_W = W_dof.size
     S = np.zeros((n_W, n_W))
     o = 0

@@ -54,6 +54,7 @@ import scipy.linalg
 ngs = pytest.importorskip("ngsolve")
 from netgen.csg import unit_cube
 from ngsolve.meshes import MakeStructured3DMesh
+from test_deluxe_reference import cond, local_schur, part_matrices
 
 from ddsolve.ngsolve import DDInverse
 
@@ -99,7 +100,7 @@ CASES = [
 IDS = [c[0] for c in CASES]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def problem(name):
     _, n, order, dirichlet, coef, (kind, arg) = next(c for c in CASES if c[0] == name)
     mesh = (MakeStructured3DMesh(hexes=False, nx=n, ny=n, nz=n) if isinstance(n, int)
@@ -114,23 +115,6 @@ def problem(name):
     return mesh, fes, a, c, np.asarray(part, dtype=np.int64)
 
 
-def part_matrices(mesh, fes, c, part):
-    """Dense K_p (ndof x ndof) of every part: the form with its integrand times the part's indicator."""
-    u, v = fes.TnT()
-    indicator = ngs.GridFunction(ngs.L2(mesh, order=0))
-    K = []
-    for p in range(part.max() + 1):
-        indicator.vec.FV().NumPy()[:] = part == p
-        ap = ngs.BilinearForm(fes)
-        ap += indicator * c * ngs.grad(u) * ngs.grad(v) * ngs.dx
-        ap.Assemble()
-        rows, cols, vals = ap.mat.COO()
-        Kp = np.zeros((fes.ndof, fes.ndof))
-        np.add.at(Kp, (np.asarray(rows), np.asarray(cols)), np.asarray(vals))
-        K.append(Kp)
-    return K
-
-
 def _nonzero_spectrum(F, M, tol=1e-10):
     """Eigenvalues of M F on the range of the symmetric positive semidefinite F: L^T M L, F = L L^T."""
     F = 0.5 * (F + F.T)
@@ -140,13 +124,13 @@ def _nonzero_spectrum(F, M, tol=1e-10):
     return np.linalg.eigvalsh(L.T @ (0.5 * (M + M.T)) @ L), int(keep.sum())
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def reference(name, scaling, deluxe_kind="zero-mean"):
     """Exact BDDC and FETI-DP spectra of case ``name`` on the partially assembled space W~ given by
     explicit constraints (no change of basis). ``deluxe_kind``: "zero-mean" (deluxe on the glob's
     face dofs and zero-mean edge subspaces, delta on the edge averages) or "naive" (deluxe on all
     the glob's dofs in the original basis; not what DDInverse does, measured only)."""
-    mesh, fes, a, c, part = problem(name)
+    mesh, fes, _, c, part = problem(name)
     free = np.array(list(fes.FreeDofs()), dtype=bool)
     K = part_matrices(mesh, fes, c, part)
     n_parts = len(K)
@@ -190,15 +174,7 @@ def reference(name, scaling, deluxe_kind="zero-mean"):
     is_primal_vertex[vertex_nodes] = True
 
     # local Schur complements on the unassembled interface W, entries (part, dof) in part order
-    S_blocks, W_part, W_dof = [], [], []
-    for p in range(n_parts):
-        d = dofs[p]
-        g, i = d[mult[d] > 1], d[mult[d] == 1]
-        Kp = K[p]
-        S_blocks.append(Kp[np.ix_(g, g)] - Kp[np.ix_(g, i)] @ np.linalg.solve(Kp[np.ix_(i, i)], Kp[np.ix_(i, g)]))
-        W_part += [p] * g.size
-        W_dof += list(g)
-    W_part, W_dof = np.array(W_part), np.array(W_dof)
+    S_blocks, W_part, W_dof = local_schur(K, dofs, mult)
     n_W = W_dof.size
     S = scipy.linalg.block_diag(*S_blocks)
     interface = np.flatnonzero(mult > 1)
@@ -314,14 +290,10 @@ def reference(name, scaling, deluxe_kind="zero-mean"):
             "n_primal": len(vertex_nodes) + len(edges)}
 
 
-def cond(ev):
-    return float(ev.max() / ev.min())
-
-
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def ddinverse(name, method, scaling):
     """DDInverse with the reference's parts, and its solution of -div(c grad u) = 1 + x z (H1 vector)."""
-    mesh, fes, a, c, part = problem(name)
+    _, fes, a, _, part = problem(name)
     inv = DDInverse(a, method=method, partition=part, scaling=scaling, primal="vertices+edges", cond=True,
                     rtol=1e-12)
     f = ngs.LinearForm(fes)
