@@ -83,6 +83,11 @@ class Substructures:
     edge_candidates : ndarray of bool, shape (n_W,), or None
         The entries that may lie on an edge; None: ``interface & ~vertex`` (2D). Set with
         ``vertex`` from :func:`ddsolve.dd.edges.subdomain_edges_3d` for 3D edge averages.
+    ordering_anchors : ndarray of int, shape (n_W, m), or None
+        For the fill-reducing order of the batched factorizations only
+        (:func:`ddsolve.dd.local._anchored_order`): W entries of the same subdomain
+        (-1 padded) before the first of which each entry is eliminated; the nested
+        dissection runs on the entries that anchor to themselves. None: on all entries.
     delta : ndarray, shape (n_W,)
         delta-dagger_i(x) = rho_i^gamma / sum_{j in N_x} rho_j^gamma.
     K_W : scipy.sparse.csr_matrix, shape (n_W, n_W)
@@ -114,6 +119,7 @@ class Substructures:
         self._primal_space = None
         self.edge_weights = None            # node weights of the edge averages (ddsolve.dd.edges); None: nodal
         self.edge_candidates = None         # W entries that may lie on an edge; None: interface & ~vertex (2D)
+        self.ordering_anchors = None        # nested dissection on all entries (ddsolve.dd.local)
         self._edges_in_vertex = False       # True on the transformed copy: the representatives are in ``vertex``
         self.scaling = scaling
         self.gamma = float(gamma)

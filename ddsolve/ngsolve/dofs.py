@@ -55,6 +55,11 @@ def _expected_proxy_notice() -> Iterator[None]:
 
 #: Elements compared with ``fes.GetDofNrs`` to validate the vectorised triangle table.
 CHECK_ELEMENTS = 64
+#: NGSolve's element-local edges (pairs of local vertices) of a triangle and of a tetrahedron, and
+#: the faces of a tetrahedron (face i without vertex i), in the order of the element's dofs.
+TRIG_EDGES = ((2, 0), (1, 2), (0, 1))
+TET_EDGES = ((0, 3), (1, 3), (2, 3), (0, 1), (0, 2), (1, 2))
+TET_FACES = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
 
 
 def check_space(fes: Any) -> None:
@@ -125,7 +130,7 @@ def _triangle_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     ne, nv = V.shape[0], fes.mesh.nv
     if p == 1:                          # vertex dofs only: dof = vertex number
         return V.copy() if fes.ndof == nv and _matches(fes, V) else None
-    edges = np.stack([np.sort(V[:, list(e)], axis=1) for e in ((2, 0), (1, 2), (0, 1))], axis=1)
+    edges = np.stack([np.sort(V[:, list(e)], axis=1) for e in TRIG_EDGES], axis=1)
     keys = (edges[:, :, 0] * nv + edges[:, :, 1]).ravel()
     edge_num, ned = _numbered(keys)
     edge_num = edge_num.reshape(ne, 3)
@@ -162,7 +167,7 @@ def _tetrahedron_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     n = np.int64(nv)
     if p == 1:                          # vertex dofs only: dof = vertex number
         return V.copy() if fes.ndof == nv and _matches(fes, V) else None
-    E = np.sort(V[:, np.array(((0, 3), (1, 3), (2, 3), (0, 1), (0, 2), (1, 2)))], axis=2)
+    E = np.sort(V[:, np.array(TET_EDGES)], axis=2)
     edge_num, ned = _numbered((E[:, :, 0] * n + E[:, :, 1]).ravel())
     ne_dofs, nf_dofs, nc_dofs = p - 1, (p - 1) * (p - 2) // 2, (p - 1) * (p - 2) * (p - 3) // 6
     parts = [V, (nv + edge_num.reshape(ne, 6)[:, :, None] * ne_dofs + np.arange(ne_dofs)).reshape(ne, -1)]
@@ -180,6 +185,50 @@ def _tetrahedron_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     if fes.ndof != nv + ned * ne_dofs + nface * nf_dofs + ne * nc_dofs:
         return None
     return table if _matches(fes, table) else None
+
+
+def node_vertices(T: np.ndarray, order: int, dim: int, ndof: int) -> np.ndarray | None:
+    """The vertex dofs of the mesh node (vertex, edge or face) that carries each H1 dof.
+
+    Read from the element table ``T`` (NGSolve's element-local order: vertex dofs,
+    ``order - 1`` per edge in :data:`TRIG_EDGES` / :data:`TET_EDGES` order, the face
+    dofs of :data:`TET_FACES`, then the cell dofs). Used only to order the subdomain
+    factorizations (:func:`ddsolve.dd.local._anchored_order`): a wrong answer costs fill,
+    never accuracy.
+
+    Parameters
+    ----------
+    T : ndarray of int, shape (n_elements, n_local)
+        :func:`element_dofs` of a uniform-order H1 space on triangles or tetrahedra.
+    order, dim, ndof : int
+
+    Returns
+    -------
+    ndarray of int, shape (ndof, m), or None
+        Row d: d itself for a vertex dof; the vertex dofs of its edge (m = 2 in 2D) or
+        face (m = 3 in 3D) for an edge or face dof; -1 for cell dofs and padding.
+        None for other element shapes (quadrilaterals) or an unexpected table.
+    """
+    p = int(order)
+    k, edges, faces = (3, TRIG_EDGES, ()) if dim == 2 else (4, TET_EDGES, TET_FACES)
+    n_face = (p - 1) * (p - 2) // 2 if dim == 3 else 0
+    cell = (p - 1) * (p - 2) // 2 if dim == 2 else (p - 1) * (p - 2) * (p - 3) // 6
+    if p < 1 or T.ndim != 2 or T.shape[1] != k + len(edges) * (p - 1) + len(faces) * n_face + cell:
+        return None
+    out = np.full((ndof, 2 if dim == 2 else 3), -1, dtype=np.int64)
+    out[T[:, :k], 0] = T[:, :k]
+    col = k
+    for a, b in edges:
+        dofs = T[:, col:col + p - 1]
+        out[dofs, 0] = T[:, a:a + 1]
+        out[dofs, 1] = T[:, b:b + 1]
+        col += p - 1
+    for face in faces:
+        dofs = T[:, col:col + n_face]
+        for i, v in enumerate(face):
+            out[dofs, i] = T[:, v:v + 1]
+        col += n_face
+    return out
 
 
 def _matches(fes: Any, table: np.ndarray) -> bool:

@@ -271,6 +271,39 @@ def part_matrices(S: np.ndarray, Tw: np.ndarray, part: np.ndarray, free: np.ndar
     return PartMatrices(local=local, node_dof=node_dof, n_parts=n_parts)
 
 
+def ordering_anchors(sub: Any, node_dof: np.ndarray, dof_vertices: np.ndarray | None) -> np.ndarray | None:
+    """W entries of the vertices of each W entry's mesh node, in the same part (``Substructures.ordering_anchors``).
+
+    Parameters
+    ----------
+    sub : Substructures
+        Of :func:`part_matrices`' ``local`` (W sorted by part, then node).
+    node_dof : ndarray of int, shape (n_nodes,)
+        H1 dof of each node.
+    dof_vertices : ndarray of int, shape (ndof, m), or None
+        :func:`~ddsolve.ngsolve.dofs.node_vertices`.
+
+    Returns
+    -------
+    ndarray of int, shape (n_W, m), or None
+        -1 where the vertex is not a W entry of the part (Dirichlet); a vertex entry
+        anchors to itself. None without ``dof_vertices``.
+    """
+    if dof_vertices is None:
+        return None
+    n_nodes, n_W = node_dof.size, sub.n_W
+    w_key = sub.sub_of_W * np.int64(n_nodes) + sub.node_of_W
+    if n_W == 0 or np.any(w_key[1:] <= w_key[:-1]):
+        return None
+    node_of_dof = np.full(dof_vertices.shape[0], -1, dtype=np.int64)
+    node_of_dof[node_dof] = np.arange(n_nodes)
+    vertices = dof_vertices[node_dof[sub.node_of_W]]                       # (n_W, m) H1 dofs
+    nodes = np.where(vertices >= 0, node_of_dof[np.maximum(vertices, 0)], -1)
+    key = sub.sub_of_W[:, None] * np.int64(n_nodes) + nodes
+    position = np.minimum(np.searchsorted(w_key, key), n_W - 1)
+    return np.where((nodes >= 0) & (w_key[position] == key), position, -1)
+
+
 def _diagonal_block(A: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
     """Rows and columns lo:hi of a block-diagonal CSR matrix."""
     start, stop = A.indptr[lo], A.indptr[hi]

@@ -148,3 +148,34 @@ def test_coarse_factor_backend_by_stored_entries(monkeypatch):
     fallback = primal.coarse_factor(indefinite)
     assert not isinstance(fallback, pardiso.PardisoCholesky)
     np.testing.assert_allclose(indefinite @ fallback.solve(b), b, rtol=1e-8, atol=1e-10)
+
+
+def test_anchored_order_on_a_synthetic_layout():
+    """local._anchored_order: the self-anchored entries in the nested dissection of their own graph,
+    every other entry just before its first anchor, blocks (one of them empty) kept in order."""
+    pytest.importorskip("pymetis")
+    G = sp.block_diag([_laplacian(6, 0.0), _laplacian(5, 0.0)], format="csr")
+    offsets = np.array([0, 36, 36, 61])                      # block 1 is empty
+    n = G.shape[0]
+    anchors = np.full((n, 2), -1, dtype=np.int64)
+    own = np.zeros(n, dtype=bool)
+    own[0:36:2] = own[36:61:3] = True
+    anchors[own, 0] = np.flatnonzero(own)
+    for w in np.flatnonzero(~own):                           # the next own entries of the same block
+        lo, hi = (0, 36) if w < 36 else (36, 61)
+        later = np.flatnonzero(own[w:hi]) + w
+        anchors[w, :later[:2].size] = later[:2]
+    anchors[60] = -1                                         # no anchor: ordered as its own
+    order = local._anchored_order(G, offsets, anchors)
+    np.testing.assert_array_equal(np.sort(order), np.arange(n))
+    np.testing.assert_array_equal(order < 36, np.arange(n) < 36)        # block 0 first
+    selfs = np.flatnonzero(own | (anchors.max(axis=1) < 0))
+    sub_offsets = np.array([0, np.count_nonzero(selfs < 36), np.count_nonzero(selfs < 36), selfs.size])
+    expected = selfs[local._nested_dissection(G[selfs][:, selfs].tocsr(), sub_offsets)]
+    np.testing.assert_array_equal(order[np.isin(order, selfs)], expected)
+    position = np.empty(n, dtype=np.int64)
+    position[order] = np.arange(n)
+    for w in np.flatnonzero(~own & (anchors.max(axis=1) >= 0)):
+        first = min(position[a] for a in anchors[w] if a >= 0)
+        assert position[w] < first
+        assert not np.isin(order[position[w]:first], selfs).any()     # no own entry in between
