@@ -25,6 +25,7 @@ block, not of the whole matrix (PARDISO: one solve of the whole matrix).
 """
 from __future__ import annotations
 
+import itertools
 import logging
 from dataclasses import dataclass
 from typing import Any
@@ -103,7 +104,7 @@ def _nested_dissection(G: sp.csr_matrix, offsets: np.ndarray) -> np.ndarray:
     indptr = np.r_[0, np.cumsum(np.bincount(rows[off], minlength=G.shape[0]))]
     indices = G.indices[off].astype(np.int64)
     order = np.arange(G.shape[0], dtype=np.int64)
-    for lo, hi in zip(offsets[:-1], offsets[1:]):            # setup: one METIS call per subdomain block
+    for lo, hi in itertools.pairwise(offsets):              # setup: one METIS call per subdomain block
         a, b = indptr[lo], indptr[hi]
         if hi - lo > 2 and b > a:
             perm, _ = pymetis.nested_dissection(pymetis.CSRAdjacency(indptr[lo:hi + 1] - a, indices[a:b] - lo))

@@ -162,7 +162,7 @@ def test_anchored_order_on_a_synthetic_layout():
     own[0:36:2] = own[36:61:3] = True
     anchors[own, 0] = np.flatnonzero(own)
     for w in np.flatnonzero(~own):                           # the next own entries of the same block
-        lo, hi = (0, 36) if w < 36 else (36, 61)
+        hi = 36 if w < 36 else 61
         later = np.flatnonzero(own[w:hi]) + w
         anchors[w, :later[:2].size] = later[:2]
     anchors[60] = -1                                         # no anchor: ordered as its own
