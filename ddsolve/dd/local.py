@@ -475,8 +475,8 @@ class BatchedSolver:
         key = b"batch" + hashlib.sha1(entries.astype(np.int64).tobytes()).digest()
         if key not in cache:
             inv_rho_e = 1.0 / layout.rho[layout.sub_of_W[entries]]
-            K = layout.K_W[entries][:, entries]
-            K = sp.csc_matrix(sp.diags(inv_rho_e) @ K)                   # rho_i K_t -> K_t, block by block
+            K = sp.csr_matrix(layout.K_W[entries][:, entries])         # a new matrix: scaled in place
+            K.data *= np.repeat(inv_rho_e, np.diff(K.indptr))          # rho_i K_t -> K_t, block by block
             order = None
             if BATCH_ORDERING == "subdomain" and K.shape[0] > DENSE_LIMIT and _sparse_backend(K) == "pardiso":
                 order = _restricted_order(_subdomain_ordering(layout, cache), entries, layout.n_W)

@@ -83,12 +83,8 @@ class PardisoCholesky:
         lib = _library()
         if lib is None:
             raise ImportError("MKL PARDISO needs the mkl wheel (pip install mkl)")
-        upper = sp.triu(sp.csr_matrix(K), format="csr")
-        upper.sort_indices()
         self.n = int(K.shape[0])
-        self._data = np.ascontiguousarray(upper.data, dtype=np.float64)
-        self._indptr = np.ascontiguousarray(upper.indptr, dtype=np.int32)
-        self._indices = np.ascontiguousarray(upper.indices, dtype=np.int32)
+        self._data, self._indptr, self._indices = _upper_triangle(K)
         self._handle = np.zeros(64, dtype=np.int64)             # PARDISO's internal pointers pt[64]
         self._iparm = np.zeros(64, dtype=np.int32)
         # own iparm; ordering; pivot perturbation 1e-8 (unused for SPD); 0-based indices
@@ -117,6 +113,23 @@ class PardisoCholesky:
         X = np.empty(B.shape, dtype=np.float64, order="F")
         self._call(33, rhs, X, nrhs)
         return X
+
+
+def _upper_triangle(K: sp.spmatrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CSR arrays (data, indptr, indices; float64, int32, int32) of the upper triangle of K, sorted rows.
+
+    One mask over the stored entries (no COO round trip as in ``scipy.sparse.triu``).
+    """
+    K = sp.csr_matrix(K)
+    if not K.has_sorted_indices:
+        K = K.sorted_indices()
+    n = K.shape[0]
+    rows = np.repeat(np.arange(n, dtype=np.int32), np.diff(K.indptr))
+    keep = K.indices >= rows
+    indptr = np.zeros(n + 1, dtype=np.int32)
+    np.cumsum(np.bincount(rows[keep], minlength=n), out=indptr[1:])
+    return (np.ascontiguousarray(K.data[keep], dtype=np.float64), indptr,
+            np.ascontiguousarray(K.indices[keep], dtype=np.int32))
 
 
 def _pardiso(lib: Any, handle: np.ndarray, iparm: np.ndarray, phase: int, n: int, data: np.ndarray,

@@ -179,3 +179,24 @@ def test_anchored_order_on_a_synthetic_layout():
         first = min(position[a] for a in anchors[w] if a >= 0)
         assert position[w] < first
         assert not np.isin(order[position[w]:first], selfs).any()     # no own entry in between
+
+
+def test_upper_triangle_arrays_match_scipy_triu():
+    """pardiso._upper_triangle: the CSR arrays of triu(K) with sorted rows, also from unsorted CSR or CSC input."""
+    rng = np.random.default_rng(3)
+    A = sp.random(60, 60, density=0.1, random_state=rng, format="csr")
+    K = sp.csr_matrix(A + A.T + 60 * sp.eye(60))
+    shuffled = K.copy()
+    for r in range(60):                                   # reverse the column order inside every row
+        a, b = shuffled.indptr[r], shuffled.indptr[r + 1]
+        shuffled.indices[a:b] = shuffled.indices[a:b][::-1].copy()
+        shuffled.data[a:b] = shuffled.data[a:b][::-1].copy()
+    shuffled.has_sorted_indices = False
+    ref = sp.triu(K, format="csr")
+    ref.sort_indices()
+    for M in (K, shuffled, sp.csc_matrix(K)):
+        data, indptr, indices = pardiso._upper_triangle(M)
+        assert indptr.dtype == indices.dtype == np.int32
+        np.testing.assert_array_equal(indptr, ref.indptr)
+        np.testing.assert_array_equal(indices, ref.indices)
+        np.testing.assert_array_equal(data, ref.data)
