@@ -253,10 +253,13 @@ def part_matrices(S: np.ndarray, Tw: np.ndarray, part: np.ndarray, free: np.ndar
     sizes = np.bincount(sub_of_broken, minlength=n_parts)
     offsets = np.concatenate([[0], np.cumsum(sizes)])
     nw = Tw.shape[1]
-    rows = np.broadcast_to(broken[:, :, None], S.shape).ravel()
-    cols = np.broadcast_to(broken[:, None, :], S.shape).ravel()
     n_b = uniq.size
+    # row of S[e, i, j]: broken[e, i]; column: broken[e, j] (32-bit where they fit: half the bytes to sort)
+    broken_index = broken.astype(np.int32 if n_b < 2**31 - 1 else np.int64)
+    rows = np.repeat(broken_index, nw, axis=1).ravel()
+    cols = np.tile(broken_index, (1, nw)).ravel()
     A = sp.csr_matrix((S.ravel(), (rows, cols)), shape=(n_b, n_b))
+    del rows, cols
     A.sum_duplicates()
     diag = A.diagonal()
     rho = np.bincount(sub_of_broken, weights=diag, minlength=n_parts) / np.maximum(sizes, 1)
@@ -267,7 +270,6 @@ def part_matrices(S: np.ndarray, Tw: np.ndarray, part: np.ndarray, free: np.ndar
                      boundary=boundary_dofs[node_dof], subdomain_body=np.zeros(n_parts, dtype=np.int64))
     local = LocalProblems(scene=scene, nodes=nodes, template=np.arange(n_parts), stiffness=blocks,
                           loads=[np.zeros(len(nd)) for nd in nodes])
-    del nw
     return PartMatrices(local=local, node_dof=node_dof, n_parts=n_parts)
 
 
