@@ -23,7 +23,15 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import operators as _operators
-from .local import BatchedSolver, DenseBlocks, _Group, solve_many
+from .local import (
+    SOLVE_MANY_BYTES,
+    SOLVE_MANY_COLUMNS,
+    BatchedSolver,
+    DenseBlocks,
+    _BlockView,
+    _Group,
+    solve_many,
+)
 from .operators import space_key
 from .substructure import Substructures
 
@@ -116,10 +124,16 @@ class PrimalConstrainedSolver:
         self.Psi = np.zeros((sub.n_W, p_max))
         S_loc = np.zeros((sub.n_sub, p_max, p_max))
         done = np.zeros(sub.n_sub, dtype=bool)
-        # all solves K_rr^{-1} K_rPi first (the batched subdomains share multi-column solves), then Psi, S
+        # the subdomains of the batched factorization: all at once, from K_W (no loop over subdomains)
+        batch = self.rr._batch
+        if batch is not None:
+            done[self._batched_primal_blocks(sub, batch, S_loc)] = True
+        # all solves K_rr^{-1} K_rPi first (shared factorizations: multi-column solves), then Psi, S
         work: list[tuple[_Group, list[int], np.ndarray, np.ndarray, np.ndarray | None]] = []
         for g in self.rr.groups:
             members = g.members
+            if batch is not None and isinstance(g.factor, _BlockView) and g.factor.factor is batch[0]:
+                continue
             by_primal: dict[bytes, list[int]] = {}
             for j, s_ in enumerate(members):
                 loc_p = sub.local_index[self.table[s_][valid[s_]]]
@@ -175,6 +189,61 @@ class PrimalConstrainedSolver:
         self._psi_global_T: sp.csr_matrix | None = None
         # by (mask bytes, n_W, explicit option), the MAX_INTERFACES most recently used
         self._interfaces: OrderedDict[tuple, InterfaceSolve] = OrderedDict()
+
+    def _batched_primal_blocks(self, sub: Substructures, batch: tuple, S_loc: np.ndarray) -> np.ndarray:
+        """Psi and the local coarse matrices of the subdomains of the batched factorization, all at once.
+
+        With K_W = diag(rho_i K^(i)) and r, Pi the r and primal entries of those subdomains,
+        column c of Psi^(i) = K_rr^(i)^{-1} K_rPi^(i) is column c of one solve with the
+        block-diagonal factor of diag(K_rr^(i)) (right-hand side: column c of every
+        subdomain's K_rPi^(i) on its rows, as :func:`~ddsolve.dd.local.solve_many` packs
+        them), and S^(i) = rho_i (K_PiPi^(i) - K_Pir^(i) Psi^(i)) = (K_W)_PiPi - (K_W)_Pir Psi
+        follows from two block-diagonal sparse products.
+
+        Parameters
+        ----------
+        batch : tuple
+            ``BatchedSolver._batch``: (factor, entries (n_b,), 1 / rho of each entry (n_b,)).
+        S_loc : ndarray, shape (n_sub, p_max, p_max)
+            Written for the batched subdomains.
+
+        Returns
+        -------
+        ndarray of int
+            The batched subdomains.
+        """
+        factor, entries, inv_rho = batch
+        members = np.unique(sub.sub_of_W[entries])
+        in_batch = np.zeros(sub.n_sub, dtype=bool)
+        in_batch[members] = True
+        column = np.full(sub.n_W, -1, dtype=np.int64)          # primal entry -> its column c in its subdomain
+        s_idx, c_idx = np.nonzero(self.table >= 0)
+        column[self.table[s_idx, c_idx]] = c_idx
+        pw = np.flatnonzero(self.primal & in_batch[sub.sub_of_W])
+        if pw.size == 0 or self.p_max == 0:
+            return members
+        # the (Pi, r) and (Pi, Pi) blocks from the primal rows of K_W (symmetric: K_rPi = K_Pir^T)
+        position = np.full(sub.n_W, -1, dtype=np.int64)
+        position[entries] = np.arange(entries.size)            # row of the batched factor
+        primal_index = np.full(sub.n_W, -1, dtype=np.int64)
+        primal_index[pw] = np.arange(pw.size)
+        rows = sp.csr_matrix(sub.K_W)[pw].tocoo()               # (n_pb, n_W): few rows
+        to_r, to_P = position[rows.col] >= 0, primal_index[rows.col] >= 0
+        KrP = sp.coo_matrix((rows.data[to_r], (position[rows.col[to_r]], rows.row[to_r])),
+                            shape=(entries.size, pw.size))       # (n_b, n_pb), block diagonal
+        KPP = sp.coo_matrix((rows.data[to_P], (rows.row[to_P], primal_index[rows.col[to_P]])),
+                            shape=(pw.size, pw.size))
+        rhs = np.zeros((entries.size, self.p_max), order="F")
+        rhs[KrP.row, column[pw[KrP.col]]] = KrP.data * inv_rho[KrP.row]     # rho_i K_t -> K_t
+        chunk = max(1, min(SOLVE_MANY_COLUMNS, SOLVE_MANY_BYTES // (8 * max(entries.size, 1))))
+        Psi = np.empty_like(rhs)
+        for c0 in range(0, self.p_max, chunk):
+            Psi[:, c0:c0 + chunk] = factor.solve(rhs[:, c0:c0 + chunk])
+        self.Psi[entries] = Psi
+        s_of = sub.sub_of_W[pw]
+        S_loc[s_of[KPP.row], column[pw[KPP.row]], column[pw[KPP.col]]] = KPP.data
+        S_loc[s_of, column[pw], :] -= sp.csr_matrix(KrP).T @ Psi      # (K_W)_Pir Psi, row by primal entry
+        return members
 
     def _primal_dofs(self, sub: Substructures, primal_mask: np.ndarray) -> np.ndarray:
         """Sorted global dofs of the primal unknowns (hook: a rank-local ``sub`` sees only its own)."""
