@@ -59,15 +59,17 @@ def _sorted_rows(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     whether each row in that order equals the next.
 
     Rows are encoded as one int64 key (m = 2 or 3 numbers below 2^21 each: meshes of up to
-    about two million vertices) and sorted by one argsort (equal rows in any order); larger
-    meshes use ``np.lexsort`` (about 4x slower).
+    about two million vertices) and sorted by one stable argsort (it keeps the runs of a
+    netgen mesh: 0.50 s against 0.70 s for quicksort on 6.1M faces of a refined tetrahedral
+    mesh, 0.75 s against 1.07 s on 3M triangle edges); larger meshes use ``np.lexsort``
+    (about 4x slower).
     """
     n = int(F.max()) + 1 if F.size else 1
     if n ** F.shape[1] < 2 ** 63:
         key = F[:, 0].astype(np.int64)
         for j in range(1, F.shape[1]):
             key = key * n + F[:, j]
-        order = np.argsort(key)
+        order = np.argsort(key, kind="stable")
         key = key[order]
         return order, key[1:] == key[:-1]
     order = np.lexsort(F.T[::-1])
@@ -76,10 +78,12 @@ def _sorted_rows(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def facet_adjacency(V: np.ndarray, dim: int, n: int) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
-    """:func:`facet_graph` and :func:`boundary_vertices` from one sort of the facets (3D; 2D: the
-    element graph of :func:`~ddsolve.scene.partition.element_graph` and the boundary vertices)."""
-    if dim == 2:
-        return element_graph(V), boundary_vertices(V, 2, n)
+    """:func:`facet_graph` and :func:`boundary_vertices` from one sort of the facets.
+
+    In 2D the pairs are those of :func:`~ddsolve.scene.partition.element_graph` (elements sharing
+    an edge), from the same sort as the boundary vertices (two sorts before: 2.0 s against 0.75 s
+    for 2M triangles).
+    """
     F = element_facets(V, dim).reshape(-1, dim)
     order, same = _sorted_rows(F)
     at = np.flatnonzero(same)
