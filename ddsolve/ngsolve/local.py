@@ -206,12 +206,19 @@ def condense(Ke: np.ndarray, T: np.ndarray, free: np.ndarray) -> Condensed:
     b, w = np.flatnonzero(bubble), np.flatnonzero(~bubble)
     if b.size == 0:
         return Condensed(S=Ke, w=w, b=b, Kbb_inv=None, E=None)
-    Kbb = Ke[:, b][:, :, b]
-    Kbw = Ke[:, b][:, :, w]
-    Kwb = Ke[:, w][:, :, b]
-    Kbb_inv = np.linalg.inv(Kbb)
-    E = Kbb_inv @ Kbw
-    S = Ke[:, w][:, :, w] - Kwb @ E
+    if np.array_equal(w, np.arange(w.size)):            # bubbles last (NGSolve's element order): views
+        nw = w.size
+        Kww, Kbb, Kbw, Kwb = Ke[:, :nw, :nw], Ke[:, nw:, nw:], Ke[:, nw:, :nw], Ke[:, :nw, nw:]
+    else:
+        Kww, Kbb, Kbw, Kwb = (Ke[:, r[:, None], c[None, :]] for r, c in ((w, w), (b, b), (b, w), (w, b)))
+    if b.size == 1:         # one bubble (P3 triangles): elementwise, the same numbers as the batched inv/matmul
+        Kbb_inv = 1.0 / Kbb
+        E = Kbb_inv * Kbw
+        S = Kww - Kwb * E
+    else:
+        Kbb_inv = np.linalg.inv(Kbb)
+        E = Kbb_inv @ Kbw
+        S = Kww - Kwb @ E
     return Condensed(S=S, w=w, b=b, Kbb_inv=Kbb_inv, E=E)
 
 
