@@ -233,16 +233,22 @@ class PrimalConstrainedSolver:
                             shape=(entries.size, pw.size))       # (n_b, n_pb), block diagonal
         KPP = sp.coo_matrix((rows.data[to_P], (rows.row[to_P], primal_index[rows.col[to_P]])),
                             shape=(pw.size, pw.size))
-        rhs = np.zeros((entries.size, self.p_max), order="F")
-        rhs[KrP.row, column[pw[KrP.col]]] = KrP.data * inv_rho[KrP.row]     # rho_i K_t -> K_t
-        chunk = max(1, min(SOLVE_MANY_COLUMNS, SOLVE_MANY_BYTES // (8 * max(entries.size, 1))))
-        Psi = np.empty_like(rhs)
-        for c0 in range(0, self.p_max, chunk):
-            Psi[:, c0:c0 + chunk] = factor.solve(rhs[:, c0:c0 + chunk])
-        self.Psi[entries] = Psi
+        # column chunks as solve_many makes them; rows and coarse rows of the subdomains with a column there
+        col = column[pw[KrP.col]]
+        KPr = sp.csr_matrix((KrP.data, (KrP.col, KrP.row)), shape=(pw.size, entries.size))
         s_of = sub.sub_of_W[pw]
         S_loc[s_of[KPP.row], column[pw[KPP.row]], column[pw[KPP.col]]] = KPP.data
-        S_loc[s_of, column[pw], :] -= sp.csr_matrix(KrP).T @ Psi      # (K_W)_Pir Psi, row by primal entry
+        n_primal_of = (self.table >= 0).sum(axis=1)
+        chunk = max(1, min(SOLVE_MANY_COLUMNS, SOLVE_MANY_BYTES // (8 * max(entries.size, 1))))
+        for c0 in range(0, self.p_max, chunk):
+            c1 = min(c0 + chunk, self.p_max)
+            here = (col >= c0) & (col < c1)
+            rhs = np.zeros((entries.size, c1 - c0), order="F")
+            rhs[KrP.row[here], col[here] - c0] = KrP.data[here] * inv_rho[KrP.row[here]]   # rho_i K_t -> K_t
+            Y = factor.solve(rhs)
+            live = np.flatnonzero(n_primal_of[sub.sub_of_W[entries]] > c0)
+            self.Psi[entries[live], c0:c1] = Y[live]
+            S_loc[s_of, column[pw], c0:c1] -= KPr @ Y             # (K_W)_Pir Psi, row by primal entry
         return members
 
     def _primal_dofs(self, sub: Substructures, primal_mask: np.ndarray) -> np.ndarray:
