@@ -371,15 +371,19 @@ def interface_edge_weights(fes: Any, part: np.ndarray, V: np.ndarray | None = No
 
 def mesh_edge_numbers(mesh: Any, V: np.ndarray | None = None, T: np.ndarray | None = None,
                       order: int = 1) -> np.ndarray:
-    """NGSolve edge number of every edge of every volume element, shape (n_elements, k).
+    """The ``FacetFESpace(order=0)`` dof of every edge of every volume element, shape (n_elements, k).
+
+    That is NGSolve's edge number, counted over the edges in use: on a mesh refined by
+    netgen's ``Refine()`` the mesh keeps the coarse edges (``mesh.nedge`` counts them),
+    while the facet and H1 spaces number only the edges of the fine elements.
 
     With the element dof table ``T`` of an H1 space of uniform ``order`` >= 2
     (n_v vertex dofs, then order - 1 dofs per edge in edge order), the first
-    dof d of each element edge gives (d - n_v) / (order - 1); else NGSolve's
-    numbering by the sorted (smaller, larger) vertex pair. Either is checked
-    on CHECK_ELEMENTS elements against ``mesh[el].edges``; failing both, the
-    table comes from the conversion operator of ``FacetFESpace(order=0)``
-    into its discontinuous version (slower).
+    dof d of each element edge gives (d - n_v) / (order - 1); else the ranks of
+    the sorted (smaller, larger) vertex pairs. Either is checked on
+    CHECK_ELEMENTS elements against the facet space's ``GetDofNrs``; failing
+    both, the table comes from the conversion operator of the facet space into
+    its discontinuous version (slower: 1.1 s at 2M triangles).
     """
     import ngsolve
 
@@ -388,11 +392,11 @@ def mesh_edge_numbers(mesh: Any, V: np.ndarray | None = None, T: np.ndarray | No
     V = vertex_table(mesh) if V is None else V
     ne, k = V.shape
     sample = np.unique(np.linspace(0, ne - 1, min(ne, CHECK_ELEMENTS)).astype(np.int64))
+    F = ngsolve.FacetFESpace(mesh, order=0)
 
     def valid(number: np.ndarray) -> bool:
-        return bool(number.size == 0 or (number.min() >= 0 and number.max() < mesh.nedge)) and all(
-            sorted(e.nr for e in mesh[ngsolve.ElementId(ngsolve.VOL, int(el))].edges) == sorted(number[el])
-            for el in sample)
+        return bool(number.size == 0 or (number.min() >= 0 and number.max() < F.ndof)) and all(
+            sorted(F.GetDofNrs(ngsolve.ElementId(ngsolve.VOL, int(el)))) == sorted(number[el]) for el in sample)
 
     if T is not None and order >= 2 and T.shape[1] >= k * order:
         first = T[:, k:k + k * (order - 1):order - 1]
@@ -404,10 +408,9 @@ def mesh_edge_numbers(mesh: Any, V: np.ndarray | None = None, T: np.ndarray | No
     keys = (pairs.min(axis=2) * nv + pairs.max(axis=2)).ravel()
     uniq, number = np.unique(keys, return_inverse=True)
     number = number.reshape(ne, k)
-    if uniq.size == mesh.nedge and valid(number):
+    if uniq.size == F.ndof and valid(number):
         return number
     log.info("NGSolve edge numbering differs from the sorted vertex pairs; using ConvertOperator")
-    F = ngsolve.FacetFESpace(mesh, order=0)
     Fd = ngsolve.Discontinuous(F)
     r, c, v = (np.asarray(x) for x in ngsolve.comp.ConvertOperator(F, Fd).COO())
     keep = v > 0.5

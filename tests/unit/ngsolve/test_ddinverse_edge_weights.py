@@ -152,3 +152,21 @@ def test_weighted_edges_stay_bounded_with_more_parts():
             cond[parts, primal] = inv.cond
     assert cond[300, "vertices+edges"] < 2.0 * cond[40, "vertices+edges"]
     assert cond[300, "vertices+edges"] < 0.8 * cond[300, "vertices"]
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_edge_numbers_of_a_refined_mesh_are_the_facet_dofs(order, caplog):
+    """netgen's Refine() keeps the coarse edges in mesh.nedge; the facet space numbers the fine edges
+    only. The vectorised numbers must be the facet dofs, without the ConvertOperator fallback."""
+    ngmesh = unit_square.GenerateMesh(maxh=0.3)
+    ngmesh.Refine()
+    ngmesh.Refine()
+    mesh = ngs.Mesh(ngmesh)
+    F = ngs.FacetFESpace(mesh, order=0)
+    assert mesh.nedge > F.ndof                     # the case: unused coarse edges
+    V = vertex_table(mesh)
+    with caplog.at_level("INFO", logger="ddsolve.ngsolve.local"):
+        number = mesh_edge_numbers(mesh, V, element_dofs(ngs.H1(mesh, order=order)), order)
+    assert "ConvertOperator" not in caplog.text
+    expected = np.array([sorted(F.GetDofNrs(ngs.ElementId(ngs.VOL, e))) for e in range(mesh.ne)])
+    np.testing.assert_array_equal(np.sort(number, axis=1), expected)
