@@ -285,6 +285,68 @@ def basis_matrix(n: int, entries: np.ndarray, reps: np.ndarray, parents: np.ndar
     return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
 
 
+def _transformed_blocks(blocks: list, sub_of_e: np.ndarray, loc_e: np.ndarray, loc_r: np.ndarray,
+                       loc_p: np.ndarray, coef: np.ndarray | None) -> list[sp.csr_matrix]:
+    """T_i^T K_i T_i of every block K_i at once: one triple product of block-diagonal matrices.
+
+    Parameters
+    ----------
+    blocks : list of sparse matrices
+        K_i, one per subdomain (in subdomain order), on the template-local index space.
+    sub_of_e : ndarray of int, shape (m,)
+        Subdomain of every non-representative edge entry; ``loc_e``, ``loc_r``, ``loc_p``
+        (shape (m,)) its template-local index, its representative's and its parent's
+        (anchor's), and ``coef`` its weight (None: unweighted), as for :func:`basis_matrix`.
+
+    Returns
+    -------
+    list of csr_matrix
+        The transformed blocks, in subdomain order.
+    """
+    from ..scene.assembly import diagonal_block
+
+    csr = [sp.csr_matrix(K) for K in blocks]
+    sizes = np.array([K.shape[0] for K in csr], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    nnz_offsets = np.concatenate([[0], np.cumsum([K.nnz for K in csr])])
+    K = sp.csr_matrix((np.concatenate([K.data for K in csr]),
+                       np.concatenate([K.indices.astype(np.int64) + offsets[k] for k, K in enumerate(csr)]),
+                       np.concatenate([[0]] + [K.indptr[1:].astype(np.int64) + nnz_offsets[k]
+                                               for k, K in enumerate(csr)])),
+                      shape=(offsets[-1], offsets[-1]))
+    shift = offsets[sub_of_e]
+    T = basis_matrix(int(offsets[-1]), shift + loc_e, shift + loc_r, shift + loc_p, coef)
+    K_hat = (T.T @ K @ T).tocsr()
+    return [diagonal_block(K_hat, offsets[k], offsets[k + 1]) for k in range(len(csr))]
+
+
+def _transformed_templates(s, sub_of_e: np.ndarray, loc_e: np.ndarray, loc_r: np.ndarray, loc_p: np.ndarray,
+                           coef: np.ndarray | None) -> tuple[np.ndarray, list[sp.csr_matrix]]:
+    """T^T K_t T once per distinct (template t, local edge pattern) of the substructures ``s``.
+
+    The arguments are those of :func:`_transformed_blocks`. Returns the new template of
+    every subdomain, shape (n_sub,), and the transformed template matrices.
+    """
+    bounds = np.searchsorted(sub_of_e, np.arange(s.n_sub + 1))
+    new_template = np.empty(s.n_sub, dtype=np.int64)
+    stiffness: list[sp.csr_matrix] = []
+    seen: dict[bytes, int] = {}
+    for k in range(s.n_sub):
+        lo, hi = bounds[k], bounds[k + 1]
+        t = int(s.template[k])
+        key = (t.to_bytes(8, "little") + loc_e[lo:hi].tobytes() + loc_r[lo:hi].tobytes()
+               + loc_p[lo:hi].tobytes() + (b"" if coef is None else coef[lo:hi].tobytes()))
+        hit = seen.get(key)
+        if hit is None:
+            K = s.stiffness[t]
+            T = basis_matrix(K.shape[0], loc_e[lo:hi], loc_r[lo:hi], loc_p[lo:hi],
+                             None if coef is None else coef[lo:hi])
+            hit = seen[key] = len(stiffness)
+            stiffness.append((T.T @ K @ T).tocsr())
+        new_template[k] = hit
+    return new_template, stiffness
+
+
 class PrimalSpace:
     """The W space in which FETI-DP and BDDC solve, and its maps to and from the original basis.
 
@@ -327,25 +389,13 @@ class PrimalSpace:
         view._edges_in_vertex = True
         view.vertex = s.vertex | edges.representative
         view.delta = self._edge_constant(s.delta, edges)
-        # transformed template matrices: one per distinct (template, local edge pattern)
         loc_e, loc_r, loc_p = s.local_index[e], s.local_index[r], s.local_index[par]
-        bounds = np.searchsorted(s.sub_of_W[e], np.arange(s.n_sub + 1))
-        new_template = np.empty(s.n_sub, dtype=np.int64)
-        stiffness: list[sp.csr_matrix] = []
-        seen: dict[bytes, int] = {}
-        for k in range(s.n_sub):
-            lo, hi = bounds[k], bounds[k + 1]
-            t = int(s.template[k])
-            key = (t.to_bytes(8, "little") + loc_e[lo:hi].tobytes() + loc_r[lo:hi].tobytes()
-                   + loc_p[lo:hi].tobytes() + (b"" if cf is None else cf[lo:hi].tobytes()))
-            hit = seen.get(key)
-            if hit is None:
-                K = s.stiffness[t]
-                T = basis_matrix(K.shape[0], loc_e[lo:hi], loc_r[lo:hi], loc_p[lo:hi],
-                                 None if cf is None else cf[lo:hi])
-                hit = seen[key] = len(stiffness)
-                stiffness.append((T.T @ K @ T).tocsr())
-            new_template[k] = hit
+        if np.array_equal(s.template, np.arange(s.n_sub)) and len(s.stiffness) == s.n_sub:
+            # every subdomain its own template (unstructured meshes, DDInverse): all blocks in one product
+            new_template = np.arange(s.n_sub)
+            stiffness = _transformed_blocks(s.stiffness, s.sub_of_W[e], loc_e, loc_r, loc_p, cf)
+        else:
+            new_template, stiffness = _transformed_templates(s, s.sub_of_W[e], loc_e, loc_r, loc_p, cf)
         view.template = new_template
         view.stiffness = stiffness
         view.K_W = view._block_diagonal(s._full_offsets, s._kept)

@@ -228,7 +228,7 @@ def assemble(scene: Scene) -> LocalProblems:
     a += ngs.grad(u) * ngs.grad(v) * ngs.dx
     a.Assemble()
     A = _csr(a.mat, (fes.ndof, fes.ndof))
-    stiffness = [_diagonal_block(A, rep_off[t], rep_off[t + 1]) for t in range(n_templates)]
+    stiffness = [diagonal_block(A, rep_off[t], rep_off[t + 1]) for t in range(n_templates)]
 
     # Loads on the broken mesh of all subdomains (built in bulk), one NGSolve assembly: the same
     # quadrature and summation order as assembling each subdomain, so the loads, and with them every
@@ -312,13 +312,13 @@ def _assemble_p1(scene: Scene) -> LocalProblems:
     a += ngs.grad(u) * ngs.grad(v) * ngs.dx
     a.Assemble()
     A = _csr(a.mat, (fes.ndof, fes.ndof))
-    stiffness = [_diagonal_block(A, offsets[s], offsets[s + 1]) for s in range(n_sub)]
+    stiffness = [diagonal_block(A, offsets[s], offsets[s + 1]) for s in range(n_sub)]
     loads = _loads(scene, mesh, fes, order, offsets)
     log.info("assembled %d P1 subdomains (%d broken dofs)", n_sub, fes.ndof)
     return LocalProblems(scene=scene, nodes=nodes, template=np.arange(n_sub), stiffness=stiffness, loads=loads)
 
 
-def _diagonal_block(A: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
+def diagonal_block(A: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
     """Rows and columns lo:hi of a block-diagonal CSR matrix (its rows have no entries outside)."""
     start, stop = A.indptr[lo], A.indptr[hi]
     block = sp.csr_matrix((A.data[start:stop], A.indices[start:stop] - lo, A.indptr[lo:hi + 1] - start),
