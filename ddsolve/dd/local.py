@@ -297,6 +297,12 @@ SOLVE_MANY_COLUMNS = 32
 SOLVE_MANY_BYTES = 16 * 2**20
 
 
+def solve_chunk(n: int) -> int:
+    """Columns per multi-right-hand-side solve of an n-unknown factorization (:data:`SOLVE_MANY_COLUMNS`,
+    :data:`SOLVE_MANY_BYTES`)."""
+    return max(1, min(SOLVE_MANY_COLUMNS, SOLVE_MANY_BYTES // (8 * max(n, 1))))
+
+
 def solve_many(tasks: list[tuple]) -> list[np.ndarray]:
     """X_k = (K_k^{-1} B_k)[rows_k] for many (factor, B_k[, rows_k]), batched blocks sharing solves.
 
@@ -340,7 +346,7 @@ def solve_many(tasks: list[tuple]) -> list[np.ndarray]:
         whole = tasks[ks[0]][0].factor
         offsets = whole._blocks
         width = max(tasks[k][1].shape[1] for k in ks)
-        chunk = max(1, min(SOLVE_MANY_COLUMNS, SOLVE_MANY_BYTES // (8 * max(whole.n, 1))))
+        chunk = solve_chunk(whole.n)
         for c0 in range(0, width, chunk):
             c1 = min(c0 + chunk, width)
             rhs = np.zeros((whole.n, c1 - c0), order="F")

@@ -24,12 +24,11 @@ import scipy.sparse.linalg as spla
 
 from . import operators as _operators
 from .local import (
-    SOLVE_MANY_BYTES,
-    SOLVE_MANY_COLUMNS,
     BatchedSolver,
     DenseBlocks,
     _BlockView,
     _Group,
+    solve_chunk,
     solve_many,
 )
 from .operators import space_key
@@ -239,7 +238,7 @@ class PrimalConstrainedSolver:
         s_of = sub.sub_of_W[pw]
         S_loc[s_of[KPP.row], column[pw[KPP.row]], column[pw[KPP.col]]] = KPP.data
         n_primal_of = (self.table >= 0).sum(axis=1)
-        chunk = max(1, min(SOLVE_MANY_COLUMNS, SOLVE_MANY_BYTES // (8 * max(entries.size, 1))))
+        chunk = solve_chunk(entries.size)
         for c0 in range(0, self.p_max, chunk):
             c1 = min(c0 + chunk, self.p_max)
             here = (col >= c0) & (col < c1)

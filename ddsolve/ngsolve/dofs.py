@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from .facets import TET_FACES
 
 log = logging.getLogger(__name__)
 
@@ -55,11 +56,11 @@ def _expected_proxy_notice() -> Iterator[None]:
 
 #: Elements compared with ``fes.GetDofNrs`` to validate the vectorised triangle table.
 CHECK_ELEMENTS = 64
-#: NGSolve's element-local edges (pairs of local vertices) of a triangle and of a tetrahedron, and
-#: the faces of a tetrahedron (face i without vertex i), in the order of the element's dofs.
+#: NGSolve's element-local edges (pairs of local vertices) of a triangle and of a tetrahedron, in
+#: the order of the element's dofs; the faces are :data:`~ddsolve.ngsolve.facets.TET_FACES` (face i
+#: without vertex i).
 TRIG_EDGES = ((2, 0), (1, 2), (0, 1))
 TET_EDGES = ((0, 3), (1, 3), (2, 3), (0, 1), (0, 2), (1, 2))
-TET_FACES = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
 
 
 def check_space(fes: Any) -> None:
