@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 ngs = pytest.importorskip("ngsolve")
+from ddstudies.ngsolve_bench import _forms  # the benchmark's form: -div((1 + x) grad u) = 1
 from netgen.csg import unit_cube
 from netgen.geom2d import unit_square
 
@@ -23,17 +24,6 @@ from ddsolve.ngsolve.dofs import element_dofs, node_vertices
 def _mesh(dim: int, maxh: float):
     geo = unit_square if dim == 2 else unit_cube
     return ngs.Mesh(geo.GenerateMesh(maxh=maxh))
-
-
-def _forms(mesh, order):
-    fes = ngs.H1(mesh, order=order, dirichlet=".*")
-    u, v = fes.TnT()
-    a = ngs.BilinearForm(fes)
-    a += (1 + ngs.x) * ngs.grad(u) * ngs.grad(v) * ngs.dx
-    f = ngs.LinearForm(fes)
-    f += (1 + ngs.y) * v * ngs.dx
-    f.Assemble()
-    return fes, a, f
 
 
 @pytest.mark.parametrize("dim,order,maxh", [(2, 2, 0.2), (2, 3, 0.2), (2, 4, 0.3), (3, 2, 0.4), (3, 3, 0.4),
