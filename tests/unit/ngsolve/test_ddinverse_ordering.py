@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 ngs = pytest.importorskip("ngsolve")
-from ddstudies.ngsolve_bench import _forms  # the benchmark's form: -div((1 + x) grad u) = 1
+from ddstudies.ngsolve_bench import _forms
 from netgen.csg import unit_cube
 from netgen.geom2d import unit_square
 
@@ -21,6 +21,7 @@ from ddsolve.ngsolve import DDInverse
 from ddsolve.ngsolve.dofs import element_dofs, node_vertices
 
 
+# _forms: the benchmark's form, -div((1 + x) grad u) = 1, u = 0 on the boundary
 def _mesh(dim: int, maxh: float):
     geo = unit_square if dim == 2 else unit_cube
     return ngs.Mesh(geo.GenerateMesh(maxh=maxh))
