@@ -362,8 +362,8 @@ class DDInverse(ngsolve.BaseMatrix):
         sub = Substructures(pm.local, scaling="multiplicity" if scaling == "multiplicity" else "rho",
                             templates=False, primal=primal)
         # the nested dissection of the subdomain factorizations runs on the mesh vertices (ddsolve.dd.local):
-        # 2D, and 3D at order 2 (edge dofs only). With the face dofs of 3D order >= 3 it gave 31% more fill
-        # (docs/ngsolve.md, "Where the time goes")
+        # 2D, and 3D at order 2 (edge dofs only). With the face dofs of 3D order >= 3 it gave 31-34% more
+        # fill (docs/ngsolve.md, "Cheaper setup")
         if fes.globalorder >= 2 and (dim == 2 or fes.globalorder == 2):
             sub.ordering_anchors = ordering_anchors(sub, pm.node_dof, node_vertices(T, fes.globalorder, dim, ndof))
         if scaling in ("diagonal", "deluxe"):      # deluxe: the diagonal weights off the faces
