@@ -24,7 +24,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import InputError
-from ..scene.assembly import LocalProblems
+from ..scene.assembly import LocalProblems, diagonal_block
 from ..scene.partition import partition_elements
 from ..scene.scene import sorted_unique
 from .dofs import element_index
@@ -271,7 +271,7 @@ def part_matrices(S: np.ndarray, Tw: np.ndarray, part: np.ndarray, free: np.ndar
     diag = A.diagonal()
     rho = np.bincount(sub_of_broken, weights=diag, minlength=n_parts) / np.maximum(sizes, 1)
     rho = np.where(rho > 0, rho, 1.0)
-    blocks = [_diagonal_block(A, offsets[s], offsets[s + 1]) / rho[s] for s in range(n_parts)]
+    blocks = [diagonal_block(A, offsets[s], offsets[s + 1], drop_zeros=False) / rho[s] for s in range(n_parts)]
     nodes = [node_of_broken[offsets[s]:offsets[s + 1]] for s in range(n_parts)]
     scene = DofScene(n_subdomains=n_parts, n_nodes=n_nodes, rho=rho, dirichlet=~free[node_dof],
                      boundary=boundary_dofs[node_dof], subdomain_body=np.zeros(n_parts, dtype=np.int64))
@@ -311,13 +311,6 @@ def ordering_anchors(sub: Any, node_dof: np.ndarray, dof_vertices: np.ndarray | 
     key = sub.sub_of_W[:, None] * np.int64(n_nodes) + nodes
     position = np.minimum(np.searchsorted(w_key, key), n_W - 1)
     return np.where((nodes >= 0) & (w_key[position] == key), position, -1)
-
-
-def _diagonal_block(A: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
-    """Rows and columns lo:hi of a block-diagonal CSR matrix."""
-    start, stop = A.indptr[lo], A.indptr[hi]
-    return sp.csr_matrix((A.data[start:stop], A.indices[start:stop] - lo, A.indptr[lo:hi + 1] - start),
-                         shape=(hi - lo, hi - lo))
 
 
 def interface_edge_weights(fes: Any, part: np.ndarray, V: np.ndarray | None = None,

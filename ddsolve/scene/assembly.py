@@ -318,10 +318,14 @@ def _assemble_p1(scene: Scene) -> LocalProblems:
     return LocalProblems(scene=scene, nodes=nodes, template=np.arange(n_sub), stiffness=stiffness, loads=loads)
 
 
-def diagonal_block(A: sp.csr_matrix, lo: int, hi: int) -> sp.csr_matrix:
-    """Rows and columns lo:hi of a block-diagonal CSR matrix (its rows have no entries outside)."""
+def diagonal_block(A: sp.csr_matrix, lo: int, hi: int, drop_zeros: bool = True) -> sp.csr_matrix:
+    """Rows and columns lo:hi of a block-diagonal CSR matrix (its rows have no entries outside).
+
+    ``drop_zeros``: remove stored zeros (False keeps the stored pattern of A).
+    """
     start, stop = A.indptr[lo], A.indptr[hi]
     block = sp.csr_matrix((A.data[start:stop], A.indices[start:stop] - lo, A.indptr[lo:hi + 1] - start),
                           shape=(hi - lo, hi - lo))
-    block.eliminate_zeros()
+    if drop_zeros:
+        block.eliminate_zeros()
     return block
