@@ -18,11 +18,26 @@ from ..dd.bddc import InterfaceMap
 from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, linear_operator
 from .coarse import DistributedPrimalSolver
-from .comm import NeighbourSum, SharedIndex
+from .comm import NeighbourSum, shared_indices
 from .krylov import distributed_pcg
 from .setup import RankProblem, gather_solution
 
-__all__ = ["solve_bddc_mpi"]
+__all__ = ["solve_bddc_mpi", "distribute_bddc"]
+
+
+def distribute_bddc(topo, rank_of_sub: np.ndarray, size: int) -> list[dict]:
+    """What each rank's BDDC needs from the global topology (computed on rank 0 and scattered).
+
+    Returns, per rank, ``{"interface": SharedIndex, "interface_dofs": ndarray, "n_interface": int}``:
+    the sharing of its interface dofs, those dofs (sorted global numbers, as
+    :class:`~ddsolve.dd.bddc.InterfaceMap` lists them; the rank checks them) and the global number
+    of interface dofs.
+    """
+    all_gamma = np.flatnonzero(topo.interface)
+    gid = topo.l2g[all_gamma]
+    n_interface = int(np.unique(gid).size)
+    return [{"interface": shared, "interface_dofs": dofs, "n_interface": n_interface}
+            for dofs, shared in shared_indices(gid, rank_of_sub[topo.sub_of_W[all_gamma]], size, topo.ndof)]
 
 
 def solve_bddc_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
@@ -31,17 +46,16 @@ def solve_bddc_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
 
     Returns ``(output, info)`` as :func:`ddsolve.parallel.fetidp.solve_fetidp_mpi`.
     """
-    comm, sub, topo = prob.comm, prob.sub, prob.topo
+    comm, sub = prob.comm, prob.sub
     t0 = time.perf_counter()
     cache: dict = {}
     schur = DirichletSchur(sub, sub.interface, cache)
-    primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, np.unique(topo.l2g[topo.vertex]))
+    primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs)
     iface = InterfaceMap(sub, sub.interface)                       # this rank's interface dofs (global ids)
-    dofs, scatter, gather, delta_g = iface.dofs, iface.scatter, iface.gather, iface.delta
-    all_gamma = np.flatnonzero(topo.interface)
-    n_interface = int(np.unique(topo.l2g[all_gamma]).size)
-    shared = SharedIndex.build(comm.rank, dofs, topo.l2g[all_gamma],
-                               prob.rank_of_sub[topo.sub_of_W[all_gamma]], topo.ndof)
+    scatter, gather, delta_g = iface.scatter, iface.gather, iface.delta
+    shared, n_interface = prob.pieces["interface"], prob.pieces["n_interface"]    # from rank 0 (distribute_bddc)
+    if not np.array_equal(prob.pieces["interface_dofs"], iface.dofs):
+        raise RuntimeError("the interface dofs sent by rank 0 are not this rank's")
     exchange = NeighbourSum(comm, shared)
     n_g = iface.n
 

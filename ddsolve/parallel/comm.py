@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CommCounters", "CountingComm", "NeighbourSum", "SharedIndex"]
+__all__ = ["CommCounters", "CountingComm", "NeighbourSum", "SharedIndex", "shared_indices"]
 
 
 @dataclass
@@ -138,26 +138,73 @@ class SharedIndex:
         ----------
         rank : int
         local_gid : ndarray of int, shape (n,)
-            Sorted global ids of this rank's indices.
+            Sorted global ids of this rank's indices (every id with an incidence of ``rank``).
         pair_gid, pair_rank : ndarray of int
-            Every (global id, rank touching it) incidence (duplicates allowed).
+            Every (global id, rank touching it) incidence (duplicates allowed), or those of the ids of
+            ``local_gid`` only.
         n_global : int
         """
-        base = int(pair_rank.max(initial=0)) + 1
-        key = np.unique(pair_gid.astype(np.int64) * base + pair_rank)
-        gid, rk = np.divmod(key, base)
-        lowest = np.full(n_global, np.iinfo(np.int64).max)
-        np.minimum.at(lowest, gid, rk)
-        owned = lowest[local_gid] == rank
+        size = max(int(pair_rank.max(initial=0)), rank) + 1
+        gids, index = shared_indices(pair_gid, pair_rank, size, n_global, ranks=(rank,))[0]
+        if not np.array_equal(gids, local_gid):
+            raise ValueError("local_gid must be the sorted ids of this rank's incidences")
+        return index
+
+
+def shared_indices(gid: np.ndarray, rank: np.ndarray, size: int, n_global: int,
+                   ranks=None) -> list[tuple[np.ndarray, SharedIndex]]:
+    """The :class:`SharedIndex` of every rank from the (global id, rank) incidences, at once.
+
+    O(m log m) in the number m of incidences, whatever the number of ranks: one sort of the
+    (id, rank) keys; the neighbours come from the ids held by two or more ranks only.
+
+    Parameters
+    ----------
+    gid, rank : ndarray of int, shape (m,)
+        Every (global id, rank holding it) incidence; duplicates allowed.
+    size : int
+        Number of ranks.
+    n_global : int
+        Length of the global index set.
+    ranks : sequence of int, optional
+        Only these ranks (default: all).
+
+    Returns
+    -------
+    list of (local_gid, SharedIndex)
+        Per rank of ``ranks``: the sorted global ids it holds and their sharing.
+    """
+    key = np.unique(np.asarray(gid, dtype=np.int64) * size + np.asarray(rank, dtype=np.int64))
+    g, r = np.divmod(key, size)                              # sorted by id, then rank
+    first = np.r_[True, g[1:] != g[:-1]] if g.size else np.zeros(0, dtype=bool)
+    starts = np.flatnonzero(first)
+    counts = np.diff(np.r_[starts, g.size])
+    lowest = np.repeat(r[starts], counts)                    # lowest rank holding the id of each key
+    # ordered pairs (id, q, p) of distinct ranks q != p holding the same id
+    pair_g, pair_q, pair_p = [], [], []
+    for shift in range(1, int(counts.max(initial=1))):
+        same = np.flatnonzero(g[shift:] == g[:-shift])
+        pair_g += [g[same], g[same]]
+        pair_q += [r[same], r[same + shift]]
+        pair_p += [r[same + shift], r[same]]
+    pg, pq, pp = (np.concatenate(a) if a else np.zeros(0, dtype=np.int64) for a in (pair_g, pair_q, pair_p))
+    order = np.lexsort((pg, pp, pq))                         # by rank, neighbour, then id
+    pg, pq, pp = pg[order], pq[order], pp[order]
+    by_rank = np.argsort(r, kind="stable")                   # keys of each rank, ids ascending
+    rank_bounds = np.searchsorted(r[by_rank], np.arange(size + 1))
+    pair_bounds = np.searchsorted(pq, np.arange(size + 1))
+    out = []
+    for q in range(size) if ranks is None else ranks:
+        mine = by_rank[rank_bounds[q]:rank_bounds[q + 1]]
+        local_gid = g[mine]
         neighbours: dict[int, np.ndarray] = {}
-        mine = np.isin(gid, local_gid)
-        g_m, r_m = gid[mine], rk[mine]
-        for q in np.unique(r_m):
-            if q == rank:
-                continue
-            shared = np.sort(g_m[r_m == q])
-            neighbours[int(q)] = np.searchsorted(local_gid, shared)
-        return cls(n=int(local_gid.size), owned=owned, neighbours=neighbours, n_global=int(n_global))
+        sl = slice(pair_bounds[q], pair_bounds[q + 1])
+        nb, ids = pp[sl], pg[sl]
+        for p in np.unique(nb):
+            neighbours[int(p)] = np.searchsorted(local_gid, ids[nb == p])
+        out.append((local_gid, SharedIndex(n=int(local_gid.size), owned=lowest[mine] == q,
+                                           neighbours=neighbours, n_global=int(n_global))))
+    return out
 
 
 class NeighbourSum:

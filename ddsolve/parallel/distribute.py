@@ -21,14 +21,14 @@ What every rank holds.
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..dd.substructure import Substructures
 from ..scene.scene import Scene
 
-__all__ = ["owned_range", "rank_of_subdomain", "topology", "owned_scene", "RankSubstructures"]
+__all__ = ["owned_range", "rank_of_subdomain", "topology", "owned_scene", "TopologySlice", "RankSubstructures"]
 
 
 def owned_range(n_sub: int, size: int, rank: int) -> tuple[int, int]:
@@ -63,16 +63,96 @@ def topology(scene: Scene, scaling: str = "rho", gamma: float = 1.0) -> Substruc
     return topo
 
 
-def owned_scene(scene: Scene, lo: int, hi: int) -> Scene:
-    """The scene restricted to subdomains [lo, hi) (renumbered from 0), global node ids kept."""
+def owned_scene(scene: Scene, lo: int, hi: int) -> tuple[Scene, np.ndarray]:
+    """The scene restricted to subdomains [lo, hi): subdomains renumbered from 0, nodes renumbered.
+
+    The nodes of the owned elements are numbered 0..m-1 in increasing global order (so the
+    canonical local order of every subdomain, :meth:`Scene.subdomain_layout`, is that of the
+    global scene); no array of the result has the global size.
+
+    Returns
+    -------
+    scene : Scene
+    node_gid : ndarray of int, shape (m,)
+        Global node number of each local node (sorted).
+    """
     el = (scene.element_subdomain >= lo) & (scene.element_subdomain < hi)
+    elements = scene.elements[el]
+    node_gid = np.unique(elements)
     f = scene.f
     if isinstance(f, np.ndarray):
         f = np.asarray(f)[el]
     grid = None if scene.subdomain_grid is None else scene.subdomain_grid[lo:hi]
-    return replace(scene, elements=scene.elements[el], element_subdomain=scene.element_subdomain[el] - lo,
-                   subdomain_body=scene.subdomain_body[lo:hi], rho=np.asarray(scene.rho)[lo:hi], f=f,
-                   subdomain_grid=grid, contact_pairs=np.zeros((0, 2), dtype=np.int64))
+    local = replace(scene, coords=scene.coords[node_gid],
+                    elements=np.searchsorted(node_gid, elements).astype(scene.elements.dtype),
+                    element_subdomain=scene.element_subdomain[el] - lo, dirichlet=scene.dirichlet[node_gid],
+                    subdomain_body=scene.subdomain_body[lo:hi], rho=np.asarray(scene.rho)[lo:hi], f=f,
+                    subdomain_grid=grid, contact_pairs=np.zeros((0, 2), dtype=np.int64))
+    return local, node_gid
+
+
+#: Per-W-entry arrays of a :class:`TopologySlice` (the slice w0:w1 of the global topology's).
+W_FIELDS = ("node_of_W", "sub_of_W", "local_index", "l2g", "multiplicity", "interface", "cross_point",
+            "vertex", "delta")
+
+
+@dataclass
+class TopologySlice:
+    """The part of the global topology one rank's subdomains [lo, hi) need (no global-size array).
+
+    Attributes
+    ----------
+    lo, hi : int
+        Owned subdomains.
+    w0, w1 : int
+        Their slice of the global W.
+    n_sub, n_W, ndof, n_primal : int
+        Global counts.
+    scaling : str
+    gamma : float
+    primal : str
+    rho, body_of_sub, floating_sub : ndarray, shape (hi - lo,)
+    offsets : ndarray of int, shape (hi - lo + 1,)
+        Global W offsets of the owned subdomains.
+    node_of_W, sub_of_W, local_index, l2g, multiplicity, interface, cross_point, vertex, delta : ndarray, shape (w1 - w0,)
+        The global topology's arrays on the owned W entries (global node, subdomain and dof numbers).
+    """
+
+    lo: int
+    hi: int
+    w0: int
+    w1: int
+    n_sub: int
+    n_W: int
+    ndof: int
+    n_primal: int
+    scaling: str
+    gamma: float
+    primal: str
+    rho: np.ndarray
+    body_of_sub: np.ndarray
+    floating_sub: np.ndarray
+    offsets: np.ndarray
+    node_of_W: np.ndarray
+    sub_of_W: np.ndarray
+    local_index: np.ndarray
+    l2g: np.ndarray
+    multiplicity: np.ndarray
+    interface: np.ndarray
+    cross_point: np.ndarray
+    vertex: np.ndarray
+    delta: np.ndarray
+
+    @classmethod
+    def of(cls, topo: Substructures, lo: int, hi: int, n_primal: int | None = None) -> "TopologySlice":
+        """Copies of ``topo``'s arrays restricted to the subdomains [lo, hi) (``n_primal``: ``topo.n_primal``
+        when known)."""
+        w0, w1 = int(topo.offsets[lo]), int(topo.offsets[hi])
+        return cls(lo=lo, hi=hi, w0=w0, w1=w1, n_sub=int(topo.n_sub), n_W=int(topo.n_W), ndof=int(topo.ndof),
+                   n_primal=int(topo.n_primal if n_primal is None else n_primal), scaling=topo.scaling, gamma=float(topo.gamma), primal=topo.primal,
+                   rho=np.array(topo.rho[lo:hi]), body_of_sub=np.array(topo.body_of_sub[lo:hi]),
+                   floating_sub=np.array(topo.floating_sub[lo:hi]), offsets=np.array(topo.offsets[lo:hi + 1]),
+                   **{name: np.array(getattr(topo, name)[w0:w1]) for name in W_FIELDS})
 
 
 class RankSubstructures(Substructures):
@@ -99,12 +179,17 @@ class RankSubstructures(Substructures):
     w1: int
 
     @classmethod
-    def build(cls, topo: Substructures, local, lo: int, hi: int, templates: bool = True) -> "RankSubstructures":
-        """``local``: the :class:`~ddsolve.scene.LocalProblems` of :func:`owned_scene` (subdomains lo..hi-1);
-        ``templates`` as for :class:`Substructures` (False: every subdomain distinct, batched factorizations)."""
+    def build(cls, topo: "Substructures | TopologySlice", local, node_gid: np.ndarray, lo: int, hi: int,
+              templates: bool = True) -> "RankSubstructures":
+        """``topo``: the global topology, or its :class:`TopologySlice` for [lo, hi);
+        ``local``: the :class:`~ddsolve.scene.LocalProblems` of :func:`owned_scene` (subdomains lo..hi-1)
+        and ``node_gid`` its global node numbers; ``templates`` as for :class:`Substructures`
+        (False: every subdomain distinct, batched factorizations)."""
+        sl = topo if isinstance(topo, TopologySlice) else TopologySlice.of(topo, lo, hi)
+        if (sl.lo, sl.hi) != (lo, hi):
+            raise ValueError(f"topology slice of subdomains [{sl.lo}, {sl.hi}) for a rank owning [{lo}, {hi})")
         self = cls.__new__(cls)
-        w0, w1 = int(topo.offsets[lo]), int(topo.offsets[hi])
-        self.lo, self.hi, self.w0, self.w1 = lo, hi, w0, w1
+        self.lo, self.hi, self.w0, self.w1 = lo, hi, sl.w0, sl.w1
         self.local = local
         self.scene = local.scene
         self.n_sub = hi - lo
@@ -117,32 +202,24 @@ class RankSubstructures(Substructures):
             self.template = np.arange(hi - lo)
             self.stiffness = [local.stiffness[t] for t in local.template]
             self.batch_local = True
-        self.rho = topo.rho[lo:hi]
-        self.body_of_sub = topo.body_of_sub[lo:hi]
-        sl = slice(w0, w1)
-        self.node_of_W = topo.node_of_W[sl]
-        self.sub_of_W = topo.sub_of_W[sl] - lo
-        self.local_index = topo.local_index[sl]
-        self.n_W = w1 - w0
-        self.offsets = topo.offsets[lo:hi + 1] - w0
-        self.floating_sub = topo.floating_sub[lo:hi]
-        self.dof_of_node = topo.dof_of_node
-        self.ndof = topo.ndof
-        self.l2g = topo.l2g[sl]
-        self.multiplicity = topo.multiplicity[sl]
-        self.interface = topo.interface[sl]
-        self.cross_point = topo.cross_point[sl]
-        self.vertex = topo.vertex[sl]
-        self.primal = topo.primal
-        self.scaling, self.gamma = topo.scaling, topo.gamma
-        self.delta = topo.delta[sl]
+        self.rho = sl.rho
+        self.body_of_sub = sl.body_of_sub
+        for name in W_FIELDS:
+            setattr(self, name, getattr(sl, name))
+        self.sub_of_W = sl.sub_of_W - lo
+        self.n_W = sl.w1 - sl.w0
+        self.offsets = sl.offsets - sl.w0
+        self.floating_sub = sl.floating_sub
+        self.ndof = sl.ndof
+        self.primal = sl.primal
+        self.scaling, self.gamma = sl.scaling, sl.gamma
         nodes = local.nodes
         sizes_full = np.array([len(nd) for nd in nodes])
         full_off = np.concatenate([[0], np.cumsum(sizes_full)])
         node_full = np.concatenate(nodes)
-        if not np.array_equal(node_full[~local.scene.dirichlet[node_full]], self.node_of_W):
-            raise RuntimeError("rank-local assembly does not match the global W layout")
         keep = ~local.scene.dirichlet[node_full]
+        if not np.array_equal(node_gid[node_full[keep]], self.node_of_W):
+            raise RuntimeError("rank-local assembly does not match the global W layout")
         self.K_W = self._block_diagonal(full_off, keep)
         self.f_W = np.concatenate(local.loads)[keep]
         self._free_local = [self.local_index[self.offsets[s]:self.offsets[s + 1]] for s in range(self.n_sub)]

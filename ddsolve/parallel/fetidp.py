@@ -17,6 +17,7 @@ Per iteration: 2 neighbour exchanges, 4 Allreduces (3 of PCG, 1 coarse).
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -25,18 +26,83 @@ from ..dd.common import MethodOutput
 from ..dd.dual import dual_operators
 from ..dd.operators import DirichletSchur, linear_operator
 from .coarse import DistributedPrimalSolver
-from .comm import NeighbourSum, SharedIndex
+from .comm import NeighbourSum, SharedIndex, shared_indices
 from .krylov import distributed_pcg
 from .setup import RankProblem, gather_solution
 
-__all__ = ["solve_fetidp_mpi"]
+__all__ = ["solve_fetidp_mpi", "distribute_fetidp", "JumpRows", "jump_rows"]
+
+
+@dataclass
+class JumpRows:
+    """One rank's rows of a jump operator given by pairs of global W entries.
+
+    Row k of the global operators: B = e_pa[k] - e_pb[k], B_D = coef_a[k] e_pa[k] + coef_b[k] e_pb[k].
+    A rank holds the rows with an entry on one of its subdomains (both ranks of a row between two).
+
+    Attributes
+    ----------
+    pa, pb : ndarray of int, shape (n_local,)
+        Global W entries of the two copies of each local row.
+    coef_a, coef_b : ndarray, shape (n_local,)
+        Their entries in B_D.
+    a_mine, b_mine : ndarray of bool, shape (n_local,)
+        Whether the copy lies on this rank's subdomains.
+    rows : ndarray of int, shape (n_local,)
+        Global row numbers (sorted).
+    shared : SharedIndex
+    n_lambda : int
+        Number of global rows.
+    """
+
+    pa: np.ndarray
+    pb: np.ndarray
+    coef_a: np.ndarray
+    coef_b: np.ndarray
+    a_mine: np.ndarray
+    b_mine: np.ndarray
+    rows: np.ndarray
+    shared: SharedIndex
+    n_lambda: int
+
+    def matrices(self, w0: int, n_W: int) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+        """B_loc, B_D_loc, shape (n_local, n_W): the columns are the rank's W entries w0..w0+n_W-1."""
+        k = np.arange(self.rows.size)
+        a, b = self.a_mine, self.b_mine
+        r_idx = np.r_[k[a], k[b]]
+        c_idx = np.r_[self.pa[a], self.pb[b]] - w0
+        shape = (self.rows.size, n_W)
+        B = sp.csr_matrix((np.r_[np.ones(a.sum()), -np.ones(b.sum())], (r_idx, c_idx)), shape=shape)
+        B_D = sp.csr_matrix((np.r_[self.coef_a[a], self.coef_b[b]], (r_idx, c_idx)), shape=shape)
+        return B, B_D
+
+
+def jump_rows(pa: np.ndarray, pb: np.ndarray, coef_a: np.ndarray, coef_b: np.ndarray, ra: np.ndarray,
+              rb: np.ndarray, size: int, ranks=None) -> list[JumpRows]:
+    """The :class:`JumpRows` of every rank (or of ``ranks``) at once, O(n_lambda log n_lambda).
+
+    Parameters
+    ----------
+    pa, pb : ndarray of int, shape (n_lambda,)
+        Global W entries of the two copies of every row.
+    coef_a, coef_b : ndarray, shape (n_lambda,)
+        Entries of B_D.
+    ra, rb : ndarray of int, shape (n_lambda,)
+        Ranks owning the W entries pa and pb.
+    size : int
+    """
+    n_lam = pa.size
+    rows_all = np.arange(n_lam)
+    out = []
+    for q, (rows, shared) in zip(range(size) if ranks is None else ranks,
+                                 shared_indices(np.r_[rows_all, rows_all], np.r_[ra, rb], size, n_lam, ranks)):
+        out.append(JumpRows(pa=pa[rows], pb=pb[rows], coef_a=coef_a[rows], coef_b=coef_b[rows],
+                            a_mine=ra[rows] == q, b_mine=rb[rows] == q, rows=rows, shared=shared, n_lambda=n_lam))
+    return out
 
 
 def pair_rows(prob: RankProblem, pa: np.ndarray, pb: np.ndarray, coef_a: np.ndarray, coef_b: np.ndarray):
-    """This rank's rows of a jump operator given by pairs of global W entries.
-
-    Row k of the global operators: B = e_pa[k] - e_pb[k], B_D = coef_a[k] e_pa[k] + coef_b[k] e_pb[k].
-    A rank holds the rows with an entry on one of its subdomains.
+    """This rank's rows of a jump operator given by pairs of global W entries (global topology).
 
     Parameters
     ----------
@@ -53,23 +119,12 @@ def pair_rows(prob: RankProblem, pa: np.ndarray, pb: np.ndarray, coef_a: np.ndar
     rows : ndarray of int, shape (n_local,)
         Global row numbers of the local rows (sorted).
     """
-    topo, sub, rank = prob.topo, prob.sub, prob.comm.rank
-    n_lam = pa.size
+    topo, sub, comm = prob.topo, prob.sub, prob.comm
     ra = prob.rank_of_sub[topo.sub_of_W[pa]]
     rb = prob.rank_of_sub[topo.sub_of_W[pb]]
-    rows = np.flatnonzero((ra == rank) | (rb == rank))           # sorted global rows
-    shared = SharedIndex.build(rank, rows, np.r_[np.arange(n_lam), np.arange(n_lam)], np.r_[ra, rb], n_lam)
-    n_loc = rows.size
-    a_mine = ra[rows] == rank
-    b_mine = rb[rows] == rank
-    k = np.arange(n_loc)
-    r_idx = np.r_[k[a_mine], k[b_mine]]
-    c_idx = np.r_[pa[rows][a_mine], pb[rows][b_mine]] - sub.w0
-    B_loc = sp.csr_matrix((np.r_[np.ones(a_mine.sum()), -np.ones(b_mine.sum())], (r_idx, c_idx)),
-                          shape=(n_loc, sub.n_W))
-    B_D_loc = sp.csr_matrix((np.r_[coef_a[rows][a_mine], coef_b[rows][b_mine]], (r_idx, c_idx)),
-                            shape=(n_loc, sub.n_W))
-    return B_loc, B_D_loc, shared, rows
+    rows = jump_rows(pa, pb, coef_a, coef_b, ra, rb, comm.size, ranks=(comm.rank,))[0]
+    B_loc, B_D_loc = rows.matrices(sub.w0, sub.n_W)
+    return B_loc, B_D_loc, rows.shared, rows.rows
 
 
 def jump_pairs(topo, mask_global: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -99,6 +154,18 @@ def local_jump(prob: RankProblem, mask_global: np.ndarray, with_pairs: bool = Fa
     return B_loc, B_D_loc, shared, pa.size
 
 
+def distribute_fetidp(topo, rank_of_sub: np.ndarray, size: int) -> list[dict]:
+    """What each rank's FETI-DP needs from the global topology (computed on rank 0 and scattered).
+
+    Returns, per rank, ``{"jump": JumpRows}``: its rows of the serial fully redundant B on the
+    dual nodes (``topo.interface & ~topo.vertex``), B_D scaled by delta-dagger.
+    """
+    pa, pb = jump_pairs(topo, topo.interface & ~topo.vertex)
+    delta = topo.delta
+    ra, rb = rank_of_sub[topo.sub_of_W[pa]], rank_of_sub[topo.sub_of_W[pb]]
+    return [{"jump": rows} for rows in jump_rows(pa, pb, delta[pb], -delta[pa], ra, rb, size)]
+
+
 def summed_dual_operators(B, B_D, solve, schur_matvec, exchange: NeighbourSum):
     """F and M^{-1} of :func:`ddsolve.dd.dual.dual_operators` on this rank's multipliers, each
     followed by the neighbour sum of the rows shared with other ranks; shapes (n,) -> (n,)."""
@@ -126,13 +193,13 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
         ``coarse_seconds``, ``per_iteration`` (messages, bytes, allreduces of this rank
         per Krylov iteration), ``krylov_seconds``.
     """
-    comm, sub, topo = prob.comm, prob.sub, prob.topo
+    comm, sub = prob.comm, prob.sub
     t0 = time.perf_counter()
     cache: dict = {}
-    dual_global = topo.interface & ~topo.vertex
-    B, B_D, shared, n_lam = local_jump(prob, dual_global)
-    primal_dofs = np.unique(topo.l2g[topo.vertex])
-    primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, primal_dofs)
+    jump: JumpRows = prob.pieces["jump"]                    # from rank 0 (distribute_fetidp)
+    B, B_D = jump.matrices(sub.w0, sub.n_W)
+    shared, n_lam = jump.shared, jump.n_lambda
+    primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs)
     schur = DirichletSchur(sub, sub.interface, cache)
     exchange = NeighbourSum(comm, shared)
     F, M = summed_dual_operators(B, B_D, primal_solver.solve, schur.matvec, exchange)

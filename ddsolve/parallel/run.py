@@ -118,13 +118,13 @@ def _report(spec: ProblemSpec, prob, comm: CountingComm, red: dict[str, Any]) ->
                     "setup": max(red["setup"] - t.get("scene", 0.0) - t.get("assembly", 0.0), 0.0),
                     "solve": red["solve"]},
         "peak_rss_mb": red["peak"],                                 # the largest over ranks
-        "n_primal": int(prob.topo.n_primal),                        # as the serial mesh report
+        "n_primal": int(prob.n_primal),                        # as the serial mesh report
         "mesh": spec.mesh,
         "parts": spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2}
     sizes = _sizes(spec) if spec.mesh == "unstructured" else {"subdomains": spec.subdomains,
                                                                "elements": spec.elements}
     if spec.mesh == "unstructured" and spec.mesh_file:
-        sizes["subdomains"] = prob.topo.n_sub
+        sizes["subdomains"] = prob.n_sub
     return extra, sizes
 
 
@@ -154,7 +154,7 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
     if spec.check and out.u is not None:       # the direct reference, on rank 0 only (serial assembly)
         from ..api import checked_error
         from ..prepared import prepare
-        ref_sub = prepare(spec, prob.topo.scene).sub
+        ref_sub = prepare(spec, prob.scene).sub
         if spec.problem == "multibody":
             from ..multibody import GlobalInterface
             from ..multibody.direct import solve_constrained_direct
@@ -169,7 +169,7 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
             extra["check_reason"] = why
     extra.update(common)
     return SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
-                       ndof=prob.topo.ndof, **fields, extra=extra)
+                       ndof=prob.ndof, **fields, extra=extra)
 
 
 def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: float,
@@ -201,17 +201,17 @@ def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: fl
     if spec.check:                 # the direct reference, on rank 0 only (serial assembly, as for poisson)
         from ..contact.run import check_fields
         from ..prepared import prepare
-        check_fields(spec, prepare(spec, prob.topo.scene).contact, sol, fields)
+        check_fields(spec, prepare(spec, prob.scene).contact, sol, fields)
     fields["setup_seconds"], fields["solve_seconds"] = red["setup"], red["solve"]
     fields["n_factorizations"] = red["n_fact"]
     common, sizes = _report(spec, prob, comm, red)
     fields["extra"].update(common)
     result = SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
-                         ndof=prob.topo.ndof, **fields)
+                         ndof=prob.ndof, **fields)
     if spec.output:                # rank 0 alone writes; the gap of the file needs the serial B (as --check)
         from ..api import _write_output
         from ..prepared import prepare
-        _write_output(spec, prepare(spec, prob.topo.scene), result.u, sol.lam)
+        _write_output(spec, prepare(spec, prob.scene), result.u, sol.lam)
     return result
 
 
@@ -299,7 +299,7 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
             from types import SimpleNamespace
 
             from ..api import _write_output
-            _write_output(spec, SimpleNamespace(scene=prob.topo.scene, sub=prob.topo, contact=None), result.u)
+            _write_output(spec, SimpleNamespace(scene=prob.scene, sub=prob.topo, contact=None), result.u)
         return result
 
 

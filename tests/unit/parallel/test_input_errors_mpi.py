@@ -48,15 +48,20 @@ def test_mesh_file_that_is_not_a_mesh_exits_2(tmp_path):
     _one_error_per_rank(proc, 2, "mesh_file: ")
 
 
-def test_input_error_of_one_rank_only_is_raised_on_every_rank(tmp_path):
-    """A mesh file that only rank 1 finds corrupt (as if ranks saw different files): no hang, exit 2."""
+@pytest.mark.parametrize("method,bad_rank", [("feti", 1), ("fetidp", 0)])
+def test_input_error_of_one_rank_only_is_raised_on_every_rank(tmp_path, method, bad_rank):
+    """A mesh file that only one rank finds corrupt (as if ranks saw different files): no hang, exit 2.
+
+    FETI replicates the topology (every rank reads the file: rank 1 fails); FETI-DP scatters it
+    (rank 0 alone reads the file: its error reaches every rank).
+    """
     mesh = _square_mesh(tmp_path / "square.vol")
     bad = tmp_path / "bad.vol"
     bad.write_text("not a mesh\n")
     code = ("import sys; from mpi4py import MPI; from ddsolve.spec import ProblemSpec; "
             "from ddsolve.parallel.run import main; "
-            f"path = [{str(mesh)!r}, {str(bad)!r}][MPI.COMM_WORLD.Get_rank() == 1]; "
-            "spec = ProblemSpec.from_mapping(dict(mesh='unstructured', mesh_file=path, parts=2)); "
+            f"path = [{str(mesh)!r}, {str(bad)!r}][MPI.COMM_WORLD.Get_rank() == {bad_rank}]; "
+            f"spec = ProblemSpec.from_mapping(dict(mesh='unstructured', mesh_file=path, parts=2, method={method!r})); "
             "sys.exit(main(spec, True, str))")
     proc = mpiexec(2, ["-c", code])
     _one_error_per_rank(proc, 2, f"mesh_file: {bad} is not a netgen mesh")
