@@ -4,20 +4,21 @@ Ownership. Subdomains are the unit: rank r owns the contiguous block
 ``owned_range(n_sub, P, r)`` of subdomain numbers (on a METIS scene the
 subdomains of a body are its METIS parts, numbered part by part).
 
-What every rank holds.
+What a rank holds (:mod:`ddsolve.parallel.setup` builds it).
 
 * The *topology* (:func:`topology`): node lists, interface classification
   (multiplicity, cross points, primal vertices completed by
   :meth:`Substructures._anchor_floating`), the delta-dagger weights and the
-  global numbering of multipliers / interface dofs. This is integer metadata
-  derived from the global mesh, which every rank reads (the input is a global
-  mesh); it is computed redundantly at setup, with no communication.
+  global numbering of multipliers / interface dofs, derived from the global
+  mesh. For FETI-DP and BDDC rank 0 alone computes it and sends every rank its
+  :class:`TopologySlice` (the owned W entries) and its part of the mesh
+  (:func:`owned_scene`, nodes renumbered); the other methods compute it
+  redundantly on every rank, with no communication.
 * Its own :class:`RankSubstructures`: a :class:`~ddsolve.dd.Substructures`
   restricted to the owned subdomains, assembled by NGSolve on the owned part of
-  the mesh only (:func:`owned_scene`), with the owned W entries (the W layout is
-  subdomain by subdomain, so they are one contiguous slice of the global W).
-  Every float array of the solve (matrices, factorizations, loads, iterates)
-  is rank-local.
+  the mesh only, with the owned W entries (the W layout is subdomain by
+  subdomain, so they are one contiguous slice of the global W). Every float
+  array of the solve (matrices, factorizations, loads, iterates) is rank-local.
 """
 from __future__ import annotations
 
@@ -26,9 +27,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..dd.substructure import Substructures
-from ..scene.scene import Scene
+from ..scene.scene import Scene, sorted_unique
 
-__all__ = ["owned_range", "rank_of_subdomain", "topology", "owned_scene", "TopologySlice", "RankSubstructures"]
+__all__ = ["owned_range", "rank_of_subdomain", "topology", "owned_scene", "elements_by_rank", "TopologySlice", "RankSubstructures"]
 
 
 def owned_range(n_sub: int, size: int, rank: int) -> tuple[int, int]:
@@ -63,12 +64,20 @@ def topology(scene: Scene, scaling: str = "rho", gamma: float = 1.0) -> Substruc
     return topo
 
 
-def owned_scene(scene: Scene, lo: int, hi: int) -> tuple[Scene, np.ndarray]:
+def owned_scene(scene: Scene, lo: int, hi: int, el: np.ndarray | None = None) -> tuple[Scene, np.ndarray]:
     """The scene restricted to subdomains [lo, hi): subdomains renumbered from 0, nodes renumbered.
 
     The nodes of the owned elements are numbered 0..m-1 in increasing global order (so the
     canonical local order of every subdomain, :meth:`Scene.subdomain_layout`, is that of the
     global scene); no array of the result has the global size.
+
+    Parameters
+    ----------
+    scene : Scene
+    lo, hi : int
+    el : ndarray of int, optional
+        The elements of subdomains [lo, hi), ascending (:func:`elements_by_rank`; default: found by a
+        pass over all elements).
 
     Returns
     -------
@@ -76,9 +85,10 @@ def owned_scene(scene: Scene, lo: int, hi: int) -> tuple[Scene, np.ndarray]:
     node_gid : ndarray of int, shape (m,)
         Global node number of each local node (sorted).
     """
-    el = (scene.element_subdomain >= lo) & (scene.element_subdomain < hi)
+    if el is None:
+        el = np.flatnonzero((scene.element_subdomain >= lo) & (scene.element_subdomain < hi))
     elements = scene.elements[el]
-    node_gid = np.unique(elements)
+    node_gid = sorted_unique(elements.ravel())
     f = scene.f
     if isinstance(f, np.ndarray):
         f = np.asarray(f)[el]
@@ -89,6 +99,14 @@ def owned_scene(scene: Scene, lo: int, hi: int) -> tuple[Scene, np.ndarray]:
                     subdomain_body=scene.subdomain_body[lo:hi], rho=np.asarray(scene.rho)[lo:hi], f=f,
                     subdomain_grid=grid, contact_pairs=np.zeros((0, 2), dtype=np.int64))
     return local, node_gid
+
+
+def elements_by_rank(scene: Scene, size: int) -> list[np.ndarray]:
+    """The elements of each rank's subdomains (:func:`owned_range`), ascending: one sort for all ranks."""
+    order = np.argsort(scene.element_subdomain, kind="stable")
+    first_sub = [owned_range(scene.n_subdomains, size, r)[0] for r in range(size)] + [scene.n_subdomains]
+    bounds = np.searchsorted(scene.element_subdomain[order], first_sub)
+    return [np.sort(order[bounds[r]:bounds[r + 1]]) for r in range(size)]
 
 
 #: Per-W-entry arrays of a :class:`TopologySlice` (the slice w0:w1 of the global topology's).

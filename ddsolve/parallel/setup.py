@@ -28,12 +28,14 @@ from ..dd.substructure import Substructures
 from ..errors import InputError
 from ..spec import ProblemSpec
 from .comm import CountingComm
-from .distribute import RankSubstructures, TopologySlice, owned_range, owned_scene, rank_of_subdomain, topology
+from .distribute import (RankSubstructures, TopologySlice, elements_by_rank, owned_range, owned_scene,
+                         rank_of_subdomain, topology)
 
 __all__ = ["RankProblem", "SCATTERED", "prepare_rank", "gather_solution"]
 
 #: Methods (problem poisson) whose rank pieces rank 0 computes and scatters; the others replicate the topology.
 SCATTERED = ("fetidp", "bddc")
+PIECE_TAG = 11
 
 
 @dataclass
@@ -137,8 +139,12 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
                        primal_dofs=np.unique(topo.l2g[topo.vertex]), scene=scene)
 
 
-def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_scene: bool) -> list[dict]:
-    """Rank 0: every rank's piece of a scattered method (its scene part, topology slice, sharing lists)."""
+def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_scene: bool):
+    """Rank 0: every rank's piece of a scattered method (its scene part, topology slice, sharing lists).
+
+    A generator of ``(rank, piece)``, ranks in order, so that rank 0 holds one piece at a time
+    besides its own.
+    """
     from .bddc import distribute_bddc
     from .fetidp import distribute_fetidp
 
@@ -147,19 +153,18 @@ def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_
     method = {"fetidp": distribute_fetidp, "bddc": distribute_bddc}[spec.method](topo, rank_of_sub, size)
     primal_dofs = np.unique(topo.l2g[topo.vertex])
     n_primal = int(topo.n_primal)
-    pieces = []
+    elements = elements_by_rank(scene, size) if with_scene else None
     for r in range(size):
         lo, hi = owned_range(n_sub, size, r)
         piece = {"slice": TopologySlice.of(topo, lo, hi, n_primal), "method": method[r],
                  "primal_dofs": primal_dofs, "n_sub": n_sub}
         if with_scene:
-            piece["scene"] = owned_scene(scene, lo, hi)
-        pieces.append(piece)
-    return pieces
+            piece["scene"] = owned_scene(scene, lo, hi, elements[r])
+        yield r, piece
 
 
 def _prepare_scattered(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProblem:
-    """:func:`prepare_rank` of a scattered method: rank 0 builds, cuts and scatters."""
+    """:func:`prepare_rank` of a scattered method: rank 0 builds, cuts and sends (one message per rank)."""
     from ..scene import assemble
 
     given = scene is not None
@@ -173,16 +178,23 @@ def _prepare_scattered(spec: ProblemSpec, comm: CountingComm, scene=None) -> Ran
             t1 = time.perf_counter()
             topo = topology(scene, spec.scaling, spec.gamma)
             t2 = time.perf_counter()
-            pieces = _rank_pieces(spec, topo, scene, comm.size, with_scene=not given)
             timings.update(scene=t1 - t0, topology=t2 - t1, **scene_timings)
+            pieces = _rank_pieces(spec, topo, scene, comm.size, with_scene=not given)
         except InputError as exc:
             error = (exc.field, exc.message)
+    t3 = t0 + timings["scene"] + timings["topology"]       # from here: cutting and sending (waiting elsewhere)
     error = comm.comm.bcast(error, root=0)
     if error is not None:
         raise InputError(*error)
-    t3 = time.perf_counter()
-    piece = comm.comm.scatter(pieces, root=0)
-    del pieces
+    if comm.rank == 0:
+        for r, cut in pieces:
+            if r == 0:
+                piece = cut
+            else:
+                comm.comm.send(cut, dest=r, tag=PIECE_TAG)
+        del pieces, cut
+    else:
+        piece = comm.comm.recv(source=0, tag=PIECE_TAG)
     sl: TopologySlice = piece["slice"]
     local_scene, node_gid = owned_scene(scene, sl.lo, sl.hi) if given else piece["scene"]
     if not keep:
