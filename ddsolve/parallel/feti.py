@@ -4,7 +4,8 @@ The multipliers are distributed as in :mod:`ddsolve.parallel.fetidp` (all
 interface nodes instead of the dual ones). The natural coarse space G = B R
 (R: constants on the floating subdomains, one column each, numbered
 globally) is known row by row on every rank that holds the row (its two
-entries come from the subdomains of the row's two copies: no communication).
+entries come from the subdomains of the row's two copies, which rank 0 sends
+with the rows, :func:`distribute_feti`: no communication in the solve).
 The projection (Q-weighted with rho-scaling, as in :func:`ddsolve.dd.dual.solve_dual`)
 
     P v = v - G_s (G_s^T G_s)^{-1} G_s^T v,   G_s = Q^{1/2} G,
@@ -28,10 +29,34 @@ from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur
 from .comm import NeighbourSum
 from .dual import DistributedProjection, distributed_solve_dual
-from .fetidp import local_jump, summed_dual_operators
+from .fetidp import JumpRows, jump_pairs, jump_rows, summed_dual_operators
 from .setup import RankProblem, gather_solution
 
-__all__ = ["DistributedProjection", "solve_feti_mpi"]   # DistributedProjection lives in .dual
+__all__ = ["DistributedProjection", "solve_feti_mpi", "distribute_feti"]   # DistributedProjection lives in .dual
+
+
+def distribute_feti(topo, rank_of_sub: np.ndarray, size: int) -> list[dict]:
+    """What each rank's one-level FETI needs from the global topology (computed on rank 0 and sent).
+
+    Returns, per rank, a dict with ``"jump"`` (:class:`~ddsolve.parallel.fetidp.JumpRows`: its
+    rows of the fully redundant B on every interface node, B_D scaled by delta-dagger), per
+    local row ``"sub_a"``, ``"sub_b"`` (the global subdomains of its two copies) and ``"q"``
+    (the diagonal of Q, delta_b^2 rho_a + delta_a^2 rho_b as in :func:`ddsolve.dd.feti.solve_feti`;
+    None under multiplicity scaling), and the subdomain-level ``"floating_sub"`` and
+    ``"sub_size"`` (W entries per subdomain), shape (n_sub,).
+    """
+    pa, pb = jump_pairs(topo, np.ones(topo.n_W, dtype=bool))
+    delta, rho = topo.delta, topo.rho
+    sa, sb = topo.sub_of_W[pa], topo.sub_of_W[pb]
+    q = None if topo.scaling == "multiplicity" else delta[pb] ** 2 * rho[sa] + delta[pa] ** 2 * rho[sb]
+    sub_size = np.diff(topo.offsets).astype(float)
+    floating = np.asarray(topo.floating_sub)
+    out = []
+    for rows in jump_rows(pa, pb, delta[pb], -delta[pa], rank_of_sub[sa], rank_of_sub[sb], size):
+        r = rows.rows
+        out.append({"jump": rows, "sub_a": sa[r], "sub_b": sb[r], "q": None if q is None else q[r],
+                    "floating_sub": floating, "sub_size": sub_size})
+    return out
 
 
 def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
@@ -43,10 +68,13 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
 
     Returns ``(output, info)`` as :func:`ddsolve.parallel.fetidp.solve_fetidp_mpi`.
     """
-    comm, sub, topo = prob.comm, prob.sub, prob.topo
+    comm, sub = prob.comm, prob.sub
     t0 = time.perf_counter()
     cache: dict = {}
-    B, B_D, shared, n_lam, (pa, pb) = local_jump(prob, np.ones(topo.n_W, dtype=bool), with_pairs=True)
+    piece = prob.pieces                                     # from rank 0 (distribute_feti)
+    jump: JumpRows = piece["jump"]
+    B, B_D = jump.matrices(sub.w0, sub.n_W)
+    shared, n_lam = jump.shared, jump.n_lambda
     fixed = pinned_entries(sub)
     Kplus = BatchedSolver(sub, ~fixed, cache)
     schur = DirichletSchur(sub, sub.interface, cache)
@@ -56,12 +84,12 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     F_d = exchange.sum(B @ Kplus.solve(sub.f_W))
     n_fact = Kplus.n_new_factorizations + schur.II.n_new_factorizations
     # global numbering of the floating subdomains; G = B R row by row from the two copies of each multiplier
-    floating = topo.floating_sub
-    col_of_sub = np.full(topo.n_sub, -1)
+    floating = piece["floating_sub"]
+    col_of_sub = np.full(prob.n_sub, -1)
     col_of_sub[floating] = np.arange(int(floating.sum()))
     k = int(floating.sum())
-    size = np.diff(topo.offsets).astype(float)
-    sa, sb = topo.sub_of_W[pa], topo.sub_of_W[pb]
+    size = piece["sub_size"]
+    sa, sb = piece["sub_a"], piece["sub_b"]
     n_loc = shared.n
     rows = np.arange(n_loc)
     fa, fb = floating[sa], floating[sb]
@@ -76,10 +104,7 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
                                (ent, col_of_sub[sub.lo + sub.sub_of_W[ent]])), shape=(sub.n_W, k))
         e = comm.allreduce_sum(R_loc.T @ sub.f_W)
         n_fact += 1
-    q = None
-    if topo.scaling != "multiplicity" and projection != "orthogonal":
-        delta, rho = topo.delta, topo.rho
-        q = delta[pb] ** 2 * rho[sa] + delta[pa] ** 2 * rho[sb]
+    q = piece["q"] if projection != "orthogonal" else None
     setup = time.perf_counter() - t0
     sol = distributed_solve_dual(F, M, F_d, G if k else None, e, q, comm=comm, owned=shared.owned, rtol=rtol,
                                  maxiter=maxiter, cond=cond)

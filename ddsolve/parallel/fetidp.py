@@ -139,21 +139,6 @@ def jump_pairs(topo, mask_global: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pa, pb
 
 
-def local_jump(prob: RankProblem, mask_global: np.ndarray, with_pairs: bool = False):
-    """B_loc, B_D_loc (rows: this rank's multipliers, columns: its W entries), sharing, n_lambda.
-
-    The rows of the serial fully redundant B on ``mask_global`` (same order), B_D scaled by
-    delta-dagger. With ``with_pairs``, also the global W entries (pa, pb) of the two copies of
-    each local row.
-    """
-    pa, pb = jump_pairs(prob.topo, mask_global)
-    delta = prob.topo.delta
-    B_loc, B_D_loc, shared, rows = pair_rows(prob, pa, pb, delta[pb], -delta[pa])
-    if with_pairs:
-        return B_loc, B_D_loc, shared, pa.size, (pa[rows], pb[rows])
-    return B_loc, B_D_loc, shared, pa.size
-
-
 def distribute_fetidp(topo, rank_of_sub: np.ndarray, size: int) -> list[dict]:
     """What each rank's FETI-DP needs from the global topology (computed on rank 0 and scattered).
 

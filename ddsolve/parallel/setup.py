@@ -3,14 +3,14 @@
 :func:`prepare_rank` is the parallel counterpart of :func:`ddsolve.prepared.prepare`.
 Two ways, by method (:data:`SCATTERED`):
 
-* **Scattered** (FETI-DP and BDDC): rank 0 alone builds the scene (reads or
+* **Scattered** (FETI-DP, BDDC and FETI): rank 0 alone builds the scene (reads or
   meshes and partitions the input) and the global topology, cuts them into one
   piece per rank (its part of the mesh with nodes renumbered, a
   :class:`~ddsolve.parallel.distribute.TopologySlice`, and the method's sharing
   lists) and scatters them. The other ranks never hold an array of the global
   size; rank 0 drops the global topology before the solve (it keeps the scene
   only for ``--check`` and ``--output``).
-* **Replicated** (the other methods): every rank builds the scene and the
+* **Replicated** (FETI-FETI, the hybrid and the active set method): every rank builds the scene and the
   global topology (integer metadata, no communication), as its methods read
   them across ranks.
 
@@ -28,13 +28,20 @@ from ..dd.substructure import Substructures
 from ..errors import InputError
 from ..spec import ProblemSpec
 from .comm import CountingComm
-from .distribute import (RankSubstructures, TopologySlice, elements_by_rank, owned_range, owned_scene,
-                         rank_of_subdomain, topology)
+from .distribute import (
+    RankSubstructures,
+    TopologySlice,
+    elements_by_rank,
+    owned_range,
+    owned_scene,
+    rank_of_subdomain,
+    topology,
+)
 
 __all__ = ["RankProblem", "SCATTERED", "prepare_rank", "gather_solution"]
 
 #: Methods (problem poisson) whose rank pieces rank 0 computes and scatters; the others replicate the topology.
-SCATTERED = ("fetidp", "bddc")
+SCATTERED = ("fetidp", "bddc", "feti")
 PIECE_TAG = 11
 
 
@@ -66,7 +73,8 @@ class RankProblem:
     primal_dofs : ndarray of int
         Sorted global dofs of all primal unknowns (the coarse space, on every rank).
     pieces : dict
-        A scattered method's sharing lists from rank 0 (``distribute_fetidp``, ``distribute_bddc``).
+        A scattered method's sharing lists from rank 0 (``distribute_fetidp``, ``distribute_bddc``,
+        ``distribute_feti``).
     scene : Scene or None
         The global scene where it is kept (see ``topo``).
     """
@@ -146,11 +154,13 @@ def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_
     besides its own.
     """
     from .bddc import distribute_bddc
+    from .feti import distribute_feti
     from .fetidp import distribute_fetidp
 
     n_sub = topo.n_sub
     rank_of_sub = rank_of_subdomain(n_sub, size)
-    method = {"fetidp": distribute_fetidp, "bddc": distribute_bddc}[spec.method](topo, rank_of_sub, size)
+    method = {"fetidp": distribute_fetidp, "bddc": distribute_bddc,
+              "feti": distribute_feti}[spec.method](topo, rank_of_sub, size)
     primal_dofs = np.unique(topo.l2g[topo.vertex])
     n_primal = int(topo.n_primal)
     elements = elements_by_rank(scene, size) if with_scene else None

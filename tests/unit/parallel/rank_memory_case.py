@@ -46,7 +46,9 @@ def largest_array(obj, seen=None) -> tuple[int, str]:
 
 if __name__ == "__main__":
     method, kind, check = sys.argv[1], sys.argv[2], sys.argv[3] == "1"
-    if kind == "structured":
+    if method in ("feti-feti", "hybrid"):
+        spec = dict(problem="multibody", method=method, bodies=2, subdomains=3, elements=6, check=check)
+    elif kind == "structured":
         spec = dict(method=method, subdomains=6, elements=6, check=check)
     else:
         spec = dict(method=method, mesh="unstructured", maxh=0.04, parts=12, check=check)

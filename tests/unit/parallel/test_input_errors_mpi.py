@@ -48,12 +48,12 @@ def test_mesh_file_that_is_not_a_mesh_exits_2(tmp_path):
     _one_error_per_rank(proc, 2, "mesh_file: ")
 
 
-@pytest.mark.parametrize("method,bad_rank", [("feti", 1), ("fetidp", 0)])
-def test_input_error_of_one_rank_only_is_raised_on_every_rank(tmp_path, method, bad_rank):
+@pytest.mark.parametrize("problem,method,bad_rank", [("multibody", "feti-feti", 1), ("poisson", "fetidp", 0)])
+def test_input_error_of_one_rank_only_is_raised_on_every_rank(tmp_path, problem, method, bad_rank):
     """A mesh file that only one rank finds corrupt (as if ranks saw different files): no hang, exit 2.
 
-    FETI replicates the topology (every rank reads the file: rank 1 fails); FETI-DP scatters it
-    (rank 0 alone reads the file: its error reaches every rank).
+    FETI-FETI replicates the topology (every rank reads the file: rank 1 fails); FETI-DP scatters
+    it (rank 0 alone reads the file: its error reaches every rank).
     """
     mesh = _square_mesh(tmp_path / "square.vol")
     bad = tmp_path / "bad.vol"
@@ -61,7 +61,7 @@ def test_input_error_of_one_rank_only_is_raised_on_every_rank(tmp_path, method, 
     code = ("import sys; from mpi4py import MPI; from ddsolve.spec import ProblemSpec; "
             "from ddsolve.parallel.run import main; "
             f"path = [{str(mesh)!r}, {str(bad)!r}][MPI.COMM_WORLD.Get_rank() == {bad_rank}]; "
-            f"spec = ProblemSpec.from_mapping(dict(mesh='unstructured', mesh_file=path, parts=2, method={method!r})); "
+            f"spec = ProblemSpec.from_mapping(dict(mesh='unstructured', mesh_file=path, parts=2, problem={problem!r}, method={method!r})); "
             "sys.exit(main(spec, True, str))")
     proc = mpiexec(2, ["-c", code])
     _one_error_per_rank(proc, 2, f"mesh_file: {bad} is not a netgen mesh")
