@@ -25,7 +25,7 @@ from .setup import RankProblem, gather_solution
 __all__ = ["solve_bddc_mpi", "distribute_bddc"]
 
 
-def distribute_bddc(topo, rank_of_sub: np.ndarray, size: int) -> list[dict]:
+def distribute_bddc(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> list[dict]:
     """What each rank's BDDC needs from the global topology (computed on rank 0 and scattered).
 
     Returns, per rank, ``{"interface": SharedIndex, "interface_dofs": ndarray, "n_interface": int}``:

@@ -35,7 +35,7 @@ from .setup import RankProblem, gather_solution
 __all__ = ["DistributedProjection", "solve_feti_mpi", "distribute_feti"]   # DistributedProjection lives in .dual
 
 
-def distribute_feti(topo, rank_of_sub: np.ndarray, size: int) -> list[dict]:
+def distribute_feti(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> list[dict]:
     """What each rank's one-level FETI needs from the global topology (computed on rank 0 and sent).
 
     Returns, per rank, a dict with ``"jump"`` (:class:`~ddsolve.parallel.fetidp.JumpRows`: its

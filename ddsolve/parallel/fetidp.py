@@ -139,7 +139,7 @@ def jump_pairs(topo, mask_global: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pa, pb
 
 
-def distribute_fetidp(topo, rank_of_sub: np.ndarray, size: int) -> list[dict]:
+def distribute_fetidp(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> list[dict]:
     """What each rank's FETI-DP needs from the global topology (computed on rank 0 and scattered).
 
     Returns, per rank, ``{"jump": JumpRows}``: its rows of the serial fully redundant B on the

@@ -2,15 +2,16 @@
 
 Ownership. The subdomains of all bodies are distributed as for Poisson
 (subdomains are numbered body by body, so a rank holds whole bodies or
-contiguous parts of them). Every rank builds the integer topology and the
-:class:`~ddsolve.multibody.GlobalInterface` from the global mesh (replicated,
-no communication) and assembles and factors only its own subdomains.
+contiguous parts of them). Rank 0 builds the integer topology and the
+:class:`~ddsolve.multibody.GlobalInterface` from the global mesh and sends each
+rank its piece (:func:`distribute_fetifeti`); each rank assembles and factors
+only its own subdomains.
 
 Multipliers. The global multipliers are the rows of the serial
 B = [B_loc; Z B_gl] (same order): the dual jumps inside the bodies, then the
 active inter-body pairs, each acting on the designated (first) copies of its
 two nodes. A rank holds every row with an entry on one of its subdomains
-(:func:`~ddsolve.parallel.fetidp.pair_rows`); F and the preconditioner are the
+(:class:`~ddsolve.parallel.fetidp.JumpRows`); F and the preconditioner are the
 local operators followed by one neighbour sum.
 
 A~^+ (2.17) with one pinned primal vertex per floating body: the
@@ -48,12 +49,52 @@ from ..dd.common import MethodOutput
 from ..dd.dual import DUAL_PROJECTIONS
 from ..dd.operators import DirichletSchur
 from .coarse import DistributedPrimalSolver, pinned_vertices
-from .comm import NeighbourSum, SharedIndex
+from .comm import NeighbourSum, shared_indices
+from .distribute import owned_range
 from .dual import distributed_solve_dual
-from .fetidp import jump_pairs, pair_rows, summed_dual_operators
+from .fetidp import JumpRows, jump_pairs, jump_rows, summed_dual_operators
 from .setup import RankProblem, gather_solution
 
-__all__ = ["solve_fetifeti_mpi"]
+__all__ = ["solve_fetifeti_mpi", "distribute_fetifeti", "tilde_pieces"]
+
+
+def tilde_pieces(topo, spread: np.ndarray, rank_of_sub: np.ndarray, size: int) -> list[dict]:
+    """Every rank's share of S~ (:class:`_TildeSchur`), from the global topology (rank 0, at once).
+
+    Parameters
+    ----------
+    topo : Substructures
+        Global topology.
+    spread : ndarray of bool, shape (n_W,)
+        Primal W entries whose node values are copied to all copies (the primal nodes of the global
+        interface; elsewhere the input of S~ is zero on primal entries).
+    rank_of_sub : ndarray of int, shape (n_sub,)
+    size : int
+
+    Returns
+    -------
+    list of dict
+        Per rank: ``entries`` (its copies, local W positions), ``pos`` (copy -> its local node),
+        ``first`` and ``first_pos`` (the designated, first, copy of every node, where the serial S~ puts
+        the sum of the copies) and ``shared`` (:class:`SharedIndex` of its nodes).
+    """
+    all_entries = np.flatnonzero(spread)                                 # sorted: rank by rank
+    node_ids, node_index = np.unique(topo.node_of_W[all_entries], return_inverse=True)
+    n_nodes = int(node_ids.size)
+    first_entry = np.full(n_nodes, np.iinfo(np.int64).max)
+    np.minimum.at(first_entry, node_index, all_entries)
+    is_first = first_entry[node_index] == all_entries
+    sharing = shared_indices(node_index, rank_of_sub[topo.sub_of_W[all_entries]], size, n_nodes)
+    w_first = [int(topo.offsets[owned_range(topo.n_sub, size, r)[0]]) for r in range(size)]
+    bounds = np.searchsorted(all_entries, w_first + [topo.n_W])
+    out = []
+    for r, (local_ids, shared) in enumerate(sharing):
+        e = slice(bounds[r], bounds[r + 1])
+        pos = np.searchsorted(local_ids, node_index[e])
+        entries = all_entries[e] - w_first[r]
+        out.append({"entries": entries, "pos": pos, "first": entries[is_first[e]], "first_pos": pos[is_first[e]],
+                    "shared": shared})
+    return out
 
 
 class _TildeSchur:
@@ -61,34 +102,20 @@ class _TildeSchur:
 
     Parameters
     ----------
-    prob : RankProblem
     schur : DirichletSchur
         On this rank's subdomains, interface = local interface | global interface.
-    spread : ndarray of bool, shape (n_W_global,)
-        Primal W entries whose node values are copied to all copies (the primal nodes of
-        the global interface; elsewhere the input of S~ is zero on primal entries).
+    piece : dict
+        This rank's entry of :func:`tilde_pieces`.
+    comm : CountingComm
     """
 
-    def __init__(self, prob: RankProblem, schur: DirichletSchur, spread: np.ndarray) -> None:
-        topo, sub, comm = prob.topo, prob.sub, prob.comm
+    def __init__(self, schur: DirichletSchur, piece: dict, comm) -> None:
         self.schur = schur
-        node_ids = np.unique(topo.node_of_W[spread])                     # global numbering of the nodes
-        sl = slice(sub.w0, sub.w1)
-        self.entries = np.flatnonzero(spread[sl])                        # local copies
-        local_node = np.searchsorted(node_ids, topo.node_of_W[sl][self.entries])
-        self.local_ids = np.unique(local_node)
-        self.pos = np.searchsorted(self.local_ids, local_node)           # copy -> local node index
-        all_entries = np.flatnonzero(spread)
-        self.shared = SharedIndex.build(comm.rank, self.local_ids,
-                                        np.searchsorted(node_ids, topo.node_of_W[all_entries]),
-                                        prob.rank_of_sub[topo.sub_of_W[all_entries]], int(node_ids.size))
+        self.entries, self.pos = piece["entries"], piece["pos"]
+        self.first, self.first_pos = piece["first"], piece["first_pos"]
+        self.shared = piece["shared"]
         self.exchange = NeighbourSum(comm, self.shared)
-        # the designated (first) copy of every node, where the serial S~ puts the sum of the copies
-        first = np.full(topo.scene.n_nodes, np.iinfo(np.int64).max)
-        np.minimum.at(first, topo.node_of_W[all_entries], all_entries)
-        self.first = self.entries[first[topo.node_of_W[sl][self.entries]] == sub.w0 + self.entries]
-        self.first_pos = self.pos[np.isin(self.entries, self.first)]
-        self.n = int(self.local_ids.size)
+        self.n = int(self.shared.n)
 
     def apply(self, w: np.ndarray) -> np.ndarray:
         """S~ w: spread the node values to every copy, S, sum the copies to the first copy (n_W,) -> (n_W,)."""
@@ -102,6 +129,46 @@ class _TildeSchur:
         return y
 
 
+def distribute_fetifeti(topo, rank_of_sub: np.ndarray, size: int, spec) -> list[dict]:
+    """What each rank's FETI-FETI needs from the global topology (computed on rank 0 and sent).
+
+    The global rows are those of the serial B = [B_loc; Z B_gl]: the dual jumps inside the bodies,
+    then the active inter-body pairs of ``spec.contact``. Per rank: ``"jump"``
+    (:class:`~ddsolve.parallel.fetidp.JumpRows`), per local row ``"col_a"``, ``"col_b"`` (the
+    kernel column of the body of each copy, -1 where it does not float) and ``"q"`` (the diagonal
+    of Q; None under multiplicity scaling), ``"n_inside"`` (rows inside the bodies, first),
+    ``"gi_mask"`` (its W entries on the global interface), ``"tilde"`` (:func:`tilde_pieces`),
+    ``"pinned"`` (the pinned coarse dofs, :func:`~ddsolve.parallel.coarse.pinned_vertices`),
+    ``"body_col"`` (kernel column of every body, shape (n_bodies,)) and ``"n_active"``.
+    """
+    from ..multibody import GlobalInterface
+
+    gi = GlobalInterface(topo)
+    active = gi.contact_mask(spec.contact)
+    floating = gi.floating_bodies()
+    primal_dofs = np.unique(topo.l2g[topo.vertex])
+    pinned = pinned_vertices(topo, floating, primal_dofs)
+    la, lb = jump_pairs(topo, topo.interface & ~topo.vertex)
+    ga, gb = gi.pairs[active, 0], gi.pairs[active, 1]
+    delta, w = topo.delta, gi.weight
+    pa, pb = np.r_[la, ga], np.r_[lb, gb]
+    coef_a, coef_b = np.r_[delta[lb], w[gb]], np.r_[-delta[la], -w[ga]]
+    sa, sb = topo.sub_of_W[pa], topo.sub_of_W[pb]
+    q = None if topo.scaling == "multiplicity" else coef_a ** 2 * topo.rho[sa] + coef_b ** 2 * topo.rho[sb]
+    body_col = np.full(topo.scene.n_bodies, -1)
+    body_col[floating] = np.arange(floating.size)
+    col_a, col_b = body_col[topo.body_of_sub[sa]], body_col[topo.body_of_sub[sb]]
+    tilde = tilde_pieces(topo, topo.vertex & gi.mask, rank_of_sub, size)
+    out = []
+    for r, rows in enumerate(jump_rows(pa, pb, coef_a, coef_b, rank_of_sub[sa], rank_of_sub[sb], size)):
+        lo, hi = owned_range(topo.n_sub, size, r)
+        k = rows.rows
+        out.append({"jump": rows, "col_a": col_a[k], "col_b": col_b[k], "q": None if q is None else q[k],
+                    "n_inside": int(la.size), "gi_mask": np.array(gi.mask[topo.offsets[lo]:topo.offsets[hi]]),
+                    "tilde": tilde[r], "pinned": pinned, "body_col": body_col, "n_active": int(active.sum())})
+    return out
+
+
 def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
                        gather: bool = True, projection: str = "weighted") -> tuple[MethodOutput, dict]:
     """FETI-FETI (3.35) on the ranks of ``prob.comm`` for the active set of ``prob.spec.contact``.
@@ -111,35 +178,27 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
     Returns ``(output, info)`` as :func:`ddsolve.parallel.fetidp.solve_fetidp_mpi`; ``output.extra``
     holds ``n_floating_bodies`` and ``n_active``.
     """
-    comm, sub, topo, gi = prob.comm, prob.sub, prob.topo, prob.gi
+    comm, sub = prob.comm, prob.sub
+    piece = prob.pieces                                     # from rank 0 (distribute_fetifeti)
+    if projection not in DUAL_PROJECTIONS:
+        raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(DUAL_PROJECTIONS)})")
     t0 = time.perf_counter()
-    active = gi.contact_mask(prob.spec.contact)
-    floating = gi.floating_bodies()
     cache: dict = {}
-    primal_dofs = np.unique(topo.l2g[topo.vertex])
-    body_W = topo.body_of_sub[topo.sub_of_W]
-    primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, primal_dofs,
-                                            pinned=pinned_vertices(topo, floating, primal_dofs))
-    sl = slice(sub.w0, sub.w1)
-    schur = DirichletSchur(sub, sub.interface | gi.mask[sl], cache)
-    tilde = _TildeSchur(prob, schur, topo.vertex & gi.mask)
-    # global rows: B_loc (dual jumps inside the bodies), then the active inter-body pairs
-    la, lb = jump_pairs(topo, topo.interface & ~topo.vertex)
-    ga, gb = gi.pairs[active, 0], gi.pairs[active, 1]
-    delta, w = topo.delta, gi.weight
-    pa, pb = np.r_[la, ga], np.r_[lb, gb]
-    coef_a, coef_b = np.r_[delta[lb], w[gb]], np.r_[-delta[la], -w[ga]]
-    B, B_D, shared, rows = pair_rows(prob, pa, pb, coef_a, coef_b)
+    primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs, pinned=piece["pinned"])
+    schur = DirichletSchur(sub, sub.interface | piece["gi_mask"], cache)
+    tilde = _TildeSchur(schur, piece["tilde"], comm)
+    jump: JumpRows = piece["jump"]
+    B, B_D = jump.matrices(sub.w0, sub.n_W)
+    shared, rows = jump.shared, jump.rows
     exchange = NeighbourSum(comm, shared)
     F, M = summed_dual_operators(B, B_D, primal_solver.solve, tilde.apply, exchange)
 
     d = exchange.sum(B @ primal_solver.solve(sub.f_W))
     # G = B R: +1 / -1 where the body of the a / b copy floats (zero on the rows inside a body)
-    k = int(floating.size)
-    col = np.full(topo.scene.n_bodies, -1)
-    col[floating] = np.arange(k)
-    ca, cb = col[body_W[pa[rows]]], col[body_W[pb[rows]]]
-    inter = rows >= la.size
+    body_col = piece["body_col"]
+    k = int((body_col >= 0).sum())
+    ca, cb = piece["col_a"], piece["col_b"]
+    inter = rows >= piece["n_inside"]
     fa, fb = inter & (ca >= 0), inter & (cb >= 0)
     n_loc = rows.size
     G = e = R_loc = None
@@ -147,15 +206,11 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
         r_loc = np.arange(n_loc)
         G = sp.csr_matrix((np.r_[np.ones(fa.sum()), -np.ones(fb.sum())], (np.r_[r_loc[fa], r_loc[fb]],
                                                                           np.r_[ca[fa], cb[fb]])), shape=(n_loc, k))
-        ent = np.flatnonzero(col[body_W[sl]] >= 0)
-        R_loc = sp.csr_matrix((np.ones(ent.size), (ent, col[body_W[sl]][ent])), shape=(sub.n_W, k))
+        col_W = body_col[sub.body_of_sub[sub.sub_of_W]]
+        ent = np.flatnonzero(col_W >= 0)
+        R_loc = sp.csr_matrix((np.ones(ent.size), (ent, col_W[ent])), shape=(sub.n_W, k))
         e = comm.allreduce_sum(R_loc.T @ sub.f_W)
-    if projection not in DUAL_PROJECTIONS:
-        raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(DUAL_PROJECTIONS)})")
-    q = None                                 # Q of ddsolve.dd.dual.projection_weights on the local rows
-    if projection != "orthogonal" and topo.scaling != "multiplicity":
-        rho = topo.rho
-        q = coef_a[rows] ** 2 * rho[topo.sub_of_W[pa[rows]]] + coef_b[rows] ** 2 * rho[topo.sub_of_W[pb[rows]]]
+    q = piece["q"] if projection != "orthogonal" else None      # Q of ddsolve.dd.dual.projection_weights
     setup = time.perf_counter() - t0
     sol = distributed_solve_dual(F, M, d, G, e, q, comm=comm, owned=shared.owned, rtol=rtol, maxiter=maxiter,
                                  cond=cond)
@@ -163,10 +218,10 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
     if sol.alpha is not None:
         u_W = u_W + R_loc @ sol.alpha
     u = gather_solution(prob, u_W) if gather else None
-    out = MethodOutput(u=u, krylov=sol.krylov, nlambda=int(pa.size),
+    out = MethodOutput(u=u, krylov=sol.krylov, nlambda=jump.n_lambda,
                        n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
                        setup_seconds=setup,
-                       extra={"n_floating_bodies": k, "n_active": int(active.sum())})
+                       extra={"n_floating_bodies": k, "n_active": piece["n_active"]})
     info = {"coarse_seconds": primal_solver.coarse_seconds + sol.coarse_seconds,
             "krylov_seconds": sol.krylov_seconds, "per_iteration": sol.per_iteration}
     return out, info

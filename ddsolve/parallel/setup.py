@@ -3,14 +3,14 @@
 :func:`prepare_rank` is the parallel counterpart of :func:`ddsolve.prepared.prepare`.
 Two ways, by method (:data:`SCATTERED`):
 
-* **Scattered** (FETI-DP, BDDC and FETI): rank 0 alone builds the scene (reads or
+* **Scattered** (FETI-DP, BDDC, FETI and FETI-FETI): rank 0 alone builds the scene (reads or
   meshes and partitions the input) and the global topology, cuts them into one
   piece per rank (its part of the mesh with nodes renumbered, a
   :class:`~ddsolve.parallel.distribute.TopologySlice`, and the method's sharing
   lists) and scatters them. The other ranks never hold an array of the global
   size; rank 0 drops the global topology before the solve (it keeps the scene
   only for ``--check`` and ``--output``).
-* **Replicated** (FETI-FETI, the hybrid and the active set method): every rank builds the scene and the
+* **Replicated** (the hybrid and the active set method): every rank builds the scene and the
   global topology (integer metadata, no communication), as its methods read
   them across ranks.
 
@@ -41,7 +41,7 @@ from .distribute import (
 __all__ = ["RankProblem", "SCATTERED", "prepare_rank", "gather_solution"]
 
 #: Methods (problem poisson) whose rank pieces rank 0 computes and scatters; the others replicate the topology.
-SCATTERED = ("fetidp", "bddc", "feti")
+SCATTERED = ("fetidp", "bddc", "feti", "feti-feti")
 PIECE_TAG = 11
 
 
@@ -74,7 +74,7 @@ class RankProblem:
         Sorted global dofs of all primal unknowns (the coarse space, on every rank).
     pieces : dict
         A scattered method's sharing lists from rank 0 (``distribute_fetidp``, ``distribute_bddc``,
-        ``distribute_feti``).
+        ``distribute_feti``, ``distribute_fetifeti``).
     scene : Scene or None
         The global scene where it is kept (see ``topo``).
     """
@@ -120,7 +120,7 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     Collective for a scattered method (rank 0 sends every rank its piece): an :class:`InputError` of
     rank 0 is raised on every rank.
     """
-    if spec.problem == "poisson" and spec.method in SCATTERED:
+    if spec.method in SCATTERED:
         return _prepare_scattered(spec, comm, scene)
     from ..scene import assemble
 
@@ -156,11 +156,12 @@ def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_
     from .bddc import distribute_bddc
     from .feti import distribute_feti
     from .fetidp import distribute_fetidp
+    from .fetifeti import distribute_fetifeti
 
     n_sub = topo.n_sub
     rank_of_sub = rank_of_subdomain(n_sub, size)
-    method = {"fetidp": distribute_fetidp, "bddc": distribute_bddc,
-              "feti": distribute_feti}[spec.method](topo, rank_of_sub, size)
+    method = {"fetidp": distribute_fetidp, "bddc": distribute_bddc, "feti": distribute_feti,
+              "feti-feti": distribute_fetifeti}[spec.method](topo, rank_of_sub, size, spec)
     primal_dofs = np.unique(topo.l2g[topo.vertex])
     n_primal = int(topo.n_primal)
     elements = elements_by_rank(scene, size) if with_scene else None

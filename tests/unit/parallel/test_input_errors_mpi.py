@@ -48,11 +48,11 @@ def test_mesh_file_that_is_not_a_mesh_exits_2(tmp_path):
     _one_error_per_rank(proc, 2, "mesh_file: ")
 
 
-@pytest.mark.parametrize("problem,method,bad_rank", [("multibody", "feti-feti", 1), ("poisson", "fetidp", 0)])
+@pytest.mark.parametrize("problem,method,bad_rank", [("multibody", "hybrid", 1), ("poisson", "fetidp", 0)])
 def test_input_error_of_one_rank_only_is_raised_on_every_rank(tmp_path, problem, method, bad_rank):
     """A mesh file that only one rank finds corrupt (as if ranks saw different files): no hang, exit 2.
 
-    FETI-FETI replicates the topology (every rank reads the file: rank 1 fails); FETI-DP scatters
+    The hybrid method replicates the topology (every rank reads the file: rank 1 fails); FETI-DP scatters
     it (rank 0 alone reads the file: its error reaches every rank).
     """
     mesh = _square_mesh(tmp_path / "square.vol")

@@ -1,8 +1,8 @@
-"""Scattered setup (FETI-DP, BDDC, FETI): no rank but rank 0 ever holds an array of the global size.
+"""Scattered setup (FETI-DP, BDDC, FETI, FETI-FETI): no rank but rank 0 ever holds an array of the global size.
 
 Rank 0 builds the scene and the global topology, cuts one piece per rank and scatters them
 (:mod:`ddsolve.parallel.setup`). Checked by walking every array a rank holds after its setup
-(``rank_memory_case.py``); the replicated FETI-FETI is the contrast that shows the walk sees the
+(``rank_memory_case.py``); the replicated hybrid method is the contrast that shows the walk sees the
 global topology where it is held.
 """
 from __future__ import annotations
@@ -31,7 +31,8 @@ def _ranks(method: str, kind: str, n: int, check: bool) -> list[dict]:
 @pytest.mark.mpi
 @MPI_MARKS[1]
 @pytest.mark.parametrize("method,kind", [("fetidp", "structured"), ("bddc", "unstructured"),
-                                         ("fetidp", "unstructured"), ("feti", "structured")])
+                                         ("fetidp", "unstructured"), ("feti", "structured"),
+                                         ("feti-feti", "structured")])
 def test_scattered_ranks_hold_only_their_share(method, kind):
     rows = _ranks(method, kind, 3, check=False)
     for r in rows:
@@ -51,8 +52,8 @@ def test_check_keeps_the_global_scene_on_rank_0_only():
 @pytest.mark.mpi
 @MPI_MARKS[1]
 def test_replicated_method_holds_the_global_topology():
-    """FETI-FETI replicates the topology: the walk finds arrays of the global W on every rank."""
-    for r in _ranks("feti-feti", "structured", 3, check=False):
+    """The hybrid method replicates the topology: the walk finds arrays of the global W on every rank."""
+    for r in _ranks("hybrid", "structured", 3, check=False):
         assert r["topo"] and r["largest"] >= r["n_W"] > r["local"], r
 
 
