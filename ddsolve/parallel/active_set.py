@@ -64,11 +64,9 @@ class ReplicatedHybrid:
     def __init__(self, dh: DistributedHybrid, gather: bool = True) -> None:
         self.dh = dh
         self.gather = gather                 # the global u of each face solve on rank 0 (else u is None)
-        prob, comm = dh.prob, dh.comm
-        topo = prob.topo
+        comm = dh.comm
         self.comm = comm
-        gamma_mask = topo.interface | dh.gi.mask
-        self.gamma_dofs = np.unique(topo.l2g[gamma_mask])                  # global u_Gamma numbering
+        self.gamma_dofs = dh.gamma_dofs                                    # global u_Gamma numbering
         self.n_gamma = int(self.gamma_dofs.size)
         self._gpos = np.searchsorted(self.gamma_dofs, dh.gamma.space.dofs)  # local -> global position
         self._gpos_owned = self._gpos[dh.gamma.owned]
@@ -163,7 +161,7 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
     Parameters
     ----------
     prob : RankProblem
-        Of a contact problem (``prob.gi``: the contact pairs).
+        Of a contact problem (its pieces from :func:`~ddsolve.parallel.hybrid.distribute_hybrid`).
     gather : bool
         Assemble the global solution u on rank 0 (the solution's ``u``; ``None`` without): only
         for a caller that needs it (the API, ``--check``); the KKT residuals do not.
@@ -172,8 +170,8 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
     def __init__(self, prob: RankProblem, gather: bool = True) -> None:
         self.dh = DistributedHybrid(prob)
         rep = ReplicatedHybrid(self.dh, gather=gather)
-        n_c = int(prob.gi.n_gl)
-        self.problem = SimpleNamespace(n_contact=n_c, ndof=int(prob.topo.ndof))
+        n_c = self.dh.n_gl
+        self.problem = SimpleNamespace(n_contact=n_c, ndof=int(prob.ndof))
         self.hybrid = rep
         self.n_contact = n_c
         self.all_pairs = rep.active_set(np.ones(n_c, dtype=bool))

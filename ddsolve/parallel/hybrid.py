@@ -41,12 +41,13 @@ from ..krylov.result import KrylovResult
 from ..multibody.hybrid import S_OL_FORMS, InterfaceSpace
 from ..multibody.kernel import FloatingSums
 from .coarse import DistributedPrimalSolver, pinned_vertices
-from .comm import NeighbourSum, SharedIndex
+from .comm import NeighbourSum, SharedIndex, shared_indices
+from .distribute import owned_range
 from .dual import DistributedProjection
 from .krylov import DistributedPCR, IterationCounter, Reductions
 from .setup import RankProblem, gather_solution
 
-__all__ = ["DistributedActiveSet", "DistributedHybrid", "DistributedSpace", "solve_hybrid_mpi"]
+__all__ = ["DistributedActiveSet", "DistributedHybrid", "DistributedSpace", "distribute_hybrid", "solve_hybrid_mpi"]
 
 
 class DistributedSpace:
@@ -54,9 +55,13 @@ class DistributedSpace:
 
     Parameters
     ----------
-    prob : RankProblem
-    mask_global : ndarray of bool, shape (n_W_global,)
-        W entries of the space (all ranks).
+    sub : RankSubstructures
+    mask : ndarray of bool, shape (sub.n_W,)
+        This rank's W entries of the space.
+    sharing : tuple (dofs, SharedIndex, n_global)
+        From rank 0 (:func:`distribute_hybrid`): the sorted global dofs this rank holds (checked
+        against ``space.dofs``), their sharing and the number of global dofs of the space.
+    comm : CountingComm
 
     Attributes
     ----------
@@ -69,17 +74,15 @@ class DistributedSpace:
     n_global : int
     """
 
-    def __init__(self, prob: RankProblem, mask_global: np.ndarray) -> None:
-        topo, sub, comm = prob.topo, prob.sub, prob.comm
-        self.space = InterfaceSpace(sub, mask_global[sub.w0:sub.w1])
-        ent = np.flatnonzero(mask_global)
-        gid = topo.l2g[ent]
-        self.shared = SharedIndex.build(comm.rank, self.space.dofs, gid, prob.rank_of_sub[topo.sub_of_W[ent]],
-                                        topo.ndof)
+    def __init__(self, sub, mask: np.ndarray, sharing: tuple, comm) -> None:
+        self.space = InterfaceSpace(sub, mask)
+        dofs, self.shared, n_global = sharing
+        if not np.array_equal(dofs, self.space.dofs):
+            raise RuntimeError("the interface dofs sent by rank 0 are not this rank's")
         self.exchange = NeighbourSum(comm, self.shared)
         self.owned = self.shared.owned
         self.n = self.space.n
-        self.n_global = int(np.unique(gid).size)
+        self.n_global = int(n_global)
 
     def local_index(self, dofs: np.ndarray) -> np.ndarray:
         """Local index of global ``dofs`` in this space, -1 where this rank does not hold them."""
@@ -87,6 +90,55 @@ class DistributedSpace:
             return np.full(dofs.shape, -1, dtype=np.int64)
         pos = np.minimum(np.searchsorted(self.space.dofs, dofs), self.n - 1)
         return np.where(self.space.dofs[pos] == dofs, pos, -1)
+
+
+def distribute_hybrid(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> list[dict]:
+    """What each rank's hybrid method (and active set method) needs from the global topology.
+
+    Computed on rank 0 and sent (:mod:`ddsolve.parallel.setup`). Per rank:
+
+    * ``"gi_mask"``: its W entries on the global interface, shape (sub.n_W,);
+    * ``"spaces"``: for ``"gamma"`` (u_Gamma: every interface), ``"glob"`` (Gamma_OL) and ``"loc"``
+      (Gamma_0), the (dofs, SharedIndex, n_global) of :class:`DistributedSpace`;
+    * ``"pinned"``, ``"local_primal"``: the pinned coarse dofs of the floating bodies and the primal
+      dofs off the global interface (coarse-sized);
+    * the replicated data of the global interface (its size, not that of all dofs):
+      ``"floating"``, ``"n_bodies"``, ``"pair_dofs"``, ``"pair_weight"``, ``"pair_body"`` (n_gl, 2),
+      ``"inc_dof"``, ``"inc_rank"`` (the (dof, rank) incidences of its dofs, sorted),
+      ``"contact_mask"`` (multibody: the active pairs of ``spec.contact``; contact: None) and
+      ``"gamma_dofs"`` (the global u_Gamma numbering of the replicated active set loop).
+    """
+    from ..multibody import GlobalInterface
+
+    gi = GlobalInterface(topo)
+    gamma_mask = topo.interface | gi.mask
+    floating = np.asarray(gi.floating_bodies(), dtype=np.int64)
+    primal_dofs = np.unique(topo.l2g[topo.vertex])
+    spaces = {}
+    for name, mask in (("gamma", gamma_mask), ("glob", gi.mask), ("loc", topo.interface & ~gi.mask)):
+        ent = np.flatnonzero(mask)
+        gid = topo.l2g[ent]
+        n_global = int(np.unique(gid).size)
+        spaces[name] = [(dofs, shared, n_global)
+                        for dofs, shared in shared_indices(gid, rank_of_sub[topo.sub_of_W[ent]], size, topo.ndof)]
+    ent = np.flatnonzero(gi.mask)
+    inc_dof, inc_rank = np.divmod(np.unique(topo.l2g[ent].astype(np.int64) * size
+                                            + rank_of_sub[topo.sub_of_W[ent]]), size)
+    common = {"pinned": pinned_vertices(topo, floating, primal_dofs),
+              "local_primal": np.unique(topo.l2g[topo.vertex & ~gi.mask]), "floating": floating,
+              "n_bodies": int(topo.scene.n_bodies), "pair_dofs": topo.dof_of_node[gi.pair_nodes],
+              "pair_weight": gi.weight[gi.pairs], "pair_body": topo.body_of_sub[topo.sub_of_W[gi.pairs]],
+              "inc_dof": inc_dof, "inc_rank": inc_rank,
+              "contact_mask": gi.contact_mask(spec.contact) if spec is not None and spec.problem == "multibody"
+              else None,
+              "gamma_dofs": np.unique(topo.l2g[gamma_mask]) if spec is not None and spec.problem == "contact"
+              else None}
+    out = []
+    for r in range(size):
+        lo, hi = owned_range(topo.n_sub, size, r)
+        out.append({**common, "gi_mask": np.array(gi.mask[topo.offsets[lo]:topo.offsets[hi]]),
+                    "spaces": {name: spaces[name][r] for name in spaces}})
+    return out
 
 
 class _LocalPairs:
@@ -168,27 +220,26 @@ class DistributedHybrid:
     Parameters
     ----------
     prob : RankProblem
-        Of a multibody problem (``prob.gi`` set).
+        Of a multibody or contact problem (``prob.pieces`` from :func:`distribute_hybrid`).
     """
 
     def __init__(self, prob: RankProblem) -> None:
         t0 = time.perf_counter()
-        topo, sub, comm, gi = prob.topo, prob.sub, prob.comm, prob.gi
-        self.prob, self.comm, self.gi = prob, comm, gi
-        sl = slice(sub.w0, sub.w1)
-        gamma_mask = topo.interface | gi.mask
-        self.gamma = DistributedSpace(prob, gamma_mask)                    # u_Gamma
-        self.glob = DistributedSpace(prob, gi.mask)                        # Gamma_OL
-        self.loc = DistributedSpace(prob, topo.interface & ~gi.mask)       # Gamma_0
+        sub, comm, piece = prob.sub, prob.comm, prob.pieces       # piece: from rank 0 (distribute_hybrid)
+        self.prob, self.comm = prob, comm
+        gi_mask = piece["gi_mask"]
+        gamma_mask = sub.interface | gi_mask
+        spaces = piece["spaces"]
+        self.gamma = DistributedSpace(sub, gamma_mask, spaces["gamma"], comm)                # u_Gamma
+        self.glob = DistributedSpace(sub, gi_mask, spaces["glob"], comm)                     # Gamma_OL
+        self.loc = DistributedSpace(sub, sub.interface & ~gi_mask, spaces["loc"], comm)     # Gamma_0
         cache: dict = {}
-        self.schur = DirichletSchur(sub, gamma_mask[sl], cache)
-        self.floating = np.asarray(gi.floating_bodies(), dtype=np.int64)
-        primal_dofs = np.unique(topo.l2g[topo.vertex])
-        self.body_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, primal_dofs,
-                                                   pinned=pinned_vertices(topo, self.floating, primal_dofs))
-        self.local_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm,
-                                                    np.unique(topo.l2g[topo.vertex & ~gi.mask]),
-                                                    exclude=gi.mask[sl])
+        self.schur = DirichletSchur(sub, gamma_mask, cache)
+        self.floating = piece["floating"]
+        self.body_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs,
+                                                   pinned=piece["pinned"])
+        self.local_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, piece["local_primal"],
+                                                    exclude=gi_mask)
         self.n_factorizations = (self.schur.II.n_new_factorizations + self.body_solver.n_factorizations
                                  + self.local_solver.n_factorizations)
         self.delta_gamma = sub.delta[self.gamma.space.idx]
@@ -196,20 +247,20 @@ class DistributedHybrid:
         g = self.gamma.space
         body_of_gamma = np.zeros(g.n, dtype=np.int64)
         body_of_gamma[g.pos] = sub.body_of_sub[sub.sub_of_W[g.idx]]
-        column = np.full(topo.scene.n_bodies, -1)
+        column = np.full(piece["n_bodies"], -1)
         column[self.floating] = np.arange(self.floating.size)
         self._column_of_body = column
         self.kernel_column = column[body_of_gamma]
         self._floating_sums = FloatingSums(self.kernel_column, self.floating.size, summed=self.gamma.owned)
         self._kernel_count = comm.allreduce_sum(self._floating_sums.counts.astype(float))    # R_c^T R_c
-        self.pair_dofs = topo.dof_of_node[gi.pair_nodes]                   # (n_gl, 2)
-        self.pair_weight = gi.weight[gi.pairs]                             # (n_gl, 2)
-        self.pair_body = topo.body_of_sub[topo.sub_of_W[gi.pairs]]         # (n_gl, 2)
-        # (dof, rank) incidences of u_Gamma, sorted by dof: who holds the dofs of a multiplier
-        ent = np.flatnonzero(gamma_mask)
-        base = comm.size
-        key = np.unique(topo.l2g[ent].astype(np.int64) * base + prob.rank_of_sub[topo.sub_of_W[ent]])
-        self._inc_dof, self._inc_rank = np.divmod(key, base)
+        self.pair_dofs = piece["pair_dofs"]                                # (n_gl, 2)
+        self.pair_weight = piece["pair_weight"]                            # (n_gl, 2)
+        self.pair_body = piece["pair_body"]                                # (n_gl, 2)
+        self.n_gl = int(self.pair_dofs.shape[0])
+        self.contact_mask = piece["contact_mask"]
+        self.gamma_dofs = piece["gamma_dofs"]
+        # (dof, rank) incidences of the global-interface dofs, sorted by dof: who holds the dofs of a multiplier
+        self._inc_dof, self._inc_rank = piece["inc_dof"], piece["inc_rank"]
         self.g_hat = self.gamma.exchange.sum(g.gather(self.schur.harmonic_extension_rhs(sub.f_W)))
         self._cache: dict[bytes, DistributedActiveSet] = {}
         self._bddc_op = self._local_op = None       # interface operators of the two solvers
@@ -287,8 +338,8 @@ class DistributedHybrid:
     def active_set(self, active: np.ndarray) -> DistributedActiveSet:
         """This rank's part of Z^k (cached by the mask bytes)."""
         active = np.asarray(active, dtype=bool)
-        if active.shape != (self.gi.n_gl,):
-            raise ValueError(f"active must have shape ({self.gi.n_gl},), got {active.shape}")
+        if active.shape != (self.n_gl,):
+            raise ValueError(f"active must have shape ({self.n_gl},), got {active.shape}")
         key = np.packbits(active).tobytes()
         hit = self._cache.get(key)
         if hit is not None:
@@ -441,5 +492,5 @@ def solve_hybrid_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     if projection != "orthogonal":
         raise ValueError(f"projection {projection!r} is not distributed (only 'orthogonal')")
     hyb = DistributedHybrid(prob)
-    return hyb.solve(hyb.gi.contact_mask(prob.spec.contact), rtol=rtol, maxiter=maxiter, restart=restart,
+    return hyb.solve(hyb.contact_mask, rtol=rtol, maxiter=maxiter, restart=restart,
                      norm=norm, rtol_rule=rtol_rule, gather=gather)

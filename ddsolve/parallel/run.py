@@ -246,8 +246,9 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
     ----------
     spec : ProblemSpec or dict
     scene : Scene, optional
-        Instead of the spec's structured scene (e.g. :func:`ddsolve.scene.unstructured_scene`);
-        every rank must pass the same scene.
+        Instead of the spec's structured scene (e.g. :func:`ddsolve.scene.unstructured_scene`),
+        read on rank 0: the other ranks may pass None (rank 0 sends them their part) or the same
+        scene (each cuts its own part; needed for a callable load ``scene.f``).
     comm : mpi4py communicator or CountingComm, optional
         ``MPI.COMM_WORLD`` by default.
     gather : bool

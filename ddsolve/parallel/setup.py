@@ -1,21 +1,15 @@
-"""One rank's share of a problem: topology, owned subdomains, local assembly.
+"""One rank's share of a problem: its part of the mesh, of the topology and of the method's lists.
 
 :func:`prepare_rank` is the parallel counterpart of :func:`ddsolve.prepared.prepare`.
-Two ways, by method (:data:`SCATTERED`):
-
-* **Scattered** (FETI-DP, BDDC, FETI and FETI-FETI): rank 0 alone builds the scene (reads or
-  meshes and partitions the input) and the global topology, cuts them into one
-  piece per rank (its part of the mesh with nodes renumbered, a
-  :class:`~ddsolve.parallel.distribute.TopologySlice`, and the method's sharing
-  lists) and scatters them. The other ranks never hold an array of the global
-  size; rank 0 drops the global topology before the solve (it keeps the scene
-  only for ``--check`` and ``--output``).
-* **Replicated** (the hybrid and the active set method): every rank builds the scene and the
-  global topology (integer metadata, no communication), as its methods read
-  them across ranks.
-
-Either way each rank assembles with NGSolve only its own part of the mesh
-and builds its :class:`~ddsolve.parallel.distribute.RankSubstructures`.
+Rank 0 alone builds the scene (reads or meshes and partitions the input) and
+the global topology, cuts them into one piece per rank (its part of the mesh
+with nodes renumbered, a :class:`~ddsolve.parallel.distribute.TopologySlice`,
+the method's sharing lists and the coarse dofs) and sends each rank its own.
+The other ranks never hold an array of the global size; rank 0 drops the
+global topology before the solve (it keeps the scene and the topology only
+for ``--check`` and ``--output``). Each rank assembles with NGSolve only its
+own part of the mesh and builds its
+:class:`~ddsolve.parallel.distribute.RankSubstructures`.
 """
 from __future__ import annotations
 
@@ -38,10 +32,8 @@ from .distribute import (
     topology,
 )
 
-__all__ = ["RankProblem", "SCATTERED", "prepare_rank", "gather_solution"]
+__all__ = ["RankProblem", "prepare_rank", "gather_solution"]
 
-#: Methods (problem poisson) whose rank pieces rank 0 computes and scatters; the others replicate the topology.
-SCATTERED = ("fetidp", "bddc", "feti", "feti-feti")
 PIECE_TAG = 11
 
 
@@ -55,26 +47,22 @@ class RankProblem:
     comm : CountingComm
     topo : Substructures or None
         Global topology (no float matrices, see :func:`~ddsolve.parallel.distribute.topology`):
-        on every rank for a replicated method; for a scattered one (:data:`SCATTERED`) None, except
-        on rank 0 when ``--check`` or ``--output`` needs it.
+        None, except on rank 0 when ``--check`` or ``--output`` needs it.
     sub : RankSubstructures
         The owned subdomains.
     rank_of_sub : ndarray of int, shape (n_sub,)
     timings : dict
-        Seconds in ``"scene"``, ``"topology"``, ``"distribute"`` (cutting and scattering the pieces; 0
-        for a replicated method), ``"assembly"``, ``"substructures"`` on this rank, and of the scene
+        Seconds in ``"scene"``, ``"topology"``, ``"distribute"`` (cutting and sending the pieces on
+        rank 0, waiting for its piece elsewhere), ``"assembly"``, ``"substructures"`` on this rank, and of the scene
         build ``"mesh"`` and ``"partition"`` (METIS; 0 on a structured scene or a given scene), as
         :attr:`ddsolve.prepared.Prepared.scene_timings`.
-    gi : GlobalInterface or None
-        The inter-body multipliers (problem multibody; contact: the contact pairs), built from the
-        global topology.
     ndof, n_sub, n_primal : int
         Global counts.
     primal_dofs : ndarray of int
         Sorted global dofs of all primal unknowns (the coarse space, on every rank).
     pieces : dict
-        A scattered method's sharing lists from rank 0 (``distribute_fetidp``, ``distribute_bddc``,
-        ``distribute_feti``, ``distribute_fetifeti``).
+        The method's lists from rank 0 (``distribute_fetidp``, ``distribute_bddc``,
+        ``distribute_feti``, ``distribute_fetifeti``, ``distribute_hybrid``).
     scene : Scene or None
         The global scene where it is kept (see ``topo``).
     """
@@ -85,7 +73,6 @@ class RankProblem:
     sub: RankSubstructures
     rank_of_sub: np.ndarray
     timings: dict[str, float] = field(default_factory=dict)
-    gi: object = None
     ndof: int = 0
     n_sub: int = 0
     n_primal: int = 0
@@ -114,41 +101,8 @@ def _scene(spec: ProblemSpec, size: int, scene=None):
     return scene, scene_timings
 
 
-def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProblem:
-    """Build this rank's part of the problem of ``spec`` (or of ``scene``; every rank passes the same).
-
-    Collective for a scattered method (rank 0 sends every rank its piece): an :class:`InputError` of
-    rank 0 is raised on every rank.
-    """
-    if spec.method in SCATTERED:
-        return _prepare_scattered(spec, comm, scene)
-    from ..scene import assemble
-
-    t0 = time.perf_counter()
-    scene, scene_timings = _scene(spec, comm.size, scene)
-    t1 = time.perf_counter()
-    topo = topology(scene, spec.scaling, spec.gamma)
-    gi = None
-    if spec.problem in ("multibody", "contact"):
-        from ..multibody import GlobalInterface
-        gi = GlobalInterface(topo)
-    t2 = time.perf_counter()
-    lo, hi = owned_range(scene.n_subdomains, comm.size, comm.rank)
-    local_scene, node_gid = owned_scene(scene, lo, hi)
-    local = assemble(local_scene)
-    t3 = time.perf_counter()
-    sub = RankSubstructures.build(topo, local, node_gid, lo, hi, templates=spec.mesh != "unstructured")
-    t4 = time.perf_counter()
-    return RankProblem(spec=spec, comm=comm, topo=topo, sub=sub,
-                       rank_of_sub=rank_of_subdomain(scene.n_subdomains, comm.size),
-                       timings=dict(scene=t1 - t0, topology=t2 - t1, distribute=0.0, assembly=t3 - t2,
-                                    substructures=t4 - t3, **scene_timings), gi=gi,
-                       ndof=int(topo.ndof), n_sub=int(topo.n_sub), n_primal=int(topo.n_primal),
-                       primal_dofs=np.unique(topo.l2g[topo.vertex]), scene=scene)
-
-
 def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_scene: bool):
-    """Rank 0: every rank's piece of a scattered method (its scene part, topology slice, sharing lists).
+    """Rank 0: every rank's piece (its scene part, topology slice, the method's lists).
 
     A generator of ``(rank, piece)``, ranks in order, so that rank 0 holds one piece at a time
     besides its own.
@@ -157,11 +111,13 @@ def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_
     from .feti import distribute_feti
     from .fetidp import distribute_fetidp
     from .fetifeti import distribute_fetifeti
+    from .hybrid import distribute_hybrid
 
     n_sub = topo.n_sub
     rank_of_sub = rank_of_subdomain(n_sub, size)
     method = {"fetidp": distribute_fetidp, "bddc": distribute_bddc, "feti": distribute_feti,
-              "feti-feti": distribute_fetifeti}[spec.method](topo, rank_of_sub, size, spec)
+              "feti-feti": distribute_fetifeti, "hybrid": distribute_hybrid,
+              "active-set": distribute_hybrid}[spec.method](topo, rank_of_sub, size, spec)
     primal_dofs = np.unique(topo.l2g[topo.vertex])
     n_primal = int(topo.n_primal)
     elements = elements_by_rank(scene, size) if with_scene else None
@@ -174,12 +130,19 @@ def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_
         yield r, piece
 
 
-def _prepare_scattered(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProblem:
-    """:func:`prepare_rank` of a scattered method: rank 0 builds, cuts and sends (one message per rank)."""
+def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProblem:
+    """Build this rank's part of the problem of ``spec`` (or of rank 0's ``scene``).
+
+    Collective: rank 0 builds the scene and the topology, cuts them and sends every rank its piece
+    (one message per rank). An :class:`InputError` of rank 0 is raised on every rank. Only rank 0
+    reads the spec's mesh file. A ``scene`` is needed on rank 0 only; where every rank passes the
+    same scene, each cuts its own part from it (so a callable load ``scene.f``, which cannot be
+    sent, needs the scene on every rank).
+    """
     from ..scene import assemble
 
-    given = scene is not None
     t0 = time.perf_counter()
+    given = all(comm.comm.allgather(scene is not None))      # every rank cuts its own part of the scene
     pieces, error, timings = None, None, {"scene": 0.0, "topology": 0.0, "mesh": 0.0, "partition": 0.0}
     keep = comm.rank == 0 and (spec.check or bool(spec.output))
     topo = None

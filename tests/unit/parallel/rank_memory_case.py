@@ -48,6 +48,8 @@ if __name__ == "__main__":
     method, kind, check = sys.argv[1], sys.argv[2], sys.argv[3] == "1"
     if method in ("feti-feti", "hybrid"):
         spec = dict(problem="multibody", method=method, bodies=2, subdomains=3, elements=6, check=check)
+    elif method == "active-set":
+        spec = dict(problem="contact", method=method, subdomains=3, elements=6, check=check)
     elif kind == "structured":
         spec = dict(method=method, subdomains=6, elements=6, check=check)
     else:

@@ -48,23 +48,35 @@ def test_mesh_file_that_is_not_a_mesh_exits_2(tmp_path):
     _one_error_per_rank(proc, 2, "mesh_file: ")
 
 
-@pytest.mark.parametrize("problem,method,bad_rank", [("multibody", "hybrid", 1), ("poisson", "fetidp", 0)])
-def test_input_error_of_one_rank_only_is_raised_on_every_rank(tmp_path, problem, method, bad_rank):
-    """A mesh file that only one rank finds corrupt (as if ranks saw different files): no hang, exit 2.
+def _run_with_files(tmp_path, paths: str, problem: str, method: str):
+    """``main`` on 2 ranks, rank r reading the mesh file ``[paths][r]`` (as if ranks saw different files)."""
+    code = ("import sys; from mpi4py import MPI; from ddsolve.spec import ProblemSpec; "
+            "from ddsolve.parallel.run import main; "
+            f"path = {paths}[MPI.COMM_WORLD.Get_rank()]; "
+            f"spec = ProblemSpec.from_mapping(dict(mesh='unstructured', mesh_file=path, parts=2, "
+            f"problem={problem!r}, method={method!r})); "
+            "sys.exit(main(spec, True, str))")
+    return mpiexec(2, ["-c", code])
 
-    The hybrid method replicates the topology (every rank reads the file: rank 1 fails); FETI-DP scatters
-    it (rank 0 alone reads the file: its error reaches every rank).
-    """
+
+@pytest.mark.parametrize("problem,method", [("poisson", "fetidp"), ("multibody", "hybrid")])
+def test_input_error_of_rank_0_is_raised_on_every_rank(tmp_path, problem, method):
+    """Rank 0 alone reads the mesh file: its error reaches every rank; no hang, exit 2."""
     mesh = _square_mesh(tmp_path / "square.vol")
     bad = tmp_path / "bad.vol"
     bad.write_text("not a mesh\n")
-    code = ("import sys; from mpi4py import MPI; from ddsolve.spec import ProblemSpec; "
-            "from ddsolve.parallel.run import main; "
-            f"path = [{str(mesh)!r}, {str(bad)!r}][MPI.COMM_WORLD.Get_rank() == {bad_rank}]; "
-            f"spec = ProblemSpec.from_mapping(dict(mesh='unstructured', mesh_file=path, parts=2, problem={problem!r}, method={method!r})); "
-            "sys.exit(main(spec, True, str))")
-    proc = mpiexec(2, ["-c", code])
+    proc = _run_with_files(tmp_path, repr([str(bad), str(mesh)]), problem, method)
     _one_error_per_rank(proc, 2, f"mesh_file: {bad} is not a netgen mesh")
+
+
+def test_other_ranks_never_read_the_mesh_file(tmp_path):
+    """A file only rank 1 would find corrupt is never read by rank 1: the solve runs on rank 0's mesh."""
+    mesh = _square_mesh(tmp_path / "square.vol")
+    bad = tmp_path / "bad.vol"
+    bad.write_text("not a mesh\n")
+    proc = _run_with_files(tmp_path, repr([str(mesh), str(bad)]), "poisson", "fetidp")
+    assert proc.returncode == 0, proc.stderr
+    assert '"n_ranks": 2' in proc.stdout and '"converged": true' in proc.stdout
 
 
 @pytest.mark.parametrize("method,problem", [("smalbe", "contact"), ("direct", "multibody")])

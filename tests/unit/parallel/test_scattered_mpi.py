@@ -1,9 +1,9 @@
-"""Scattered setup (FETI-DP, BDDC, FETI, FETI-FETI): no rank but rank 0 ever holds an array of the global size.
+"""The distributed setup: no rank but rank 0 ever holds an array of the global size.
 
 Rank 0 builds the scene and the global topology, cuts one piece per rank and scatters them
 (:mod:`ddsolve.parallel.setup`). Checked by walking every array a rank holds after its setup
-(``rank_memory_case.py``); the replicated hybrid method is the contrast that shows the walk sees the
-global topology where it is held.
+(``rank_memory_case.py``); rank 0 under ``--check``, which keeps the global scene and topology,
+is the contrast that shows the walk sees them where they are held.
 """
 from __future__ import annotations
 
@@ -32,7 +32,8 @@ def _ranks(method: str, kind: str, n: int, check: bool) -> list[dict]:
 @MPI_MARKS[1]
 @pytest.mark.parametrize("method,kind", [("fetidp", "structured"), ("bddc", "unstructured"),
                                          ("fetidp", "unstructured"), ("feti", "structured"),
-                                         ("feti-feti", "structured")])
+                                         ("feti-feti", "structured"), ("hybrid", "structured"),
+                                         ("active-set", "structured")])
 def test_scattered_ranks_hold_only_their_share(method, kind):
     rows = _ranks(method, kind, 3, check=False)
     for r in rows:
@@ -45,16 +46,25 @@ def test_scattered_ranks_hold_only_their_share(method, kind):
 @MPI_MARKS[1]
 def test_check_keeps_the_global_scene_on_rank_0_only():
     rows = _ranks("bddc", "unstructured", 2, check=True)
-    assert rows[0]["topo"] and rows[0]["scene"]
+    assert rows[0]["topo"] and rows[0]["scene"] and rows[0]["largest"] >= rows[0]["n_W"] > rows[0]["local"]
     assert not rows[1]["topo"] and not rows[1]["scene"] and rows[1]["largest"] <= rows[1]["local"]
 
 
 @pytest.mark.mpi
 @MPI_MARKS[1]
-def test_replicated_method_holds_the_global_topology():
-    """The hybrid method replicates the topology: the walk finds arrays of the global W on every rank."""
-    for r in _ranks("hybrid", "structured", 3, check=False):
-        assert r["topo"] and r["largest"] >= r["n_W"] > r["local"], r
+def test_scene_on_rank_0_only_equals_scene_on_every_rank():
+    """``solve(spec, scene)`` with the scene on rank 0 only (the others get their parts sent) gives the
+    same answer as with the scene on every rank (each cuts its own part)."""
+    code = ("import sys, json, numpy as np; from mpi4py import MPI; from ddsolve.parallel import solve; "
+            "from ddsolve.scene import unstructured_scene; rank = MPI.COMM_WORLD.Get_rank(); "
+            "scene = unstructured_scene('poisson', maxh=0.08, parts=5, rho=np.geomspace(1.0, 1e2, 5), seed=0); "
+            "out = [solve(dict(method='bddc', rtol=1e-10), scene=s) for s in (scene, scene if rank == 0 else None)]; "
+            "rank == 0 and print(json.dumps([[r.iterations, np.asarray(r.u).tolist()] for r in out]))")
+    proc = mpiexec(3, ["-c", code])
+    assert proc.returncode == 0, proc.stderr
+    (it_all, u_all), (it_root, u_root) = json.loads(proc.stdout)
+    assert it_all == it_root > 0
+    assert np.array_equal(np.asarray(u_all), np.asarray(u_root))
 
 
 def _brute_force(gid, rank, size, n_global):
