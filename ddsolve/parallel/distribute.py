@@ -29,7 +29,8 @@ import numpy as np
 from ..dd.substructure import Substructures
 from ..scene.scene import Scene, sorted_unique
 
-__all__ = ["owned_range", "rank_of_subdomain", "topology", "owned_scene", "elements_by_rank", "TopologySlice", "RankSubstructures"]
+__all__ = ["owned_range", "rank_of_subdomain", "topology", "owned_scene", "elements_by_rank", "TopologySlice",
+           "RankSubstructures"]
 
 
 def owned_range(n_sub: int, size: int, rank: int) -> tuple[int, int]:
@@ -132,8 +133,9 @@ class TopologySlice:
     rho, body_of_sub, floating_sub : ndarray, shape (hi - lo,)
     offsets : ndarray of int, shape (hi - lo + 1,)
         Global W offsets of the owned subdomains.
-    node_of_W, sub_of_W, local_index, l2g, multiplicity, interface, cross_point, vertex, delta : ndarray, shape (w1 - w0,)
-        The global topology's arrays on the owned W entries (global node, subdomain and dof numbers).
+    node_of_W, sub_of_W, local_index, l2g, multiplicity, interface, cross_point, vertex, delta : ndarray
+        Shape (w1 - w0,) each: the global topology's arrays on the owned W entries (global node,
+        subdomain and dof numbers).
     """
 
     lo: int
@@ -167,7 +169,8 @@ class TopologySlice:
         when known)."""
         w0, w1 = int(topo.offsets[lo]), int(topo.offsets[hi])
         return cls(lo=lo, hi=hi, w0=w0, w1=w1, n_sub=int(topo.n_sub), n_W=int(topo.n_W), ndof=int(topo.ndof),
-                   n_primal=int(topo.n_primal if n_primal is None else n_primal), scaling=topo.scaling, gamma=float(topo.gamma), primal=topo.primal,
+                   n_primal=int(topo.n_primal if n_primal is None else n_primal), scaling=topo.scaling,
+                   gamma=float(topo.gamma), primal=topo.primal,
                    rho=np.array(topo.rho[lo:hi]), body_of_sub=np.array(topo.body_of_sub[lo:hi]),
                    floating_sub=np.array(topo.floating_sub[lo:hi]), offsets=np.array(topo.offsets[lo:hi + 1]),
                    **{name: np.array(getattr(topo, name)[w0:w1]) for name in W_FIELDS})
@@ -177,9 +180,10 @@ class RankSubstructures(Substructures):
     """:class:`Substructures` of one rank's subdomains [lo, hi), classified globally.
 
     Built by :meth:`build` (not by the parent constructor): the layout arrays
-    are the slice ``w0:w1`` of the global ``topo``'s, ``sub_of_W`` counts from
-    0 at ``lo``, ``l2g`` keeps the global dof numbers, and ``K_W``, ``f_W``,
-    ``stiffness`` come from the local NGSolve assembly. The serial operators
+    are those of the rank's :class:`TopologySlice` (the slice ``w0:w1`` of the
+    global topology's), ``sub_of_W`` counts from 0 at ``lo``, ``l2g`` keeps the
+    global dof numbers, and ``K_W``, ``f_W``, ``stiffness`` come from the local
+    NGSolve assembly. The serial operators
     (:class:`~ddsolve.dd.operators.DirichletSchur`,
     :class:`~ddsolve.dd.local.BatchedSolver`) act on it unchanged.
 
@@ -197,15 +201,12 @@ class RankSubstructures(Substructures):
     w1: int
 
     @classmethod
-    def build(cls, topo: "Substructures | TopologySlice", local, node_gid: np.ndarray, lo: int, hi: int,
-              templates: bool = True) -> "RankSubstructures":
-        """``topo``: the global topology, or its :class:`TopologySlice` for [lo, hi);
-        ``local``: the :class:`~ddsolve.scene.LocalProblems` of :func:`owned_scene` (subdomains lo..hi-1)
-        and ``node_gid`` its global node numbers; ``templates`` as for :class:`Substructures`
-        (False: every subdomain distinct, batched factorizations)."""
-        sl = topo if isinstance(topo, TopologySlice) else TopologySlice.of(topo, lo, hi)
-        if (sl.lo, sl.hi) != (lo, hi):
-            raise ValueError(f"topology slice of subdomains [{sl.lo}, {sl.hi}) for a rank owning [{lo}, {hi})")
+    def build(cls, sl: TopologySlice, local, node_gid: np.ndarray, templates: bool = True) -> "RankSubstructures":
+        """``sl``: the rank's :class:`TopologySlice` (subdomains [sl.lo, sl.hi)); ``local``: the
+        :class:`~ddsolve.scene.LocalProblems` of :func:`owned_scene` of those subdomains and ``node_gid``
+        its global node numbers; ``templates`` as for :class:`Substructures` (False: every subdomain
+        distinct, batched factorizations)."""
+        lo, hi = sl.lo, sl.hi
         self = cls.__new__(cls)
         self.lo, self.hi, self.w0, self.w1 = lo, hi, sl.w0, sl.w1
         self.local = local

@@ -101,32 +101,6 @@ def jump_rows(pa: np.ndarray, pb: np.ndarray, coef_a: np.ndarray, coef_b: np.nda
     return out
 
 
-def pair_rows(prob: RankProblem, pa: np.ndarray, pb: np.ndarray, coef_a: np.ndarray, coef_b: np.ndarray):
-    """This rank's rows of a jump operator given by pairs of global W entries (global topology).
-
-    Parameters
-    ----------
-    prob : RankProblem
-    pa, pb : ndarray of int, shape (n_lambda,)
-        Global W entries of the two copies of every multiplier.
-    coef_a, coef_b : ndarray, shape (n_lambda,)
-        Entries of B_D.
-
-    Returns
-    -------
-    B_loc, B_D_loc : csr_matrix, shape (n_local, sub.n_W)
-    shared : SharedIndex
-    rows : ndarray of int, shape (n_local,)
-        Global row numbers of the local rows (sorted).
-    """
-    topo, sub, comm = prob.topo, prob.sub, prob.comm
-    ra = prob.rank_of_sub[topo.sub_of_W[pa]]
-    rb = prob.rank_of_sub[topo.sub_of_W[pb]]
-    rows = jump_rows(pa, pb, coef_a, coef_b, ra, rb, comm.size, ranks=(comm.rank,))[0]
-    B_loc, B_D_loc = rows.matrices(sub.w0, sub.n_W)
-    return B_loc, B_D_loc, rows.shared, rows.rows
-
-
 def jump_pairs(topo, mask_global: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Global W entries (pa, pb) of the +1 and -1 copies of every row of ``topo.jump_operators(mask)``."""
     B, _ = topo.jump_operators(mask_global)

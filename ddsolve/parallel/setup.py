@@ -177,10 +177,11 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     t4 = time.perf_counter()
     local = assemble(local_scene)
     t5 = time.perf_counter()
-    sub = RankSubstructures.build(sl, local, node_gid, sl.lo, sl.hi, templates=spec.mesh != "unstructured")
+    sub = RankSubstructures.build(sl, local, node_gid, templates=spec.mesh != "unstructured")
     t6 = time.perf_counter()
     timings.update(distribute=t4 - t3, assembly=t5 - t4, substructures=t6 - t5)
-    return RankProblem(spec=spec, comm=comm, topo=topo, sub=sub, rank_of_sub=rank_of_subdomain(piece["n_sub"], comm.size),
+    return RankProblem(spec=spec, comm=comm, topo=topo, sub=sub,
+                       rank_of_sub=rank_of_subdomain(piece["n_sub"], comm.size),
                        timings=timings, ndof=sl.ndof, n_sub=sl.n_sub, n_primal=sl.n_primal,
                        primal_dofs=piece["primal_dofs"], pieces=piece["method"], scene=scene if keep else None)
 

@@ -88,7 +88,8 @@ def test_shared_indices_equal_brute_force(seed):
     size, n_global, m = int(rng.integers(1, 6)), int(rng.integers(1, 40)), int(rng.integers(1, 120))
     gid, rank = rng.integers(0, n_global, m), rng.integers(0, size, m)
     got = shared_indices(gid, rank, size, n_global)
-    for q, ((local, owned, neighbours), (g_local, index)) in enumerate(zip(_brute_force(gid, rank, size, n_global), got)):
+    expected = _brute_force(gid, rank, size, n_global)
+    for q, ((local, owned, neighbours), (g_local, index)) in enumerate(zip(expected, got)):
         assert np.array_equal(g_local, local)
         assert np.array_equal(index.owned, owned) and index.n == local.size
         assert index.neighbours.keys() == neighbours.keys()
