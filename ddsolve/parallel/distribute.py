@@ -10,10 +10,9 @@ What a rank holds (:mod:`ddsolve.parallel.setup` builds it).
   (multiplicity, cross points, primal vertices completed by
   :meth:`Substructures._anchor_floating`), the delta-dagger weights and the
   global numbering of multipliers / interface dofs, derived from the global
-  mesh. For FETI-DP, BDDC and FETI rank 0 alone computes it and sends every rank its
+  mesh. Rank 0 alone computes it and sends every rank its
   :class:`TopologySlice` (the owned W entries) and its part of the mesh
-  (:func:`owned_scene`, nodes renumbered); the other methods compute it
-  redundantly on every rank, with no communication.
+  (:func:`owned_scene`, nodes renumbered).
 * Its own :class:`RankSubstructures`: a :class:`~ddsolve.dd.Substructures`
   restricted to the owned subdomains, assembled by NGSolve on the owned part of
   the mesh only, with the owned W entries (the W layout is subdomain by

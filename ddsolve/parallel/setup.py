@@ -53,9 +53,9 @@ class RankProblem:
     rank_of_sub : ndarray of int, shape (n_sub,)
     timings : dict
         Seconds in ``"scene"``, ``"topology"``, ``"distribute"`` (cutting and sending the pieces on
-        rank 0, waiting for its piece elsewhere), ``"assembly"``, ``"substructures"`` on this rank, and of the scene
-        build ``"mesh"`` and ``"partition"`` (METIS; 0 on a structured scene or a given scene), as
-        :attr:`ddsolve.prepared.Prepared.scene_timings`.
+        rank 0, waiting for its piece elsewhere), ``"assembly"``, ``"substructures"`` on this rank,
+        and of the scene build ``"mesh"`` and ``"partition"`` (METIS; 0 on a structured scene or a
+        given scene), as :attr:`ddsolve.prepared.Prepared.scene_timings`.
     ndof, n_sub, n_primal : int
         Global counts.
     primal_dofs : ndarray of int
@@ -104,8 +104,9 @@ def _scene(spec: ProblemSpec, size: int, scene=None):
 def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_scene: bool):
     """Rank 0: every rank's piece (its scene part, topology slice, the method's lists).
 
-    A generator of ``(rank, piece)``, ranks in order, so that rank 0 holds one piece at a time
-    besides its own.
+    The method's lists are computed here (so that their errors are raised here); the pieces come
+    from the returned generator of ``(rank, piece)``, ranks in order, cut one at a time so that
+    rank 0 holds one piece besides its own.
     """
     from .bddc import distribute_bddc
     from .feti import distribute_feti
@@ -121,13 +122,16 @@ def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_
     primal_dofs = np.unique(topo.l2g[topo.vertex])
     n_primal = int(topo.n_primal)
     elements = elements_by_rank(scene, size) if with_scene else None
-    for r in range(size):
+
+    def cut(r: int) -> dict:
         lo, hi = owned_range(n_sub, size, r)
         piece = {"slice": TopologySlice.of(topo, lo, hi, n_primal), "method": method[r],
                  "primal_dofs": primal_dofs, "n_sub": n_sub}
         if with_scene:
             piece["scene"] = owned_scene(scene, lo, hi, elements[r])
-        yield r, piece
+        return piece
+
+    return ((r, cut(r)) for r in range(size))
 
 
 def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProblem:
@@ -172,8 +176,7 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     sl: TopologySlice = piece["slice"]
     local_scene, node_gid = owned_scene(scene, sl.lo, sl.hi) if given else piece["scene"]
     if not keep:
-        topo = None
-        scene = scene if given else None
+        topo = None                                         # the scene is dropped at the return
     t4 = time.perf_counter()
     local = assemble(local_scene)
     t5 = time.perf_counter()
