@@ -131,7 +131,9 @@ def _serial_line(first: dict) -> str:
             f"{serial['iterations']} iterations, load average {_loads(serial['load_average'])}).\n"
             "Setup s: scene, topology, assembly, factorizations and the explicit local blocks (the maximum over "
             "ranks); solve s: from the right-hand side to the solution; MPI s per rank: each rank's time inside "
-            "MPI calls during the method (transfers and waiting: the spread is the load imbalance).\n")
+            "MPI calls during the method (transfers and waiting: the spread is the load imbalance); peak RSS MB "
+            "per rank: each rank's peak resident memory (rank 0 also holds the input mesh and topology at "
+            "setup).\n")
 
 
 def _measured_row(run: dict, first: dict) -> dict:
@@ -148,6 +150,8 @@ def _measured_row(run: dict, first: dict) -> dict:
             "setup_seconds": run["setup_seconds"],
             # per rank, the time inside MPI calls in the solve: the spread is the load imbalance
             "mpi_seconds": "/".join(f"{x:.3f}" for x in comm.get("mpi_seconds", [])) or "-",
+            # peak resident memory of each rank (rank 0 also holds the input mesh and topology at setup)
+            "peak_rss_mb": "/".join(f"{x:.0f}" for x in run.get("peak_rss_mb_per_rank", [])) or "-",
             "load_average": _loads(run.get("load_average", []))}
 
 
@@ -167,13 +171,14 @@ def mpi_report(runs: list[dict], m: Machine = Machine(), strong_subdomains: floa
              f"{first['method']}, {first['ndof']} dofs, {n_sub} subdomains, H/h = {first['elements']}.", "",
              _serial_line(first),
              "| P | iterations | solve s | speed-up | vs serial | s/iteration (measured) | s/iteration (model) "
-             "| messages/it | bytes/it | allreduces/it | MPI s per rank | setup s | load average (before/after) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| messages/it | bytes/it | allreduces/it | MPI s per rank | setup s | peak RSS MB per rank "
+             "| load average (before/after) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['ranks']} | {r['iterations']} | {r['solve_seconds']:.3f} | {r['speedup_solve']:.2f} "
                      f"| {r['speedup_vs_serial']:.2f} | {r['t_iter_measured']:.4f} | {r['t_iter_model']:.4f} | {r['messages_per_iteration']:g} "
                      f"| {r['bytes_per_iteration']:g} | {r['allreduces_per_iteration']:g} | {r['mpi_seconds']} "
-                     f"| {r['setup_seconds']:.2f} | {r['load_average']} |")
+                     f"| {r['setup_seconds']:.2f} | {r['peak_rss_mb']} | {r['load_average']} |")
     lines += ["", "## Alpha-beta model (a model, not a measurement)", "",
               f"alpha = {m.alpha:g} s, beta = {m.beta:g} s/byte, coarse solve at {m.flops:g} flop/s; "
               f"t_sub = {cal.t_sub:.3e} s per subdomain and iteration (measured, P = 1). "
@@ -200,13 +205,13 @@ def measured_report(runs: list[dict]) -> tuple[list[dict], str]:
              f"{first['subdomains']} subdomains per body, H/h = {first['elements']} (measured only).", "",
              _serial_line(first),
              "| P | iterations | solve s | speed-up | vs serial | solve s/iteration | messages/it | bytes/it "
-             "| allreduces/it | MPI s per rank | setup s | load average (before/after) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| allreduces/it | MPI s per rank | setup s | peak RSS MB per rank | load average (before/after) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['ranks']} | {r['iterations']} | {r['solve_seconds']:.3f} | {r['speedup_solve']:.2f} "
                      f"| {r['speedup_vs_serial']:.2f} | {r['t_iter_measured']:.4f} | {r['messages_per_iteration']:.1f} "
                      f"| {r['bytes_per_iteration']:.0f} | {r['allreduces_per_iteration']:.1f} | {r['mpi_seconds']} "
-                     f"| {r['setup_seconds']:.2f} | {r['load_average']} |")
+                     f"| {r['setup_seconds']:.2f} | {r['peak_rss_mb']} | {r['load_average']} |")
     return rows, "\n".join(lines) + "\n"
 
 

@@ -96,7 +96,7 @@ def _reduce(prob, comm: CountingComm, info: dict, setup_seconds: float, solve_se
             "n_fact": comm.comm.allreduce(int(n_factorizations)),
             "n_templates": comm.comm.allreduce(int(prob.sub.local.n_templates)),
             "timings": {k: comm.comm.allreduce(float(v), op=comm.MPI.MAX) for k, v in sorted(prob.timings.items())},
-            "peak": comm.comm.allreduce(peak_rss_mb(), op=comm.MPI.MAX)}
+            "peak": comm.comm.allgather(peak_rss_mb())}
 
 
 def _report(spec: ProblemSpec, prob, comm: CountingComm, red: dict[str, Any]) -> tuple[dict, dict]:
@@ -117,7 +117,8 @@ def _report(spec: ProblemSpec, prob, comm: CountingComm, red: dict[str, Any]) ->
                     "assembly": t.get("assembly", 0.0),
                     "setup": max(red["setup"] - t.get("scene", 0.0) - t.get("assembly", 0.0), 0.0),
                     "solve": red["solve"]},
-        "peak_rss_mb": red["peak"],                                 # the largest over ranks
+        "peak_rss_mb": max(red["peak"]),                            # the largest over ranks
+        "peak_rss_mb_per_rank": [round(x, 1) for x in red["peak"]],
         "n_primal": int(prob.n_primal),                        # as the serial mesh report
         "mesh": spec.mesh,
         "parts": spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2}

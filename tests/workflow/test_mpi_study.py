@@ -65,6 +65,8 @@ def test_tiny_study_runs(workdir):
     assert (contact["ndof"] == 2 * 9 ** 2 - 9).all()                 # two 9 x 9 grids, one side clamped
     assert (contact.loc[contact["ranks"] == 2, "messages_per_iteration"] > 0).all()
     assert table["speedup_vs_serial"].gt(0).all()                    # the serial peer was measured
+    for peaks, ranks in zip(table["peak_rss_mb"].astype(str), table["ranks"]):   # one peak per rank
+        assert len(peaks.split("/")) == ranks and all(float(x) > 0 for x in peaks.split("/"))
     text = (workdir / "reports" / "tiny_mpi" / "mpi.md").read_text()
     assert "## Alpha-beta model (a model, not a measurement)" in text
     assert "## The active set method (contact problem (3.1))" in text and "(measured only)" in text
