@@ -72,7 +72,8 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
     if spec.primal != "vertices":
         raise InputError("primal", f"{spec.primal!r}: edge averages have no distributed (mpiexec) implementation "
                                    f"(run without mpiexec, or use 'vertices')")
-    n_sub = spec.parts if spec.mesh == "unstructured" else spec.bodies ** 2 * spec.subdomains ** 2
+    bodies = {"multibody": spec.bodies ** 2, "contact": 2}.get(spec.problem, 1)      # as the scene builds them
+    n_sub = bodies * (spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2)
     if spec.mesh_file and spec.mesh == "unstructured":
         return                          # the parts of a mesh file are counted once it is read (in solve)
     if n_sub < size:
@@ -122,11 +123,7 @@ def _report(spec: ProblemSpec, prob, comm: CountingComm, red: dict[str, Any]) ->
         "n_primal": int(prob.n_primal),                        # as the serial mesh report
         "mesh": spec.mesh,
         "parts": spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2}
-    sizes = _sizes(spec) if spec.mesh == "unstructured" else {"subdomains": spec.subdomains,
-                                                               "elements": spec.elements}
-    if spec.mesh == "unstructured" and spec.mesh_file:
-        sizes["subdomains"] = prob.n_sub
-    return extra, sizes
+    return extra, _sizes(spec)                                      # as the serial result
 
 
 def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solve_seconds: float,

@@ -157,6 +157,9 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
             topo = topology(scene, spec.scaling, spec.gamma)
             t2 = time.perf_counter()
             timings.update(scene=t1 - t0, topology=t2 - t1, **scene_timings)
+            if not given and callable(scene.f) and comm.size > 1:
+                raise InputError("scene", "a callable load f cannot be sent to the other ranks: pass the same "
+                                          "scene on every rank (or element-wise loads, an ndarray)")
             pieces = _rank_pieces(spec, topo, scene, comm.size, with_scene=not given)
         except InputError as exc:
             error = (exc.field, exc.message)
