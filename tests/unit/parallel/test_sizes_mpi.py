@@ -23,6 +23,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from launch import MPI_MARKS, ROOT, TIMEOUT, mpi_env, mpiexec  # noqa: E402
 
 
+def _parallel_and_serial(n: int, args: list[str]) -> tuple[dict, dict]:
+    """The JSON of ``mpiexec -n n python ARGS`` and of the serial ``python ARGS``."""
+    proc = mpiexec(n, args)
+    assert proc.returncode == 0, proc.stderr
+    serial = subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
+                            env=mpi_env(), cwd=ROOT, check=True)
+    return json.loads(proc.stdout), json.loads(serial.stdout)
+
+
 @pytest.mark.parametrize("spec,n_sub", [
     (dict(problem="multibody", method="feti-feti", mesh="unstructured", bodies=2, parts=3), 12),
     (dict(problem="contact", method="active-set", mesh="unstructured", parts=3), 6),
@@ -43,11 +52,7 @@ def test_contact_with_fewer_parts_than_ranks_runs_as_serial():
     """--parts 3 of each membrane gives 6 subdomains: 4 ranks are enough (it was refused)."""
     args = ["-m", "ddsolve", "solve", "--problem", "contact", "--mesh", "unstructured", "--parts", "3",
             "--maxh", "0.1", "--json"]
-    proc = mpiexec(4, args)
-    assert proc.returncode == 0, proc.stderr
-    par = json.loads(proc.stdout)
-    ser = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
-                                    env=mpi_env(), cwd=ROOT, check=True).stdout)
+    par, ser = _parallel_and_serial(4, args)
     assert par["n_ranks"] == 4 and par["converged"] and ser["converged"]
     assert par["subdomains"] == ser["subdomains"] == 3 and par["ndof"] == ser["ndof"]
     assert par["iterations"] == ser["iterations"] > 0
@@ -62,11 +67,7 @@ def test_mesh_file_of_two_bodies_reports_the_serial_sizes(tmp_path):
     mesh_geometry("contact", maxh=0.15).Save(str(mesh))
     args = ["-m", "ddsolve", "solve", "--problem", "contact", "--mesh", "unstructured", "--mesh-file", str(mesh),
             "--parts", "3", "--json"]
-    proc = mpiexec(2, args)
-    assert proc.returncode == 0, proc.stderr
-    par = json.loads(proc.stdout)
-    ser = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
-                                    env=mpi_env(), cwd=ROOT, check=True).stdout)
+    par, ser = _parallel_and_serial(2, args)
     assert par["subdomains"] == ser["subdomains"] == 3 and par["elements"] == ser["elements"]
     assert par["ndof"] == ser["ndof"] and par["iterations"] == ser["iterations"]
 
