@@ -26,7 +26,7 @@ __all__ = ["solve_bddc_mpi", "distribute_bddc"]
 
 
 def distribute_bddc(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> list[dict]:
-    """What each rank's BDDC needs from the global topology (computed on rank 0 and scattered).
+    """What each rank's BDDC needs from the global topology (computed on rank 0 and sent).
 
     Returns, per rank, ``{"interface": SharedIndex, "interface_dofs": ndarray, "n_interface": int}``:
     the sharing of its interface dofs, those dofs (sorted global numbers, as

@@ -78,8 +78,8 @@ class JumpRows:
 
 
 def jump_rows(pa: np.ndarray, pb: np.ndarray, coef_a: np.ndarray, coef_b: np.ndarray, ra: np.ndarray,
-              rb: np.ndarray, size: int, ranks=None) -> list[JumpRows]:
-    """The :class:`JumpRows` of every rank (or of ``ranks``) at once, O(n_lambda log n_lambda).
+              rb: np.ndarray, size: int) -> list[JumpRows]:
+    """The :class:`JumpRows` of every rank at once, O(n_lambda log n_lambda).
 
     Parameters
     ----------
@@ -94,8 +94,7 @@ def jump_rows(pa: np.ndarray, pb: np.ndarray, coef_a: np.ndarray, coef_b: np.nda
     n_lam = pa.size
     rows_all = np.arange(n_lam)
     out = []
-    for q, (rows, shared) in zip(range(size) if ranks is None else ranks,
-                                 shared_indices(np.r_[rows_all, rows_all], np.r_[ra, rb], size, n_lam, ranks)):
+    for q, (rows, shared) in enumerate(shared_indices(np.r_[rows_all, rows_all], np.r_[ra, rb], size, n_lam)):
         out.append(JumpRows(pa=pa[rows], pb=pb[rows], coef_a=coef_a[rows], coef_b=coef_b[rows],
                             a_mine=ra[rows] == q, b_mine=rb[rows] == q, rows=rows, shared=shared, n_lambda=n_lam))
     return out
@@ -114,7 +113,7 @@ def jump_pairs(topo, mask_global: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def distribute_fetidp(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> list[dict]:
-    """What each rank's FETI-DP needs from the global topology (computed on rank 0 and scattered).
+    """What each rank's FETI-DP needs from the global topology (computed on rank 0 and sent).
 
     Returns, per rank, ``{"jump": JumpRows}``: its rows of the serial fully redundant B on the
     dual nodes (``topo.interface & ~topo.vertex``), B_D scaled by delta-dagger.

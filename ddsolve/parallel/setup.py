@@ -120,7 +120,7 @@ def _rank_pieces(spec: ProblemSpec, topo: Substructures, scene, size: int, with_
               "feti-feti": distribute_fetifeti, "hybrid": distribute_hybrid,
               "active-set": distribute_hybrid}[spec.method](topo, rank_of_sub, size, spec)
     primal_dofs = np.unique(topo.l2g[topo.vertex])
-    n_primal = int(topo.n_primal)
+    n_primal = int(primal_dofs.size)               # topo.n_primal: primal "vertices" only under mpiexec
     elements = elements_by_rank(scene, size) if with_scene else None
 
     def cut(r: int) -> dict:
