@@ -153,3 +153,25 @@ def test_structured_primal_nodes_are_the_cross_points():
 def test_unknown_primal_kind_is_rejected():
     with pytest.raises(ValueError, match="primal"):
         Substructures(assemble(_scene(2, 2)), primal="faces")
+
+
+@pytest.mark.parametrize("shape", [(300,), (300, 5), (300, 219), (300, 1000)])
+def test_blocked_superlu_solve_equals_one_call(monkeypatch, shape):
+    """Column blocks (here of 65536 // 300 = 218 columns, or 8 when forced) give each column the
+    solution of one SuperLU call on all of B."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from ddsolve.dd import local
+
+    rng = np.random.default_rng(3)
+    A = sp.random(300, 300, density=0.02, random_state=rng)
+    K = (A @ A.T + 300 * sp.eye(300)).tocsc()
+    factor = spla.splu(K)
+    B = np.asfortranarray(rng.standard_normal(shape))
+    X = local._blocked_solve(factor, B)
+    assert X.shape == B.shape
+    np.testing.assert_allclose(X, factor.solve(B), rtol=1e-13, atol=0)
+    np.testing.assert_allclose(K @ X, B, rtol=0, atol=1e-10)
+    monkeypatch.setattr(local, "SUPERLU_BLOCK_ENTRIES", 1)           # blocks of the minimum, 8 columns
+    np.testing.assert_allclose(local._blocked_solve(factor, B), factor.solve(B), rtol=1e-13, atol=0)
