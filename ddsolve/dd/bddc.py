@@ -82,6 +82,7 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     gamma_mask = hat.interface
     schur = DirichletSchur(hat, gamma_mask, cache)
     primal_solver = PrimalConstrainedSolver(hat, hat.vertex, cache)
+    primal_solver.assemble_basis()                      # in the setup, not in the first solve
     iface = InterfaceMap(hat, gamma_mask)
     scatter, gather, delta_g, n_g = iface.scatter, iface.gather, iface.delta, iface.n
     def S_hat(u_g: np.ndarray) -> np.ndarray:

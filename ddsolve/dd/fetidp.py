@@ -44,6 +44,7 @@ def solve_fetidp(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000,
     dual = hat.interface & ~hat.vertex
     B, B_D = hat.jump_operators(dual)
     primal_solver = PrimalConstrainedSolver(hat, hat.vertex, cache)
+    primal_solver.assemble_basis()                      # in the setup, not in the first solve
     schur = DirichletSchur(hat, hat.interface, cache)
     n_lam = B.shape[0]
 

@@ -280,6 +280,12 @@ class PrimalConstrainedSolver:
             self._psi_global_T = self.Psi_global.T.tocsr()
         return self._psi_global_T
 
+    def assemble_basis(self) -> None:
+        """Build the sparse Psi and Psi^T that :meth:`solve` uses now, in the setup of a method that
+        will solve, rather than in its first solve."""
+        if self.n_primal:
+            self.Psi_global_T
+
     def solve(self, b: np.ndarray) -> np.ndarray:
         """x = A~^{-1} b for a W vector b; primal copies of b are summed (assembled).
 

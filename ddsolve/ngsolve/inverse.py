@@ -105,6 +105,7 @@ class _BDDC:
         self.sub = sub
         self.schur = DirichletSchur(sub, sub.interface, cache)
         self.primal = PrimalConstrainedSolver(sub, sub.vertex, cache)
+        self.primal.assemble_basis()
         ge = np.flatnonzero(sub.interface)
         dofs = sorted_unique(sub.l2g[ge])
         self.n_g = dofs.size

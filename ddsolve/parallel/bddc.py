@@ -51,6 +51,7 @@ def solve_bddc_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     cache: dict = {}
     schur = DirichletSchur(sub, sub.interface, cache)
     primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs)
+    primal_solver.assemble_basis()                      # in the setup, not in the first solve
     iface = InterfaceMap(sub, sub.interface)                       # this rank's interface dofs (global ids)
     scatter, gather, delta_g = iface.scatter, iface.gather, iface.delta
     shared, n_interface = prob.pieces["interface"], prob.pieces["n_interface"]    # from rank 0 (distribute_bddc)

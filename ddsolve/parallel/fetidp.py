@@ -158,6 +158,7 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     B, B_D = jump.matrices(sub.w0, sub.n_W)
     shared, n_lam = jump.shared, jump.n_lambda
     primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs)
+    primal_solver.assemble_basis()                      # in the setup, not in the first solve
     schur = DirichletSchur(sub, sub.interface, cache)
     exchange = NeighbourSum(comm, shared)
     F, M = summed_dual_operators(B, B_D, primal_solver.solve, schur.matvec, exchange)
