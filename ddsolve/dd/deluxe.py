@@ -42,6 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from ..scene.scene import unique_row_labels
+
 log = logging.getLogger(__name__)
 
 __all__ = ["DeluxeScaling", "deluxe_scaling"]
@@ -151,7 +153,7 @@ def deluxe_scaling(sub, blocks, dual: np.ndarray, delta: np.ndarray) -> DeluxeSc
     for m in np.unique(count[count >= 2]):
         st = starts[count == m]                             # dofs with m copies: their first entry
         subs = sub.sub_of_W[entries[st[:, None] + np.arange(m)]]     # (n, m), sorted rows
-        glob = np.unique(subs, axis=0, return_inverse=True)[1].ravel()
+        glob = unique_row_labels(subs)
         by_glob = np.lexsort((node[st], glob))             # globs by subdomain set, dofs in node order
         st, glob = st[by_glob], glob[by_glob]
         glob_start = np.flatnonzero(np.r_[True, glob[1:] != glob[:-1]])

@@ -67,6 +67,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
+from ..scene.scene import unique_row_labels
+
 
 @dataclass(frozen=True)
 class Edges:
@@ -201,8 +203,8 @@ def _node_classes(sub, idx: np.ndarray) -> tuple[sp.coo_matrix, np.ndarray, np.n
     for m in np.unique(sizes):
         first = starts[sizes == m]
         subs = sub.sub_of_W[order[first[:, None] + np.arange(m)[None, :]]]        # (k, m), sorted rows
-        _, inverse = np.unique(subs, axis=0, return_inverse=True)
-        set_of_node[node_sorted[first]] = n_sets + inverse.ravel()
+        inverse = unique_row_labels(subs)
+        set_of_node[node_sorted[first]] = n_sets + inverse
         n_sets += int(inverse.max()) + 1
     # connected pieces: candidate nodes of the same set coupled in some subdomain matrix
     Kc = sub.K_W[idx][:, idx].tocoo()

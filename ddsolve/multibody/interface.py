@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd.substructure import Substructures
+from ..scene.scene import unique_row_labels
 
 #: Contact areas of problem (4.32).
 from ..options import CONTACTS  # noqa: E402
@@ -51,8 +52,7 @@ class GlobalInterface:
         self.sub = sub
         size = float(np.ptp(scene.coords, axis=0).max()) or 1.0
         key = np.round(scene.coords / size, 9)
-        _, loc = np.unique(key, axis=0, return_inverse=True)
-        loc = loc.ravel()
+        loc = unique_row_labels(key)
         node_body = np.full(scene.n_nodes, -1)
         node_body[scene.elements.ravel()] = np.repeat(scene.subdomain_body[scene.element_subdomain], scene.elements.shape[1])
         # locations held by more than one body (Dirichlet nodes included: they fix the face geometry)
