@@ -1,6 +1,7 @@
 """The MPI benchmark study (kind mpi, config/mpi.yaml): schema, dry run, and a tiny run under mpiexec."""
 from __future__ import annotations
 
+import json
 import re
 import shutil
 
@@ -65,6 +66,14 @@ def test_tiny_study_runs(workdir):
     assert (contact["ndof"] == 2 * 9 ** 2 - 9).all()                 # two 9 x 9 grids, one side clamped
     assert (contact.loc[contact["ranks"] == 2, "messages_per_iteration"] > 0).all()
     assert table["speedup_vs_serial"].gt(0).all()                    # the serial peer was measured
+    for _, row in table.iterrows():     # P = 2: speed-up against one rank timed in the same job, alternating
+        peer = json.loads((workdir / "results" / "tiny_mpi" / row["method"] / f"P{row['ranks']}.json").read_text())
+        if row["ranks"] == 1:
+            assert "peer" not in peer and row["peer_solve_seconds"] == row["solve_seconds"]
+        else:
+            assert peer["peer"]["iterations"] == row["iterations"] and peer["peer"]["solve_seconds"] > 0
+            assert row["peer_solve_seconds"] == pytest.approx(peer["peer"]["solve_seconds"], rel=1e-12)
+            assert row["speedup_solve"] == pytest.approx(row["peer_solve_seconds"] / row["solve_seconds"], rel=1e-12)
     for peaks, ranks in zip(table["peak_rss_mb"].astype(str), table["ranks"]):   # one peak per rank
         assert len(peaks.split("/")) == ranks and all(float(x) > 0 for x in peaks.split("/"))
     text = (workdir / "reports" / "tiny_mpi" / "mpi.md").read_text()

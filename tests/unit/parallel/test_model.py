@@ -33,3 +33,25 @@ def test_projection_efficiencies_fall_with_the_coarse_problem():
     big = weak[-1]
     assert big["P"] == 10000 and big["t_coarse"] > big["t_comp"]       # the coarse problem is the limit
     assert all(math.isfinite(r["t_iter"]) for r in rows)
+
+
+def _run(P: int, solve: float, **extra) -> dict:
+    """A study JSON (the keys the reports read) of a P-rank contact run."""
+    return {"problem": "contact", "method": "active-set", "n_ranks": P, "ndof": 100, "subdomains": 2,
+            "elements": 4, "iterations": 7, "solve_seconds": solve, "setup_seconds": 1.0,
+            "comm": {"messages_per_iteration": 0.0, "bytes_per_iteration": 0.0, "allreduces_per_iteration": 1.0,
+                     "coarse_seconds": 0.0}, **extra}
+
+
+def test_speed_up_is_against_the_one_rank_run_of_the_same_job():
+    """A P > 1 run with a "peer" (one rank, timed in its job) is compared with that peer, not with the
+    P = 1 job's run; "vs serial" stays against the serial run of the P = 1 job; without a peer, the P = 1 run."""
+    from ddsolve.parallel.model import measured_report
+
+    first = _run(1, 2.0, serial={"solve_seconds": 2.2, "iterations": 7, "load_average": [0.1, 0.2]})
+    rows, text = measured_report([first, _run(2, 1.0, peer={"solve_seconds": 1.8, "iterations": 7,
+                                                             "load_average": [0.3, 0.3]}), _run(3, 0.8)])
+    assert [r["speedup_solve"] for r in rows] == pytest.approx([1.0, 1.8, 2.5])
+    assert [r["peer_solve_seconds"] for r in rows] == pytest.approx([2.0, 1.8, 2.0])
+    assert [r["speedup_vs_serial"] for r in rows] == pytest.approx([1.1, 2.2, 2.75])
+    assert "| 2 | 7 | 1.000 | 1.800 | 1.80 | 2.20 |" in text and "measured in the same job" in text
