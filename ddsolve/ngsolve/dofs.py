@@ -76,6 +76,8 @@ def check_space(fes: Any) -> None:
         raise InputError("fes", f"space {name} ({fes.type}) is not supported; give a scalar H1 space")
     if fes.is_complex:
         raise InputError("fes", "complex H1 spaces are not supported")
+    if int(getattr(fes, "dim", 1)) != 1:
+        raise InputError("fes", f"vector-valued H1 (dim={fes.dim}) is not supported; give a scalar H1 space")
     if fes.mesh.dim not in (2, 3):
         raise InputError("fes", f"only 2D and 3D meshes are supported, got a {fes.mesh.dim}D mesh")
 
@@ -252,7 +254,8 @@ def _converted_dofs(fes: Any) -> np.ndarray:
     fesd = ngsolve.Discontinuous(fes)
     ne = fes.mesh.ne
     if ne == 0 or fesd.ndof % ne:
-        raise InputError("fes", "elements with different numbers of dofs are not supported")
+        raise InputError("fes", "elements with different numbers of dofs are not supported (a space with "
+                                "definedon= or with orders varying by element)")
     C = ngsolve.comp.ConvertOperator(fes, fesd)
     r, c, v = C.COO()
     r, c, v = np.asarray(r), np.asarray(c), np.asarray(v)
@@ -290,7 +293,8 @@ def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = 
     vals, cols, ptr = (np.asarray(x) for x in ad.mat.CSR())     # views, no copy
     width = n_local * n_local
     if vals.size != ne * width:
-        raise InputError("a", "unexpected sparsity of the broken element matrices")
+        raise InputError("a", "the volume (dx) terms do not give one full matrix per element (a form without a "
+                              "dx term, or one defined on some materials only, is not supported)")
     # dofs of element e are e*n_local .. (e+1)*n_local - 1: every row holds its element's block, columns sorted
     expected = (np.arange(ne)[:, None, None] * n_local + np.arange(n_local)).astype(cols.dtype)
     if np.array_equal(ptr, np.arange(ne * n_local + 1) * n_local) and np.array_equal(cols.reshape(ne, n_local, n_local), np.broadcast_to(expected, (ne, n_local, n_local))):
@@ -300,13 +304,26 @@ def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = 
     return v[order].reshape(ne, n_local, n_local).copy()
 
 
-def is_symmetric(Ke: np.ndarray, n_check: int = 32, tol: float = 1e-10) -> bool:
-    """Whether a sample of element matrices equals its transpose (relative tolerance ``tol``)."""
-    idx = np.unique(np.linspace(0, Ke.shape[0] - 1, min(Ke.shape[0], n_check)).astype(np.int64))
-    K = Ke[idx]
-    scale = np.abs(K).max(axis=(1, 2)) + 1e-300
-    asym = np.abs(K - K.transpose(0, 2, 1)).max(axis=(1, 2))
-    return bool(np.all(asym <= tol * scale))
+def is_symmetric(Ke: np.ndarray, tol: float = 1e-10, chunk: int = 4096) -> bool:
+    """Whether every element matrix equals its transpose (relative tolerance ``tol`` of its largest entry).
+
+    All of them are read, ``chunk`` elements at a time (a form that is non-symmetric on a few
+    elements only, or only through a ``ds`` term added to the elements it bounds, is found too):
+    one pass over ``Ke`` in cache-sized chunks (2M P1 triangles: 0.04 s).
+
+    Parameters
+    ----------
+    Ke : ndarray, shape (n_elements, n_local, n_local)
+    """
+    rows, cols = np.triu_indices(Ke.shape[1], 1)
+    diagonal = np.arange(Ke.shape[1])
+    for start in range(0, Ke.shape[0], chunk):
+        K = Ke[start:start + chunk]
+        upper, lower = K[:, rows, cols], K[:, cols, rows]
+        scale = np.maximum(np.abs(upper).max(axis=1, initial=0.0), np.abs(K[:, diagonal, diagonal]).max(axis=1))
+        if np.any(np.abs(upper - lower).max(axis=1, initial=0.0) > tol * scale + 1e-300):
+            return False
+    return True
 
 
 def split_integrators(a: Any, fes: Any) -> tuple[list, list]:
@@ -316,19 +333,38 @@ def split_integrators(a: Any, fes: Any) -> tuple[list, list]:
     an integrator is a boundary one when its assembly on the boundary-only
     space ``H1(mesh, definedon=mesh.Boundaries(".*"))`` (no volume elements,
     so cheap) is not zero.
+
+    Raises
+    ------
+    InputError
+        An integrator on the co-dimension 2 or 3 regions (``DifferentialSymbol(BBND)``:
+        points in 2D, edges in 3D), found the same way on spaces defined there only.
+        Broken element matrices would drop it, and the solve would answer another problem.
     """
     import ngsolve
 
     mesh = fes.mesh
-    fb = ngsolve.H1(mesh, order=int(fes.globalorder), definedon=mesh.Boundaries(".*"))
-    volume, boundary = [], []
-    for integ in a.integrators:
-        ab = ngsolve.BilinearForm(fb, check_unused=False)
+    order = int(fes.globalorder)
+
+    def nonzero_on(space: Any, integ: Any) -> bool:
+        ab = ngsolve.BilinearForm(space, check_unused=False)
         with _expected_proxy_notice():
             ab += integ
         ab.Assemble()
         values = np.asarray(ab.mat.COO()[2])
-        (boundary if values.size and np.abs(values).max() > 0 else volume).append(integ)
+        return bool(values.size and np.abs(values).max() > 0)
+
+    fb = ngsolve.H1(mesh, order=order, definedon=mesh.Boundaries(".*"))
+    # spaces on the co-dimension 2 (points in 2D, edges in 3D) and 3 regions only: a dx or ds term
+    # assembles to zero there, a term on those regions (DifferentialSymbol(BBND)) does not
+    lower = [ngsolve.H1(mesh, order=order, definedon=region(".*"))
+             for region in (mesh.BBoundaries, getattr(mesh, "BBBoundaries", None)) if region is not None]
+    volume, boundary = [], []
+    for k, integ in enumerate(a.integrators):
+        if any(space.ndof and nonzero_on(space, integ) for space in lower):
+            raise InputError("a", f"integrator {k} lives on points or edges of the mesh (DifferentialSymbol(BBND) "
+                                  "or BBBND); only dx and ds terms are supported")
+        (boundary if nonzero_on(fb, integ) else volume).append(integ)
     return volume, boundary
 
 
