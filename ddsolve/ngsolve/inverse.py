@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
 from typing import Any
 
@@ -67,29 +68,34 @@ def _check_vector(name: str, v: np.ndarray, ndof: int) -> np.ndarray:
     v = np.asarray(v)
     if v.shape != (ndof,):
         raise InputError(name, f"expected a vector of {ndof} entries (the space's ndof), got shape {v.shape}")
+    if np.iscomplexobj(v):
+        raise InputError(name, "complex vectors are not supported (the form and its space are real)")
     return v
 
 
 def _check_not_singular(Ke: np.ndarray, T: np.ndarray, free: np.ndarray, nv: int) -> None:
-    """Refuse a form that annihilates the constants when no dof is fixed (a pure Neumann problem).
+    """Refuse a form that annihilates the constants when no vertex dof is fixed (a pure Neumann problem).
 
     In NGSolve's hierarchical H1 basis the constant 1 is 1 on the vertex dofs
-    (``dof < nv``) and 0 on the edge, face and bubble dofs. With every dof free
-    and A c = 0 the assembled matrix is singular; the substructuring solvers
-    would then fail in one of several ways (a singular coarse or projection
-    factorization, a PCG breakdown), so one ``InputError`` names ``a`` instead.
+    (``dof < nv``) and 0 on the edge, face and bubble dofs. With every vertex dof
+    free (fixing only edge, face or bubble dofs, e.g. ``freedofs=fes.FreeDofs(True)``,
+    keeps the constant) and A c = 0 the constrained matrix is singular; the
+    substructuring solvers would then fail in one of several ways (a singular
+    coarse or projection factorization, a PCG breakdown, or a huge u that the
+    final residual check of :meth:`DDInverse.solve` flags), so one
+    ``InputError`` names ``a`` instead.
 
     Ke : (n_elements, n_local, n_local) element matrices (``ds`` terms added);
     T : (n_elements, n_local) element-to-dof table; free : (ndof,) bool.
     """
-    if not free.all():
+    if not free[:nv].all():
         return
     c = (T < nv).astype(float)
     Ac = np.bincount(T.ravel(), weights=np.einsum("eij,ej->ei", Ke, c).ravel(), minlength=free.size)
     diag = np.einsum("eii->ei", Ke)
     if np.abs(Ac).max() <= 1e-10 * np.abs(diag).max():
-        raise InputError("a", "the form is singular: it annihilates the constants and no dof is fixed (a pure "
-                              "Neumann problem); give Dirichlet boundaries, freedofs, or a reaction or Robin term")
+        raise InputError("a", "the form is singular: it annihilates the constants and no vertex dof is fixed (a "
+                              "pure Neumann problem); give Dirichlet boundaries, freedofs, or a reaction or Robin term")
 
 
 def _no_interface() -> KrylovResult:
@@ -290,6 +296,9 @@ class DDInverse(ngsolve.BaseMatrix):
     Attributes
     ----------
     iterations, residuals, cond, converged, reason : last solve's Krylov data.
+    relative_residual : float
+        ||f - A u|| / ||f|| of the last solve, from the subdomain matrices (one product). The solve
+        is reported not converged when it exceeds sqrt(rtol), whatever the Krylov rule said.
     timings : dict
         Seconds per phase (dof_table, assembly, partition, condense, substructures, setup, solve).
     n_parts : int
@@ -304,6 +313,8 @@ class DDInverse(ngsolve.BaseMatrix):
             raise InputError("a", f"expected an ngsolve.BilinearForm, got {type(a).__name__}")
         fes = a.space if fes is None else fes
         check_space(fes)
+        if not fes.mesh == a.space.mesh:
+            raise InputError("fes", "is on another mesh than the form's space; give a space on the form's mesh or None")
         if fes.ndof != a.space.ndof:        # another order or mesh: the inverse would not be one of a.mat
             raise InputError("fes", f"has {fes.ndof} dofs but the form's space has {a.space.ndof}; give a space "
                                     "of the form's order on the form's mesh (e.g. other dirichlet=) or None")
@@ -318,6 +329,8 @@ class DDInverse(ngsolve.BaseMatrix):
             raise InputError("rtol", f"must be in (0, 1), got {rtol!r}")
         if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
             raise InputError("maxiter", f"must be a positive integer, got {maxiter!r}")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise InputError("seed", f"must be an integer, got {seed!r}")
         if scaling == "deluxe" and method == "feti":
             raise InputError("scaling", "'deluxe' needs method 'bddc' or 'fetidp'")
         dim = int(fes.mesh.dim)
@@ -329,6 +342,7 @@ class DDInverse(ngsolve.BaseMatrix):
         self.cond: float | None = None
         self.converged: bool | None = None
         self.reason = ""
+        self.relative_residual: float | None = None
         self.free = _free_mask(fes, freedofs)
         ndof = fes.ndof
 
@@ -445,8 +459,8 @@ class DDInverse(ngsolve.BaseMatrix):
         self.Mult(x, y)
 
     # ------------------------------------------------------------- solves
-    def _condense_rhs(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Free rhs -> W load (bubbles condensed) and the bubble loads (n_elements, n_b)."""
+    def _condensed(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Free rhs, bubbles condensed, shape (ndof,), and the bubble loads (n_elements, n_b) or None."""
         f = np.where(self.free, f, 0.0)
         c = self.cond_data
         fb = None
@@ -454,8 +468,25 @@ class DDInverse(ngsolve.BaseMatrix):
             fb = f[self.T_b]
             g = np.einsum("ebw,eb->ew", c.E, fb)
             f = f - np.bincount(self.T_w.ravel(), weights=g.ravel(), minlength=f.size)
+        return f, fb
+
+    def _condense_rhs(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Free rhs -> W load (bubbles condensed) and the bubble loads (n_elements, n_b)."""
+        f, fb = self._condensed(f)
         sub = self.sub
         return self.space.to_primal(sub.delta * f[self.h1_of_gdof][sub.l2g]), fb
+
+    def _relative_residual(self, u: np.ndarray, f_condensed: np.ndarray) -> float:
+        """||f - A u|| / ||f|| of the condensed problem (the free non-bubble dofs; the bubbles are exact).
+
+        A u is assembled from the subdomain matrices: sum_i R_i^T K_i R_i u, one product with the
+        block-diagonal K_W, shape (n_W, n_W); the absolute residual when f = 0.
+        """
+        sub = self.sub
+        f_g, u_g = f_condensed[self.h1_of_gdof], u[self.h1_of_gdof]
+        r = np.bincount(sub.l2g, weights=sub.K_W @ u_g[sub.l2g], minlength=f_g.size) - f_g
+        norm_f = float(np.linalg.norm(f_g))
+        return float(np.linalg.norm(r)) / (norm_f if norm_f > 0 else 1.0)
 
     def _expand(self, u_W: np.ndarray, fb: np.ndarray | None) -> np.ndarray:
         u = np.zeros(self.fes.ndof)
@@ -471,7 +502,8 @@ class DDInverse(ngsolve.BaseMatrix):
         """u with A u = f on the free dofs, zero elsewhere; f, u of shape (ndof,)."""
         t = time.perf_counter()
         f = _check_vector("f", f, self.fes.ndof)
-        f_W, fb = self._condense_rhs(f)
+        f_condensed, fb = self._condensed(f)
+        f_W = self.space.to_primal(self.sub.delta * f_condensed[self.h1_of_gdof][self.sub.l2g])
         if self.method == "bddc" or self._bddc.n_g == 0:
             u_W, kr = self._bddc.solve(f_W, self.rtol, self.maxiter, self.want_cond)
         elif self.method == "fetidp":
@@ -480,9 +512,17 @@ class DDInverse(ngsolve.BaseMatrix):
             u_W, kr = self._feti.solve(f_W, self.rtol, self.maxiter, self.want_cond)
         self.iterations, self.residuals, self.cond = kr.iterations, kr.residuals, kr.cond
         self.converged, self.reason = kr.converged, kr.reason
-        if not kr.converged:
-            log.warning("DDInverse: %s", kr.reason)
         u = self._expand(u_W, fb)
+        # never call a wrong answer converged: the Krylov rule measures the interface or dual problem,
+        # so the assembled equations are checked too (a singular or inconsistent problem fails here)
+        self.relative_residual = self._relative_residual(u, f_condensed)
+        if self.converged and not self.relative_residual <= math.sqrt(self.rtol):
+            self.converged = False
+            self.reason = (f"the solution does not satisfy A u = f: relative residual {self.relative_residual:.1e} "
+                           f"> sqrt(rtol) = {math.sqrt(self.rtol):.1e} although the {self.method} iteration met "
+                           f"its rule ({kr.reason}); is the problem singular?")
+        if not self.converged:
+            log.warning("DDInverse: %s", self.reason)
         self.timings["solve"] = time.perf_counter() - t
         return u
 
