@@ -130,7 +130,7 @@ def solve_face_direct(problem: ContactProblem, active: np.ndarray,
     if factorize is None:
         solve = superlu_factorize(A)
     else:
-        if not active.any():
+        if not active.any() and problem.gi.floating_bodies().size:
             # the factorization may not detect the singular matrix (e.g. pivot perturbation)
             raise ValueError("the floating membrane is not tied to the clamped one: empty active set")
         solve = factorize(A)
@@ -145,8 +145,9 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
     """Primal-dual active set method with sparse direct face solves.
 
     Starts from full contact (every pair active). If an update empties the
-    active set (a floating body would be free), the pair with the largest
-    lambda_k + c (B u)_k is kept.
+    active set while a body floats (it would be free), the pair with the largest
+    lambda_k + c (B u)_k is kept; with both bodies clamped the empty set (no
+    contact) is a face like any other.
 
     Parameters
     ----------
@@ -171,6 +172,7 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
     """
     t0 = time.perf_counter()
     c = float(problem.K.diagonal().mean())
+    floats = problem.gi.floating_bodies().size > 0
     active = np.ones(problem.n_contact, dtype=bool)
     seen: set[bytes] = set()
     converged, reason = False, f"active set still changing after {maxiter} updates"
@@ -187,7 +189,7 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
         score = lam + c * problem.gap(u)
         scale = max(float(np.abs(lam).max()), c * float(np.abs(u).max()), 1e-300)
         new = score > 1e-12 * scale
-        if not new.any():
+        if not new.any() and floats:
             new[int(np.argmax(score))] = True
         if np.array_equal(new, active):
             converged, reason = True, f"active set repeated after {it} face solves"

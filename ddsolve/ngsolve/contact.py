@@ -246,7 +246,7 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
             raise InputError("bodies", "with two meshes each mesh is one body; leave bodies out")
         meshes, body_names = tuple(mesh), ["body1", "body2"]
         data, originals = _merge_meshes(meshes, contact)
-        rho_b = [_number("rho", r) for r in _per_body("rho", rho, body_names)]
+        rho_b = _positive_per_body(rho, body_names)
         scene = _assemble_scene(data, np.array([0, 1]), parts=int(parts), dirichlet=dirichlet, contact=contact,
                                 rho=np.repeat(rho_b, int(parts)), f=1.0, seed=seed)
         material = data.material
@@ -260,22 +260,24 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
             body_names = [str(b) for b in bodies]
         if len(body_names) != 2:
             raise InputError("bodies", f"contact needs two bodies (materials), got {body_names}")
-        rho_b = [_number("rho", r) for r in _per_body("rho", rho, body_names)]
+        rho_b = _positive_per_body(rho, body_names)
         scene = scene_from_mesh(mesh.ngmesh, bodies=body_names, dirichlet=dirichlet, contact=contact,
                                 parts=int(parts), rho=np.repeat(rho_b, int(parts)), f=1.0, seed=seed)
         meshes = (mesh, mesh)
         originals = None
         material = np.array([body_names.index(data.material_names[m]) for m in range(len(data.material_names))
                              ])[data.material]
-    if np.any(np.asarray(rho_b) <= 0):
-        raise InputError("rho", f"must be positive, got {rho_b}")
     el_body = scene.subdomain_body[scene.element_subdomain]
     if isinstance(f, (dict, list, tuple)):
         f_b = np.array([_number("f", v) for v in _per_body("f", f, body_names)])
         scene.f = f_b[el_body]
     else:
         scene.f = _load(f)
-    _check_floating(scene, meshes, body_names, el_body, two)
+    floating = _check_floating(scene, meshes, body_names, el_body, two)
+    if method == "smalbe" and floating != [False, True]:
+        raise InputError("method", "'smalbe' (Chapter 6) needs body 1 clamped and body 2 floating, as in (3.1); "
+                                   f"here body 1 {'floats' if floating[0] else 'is clamped'} and body 2 "
+                                   f"{'floats' if floating[1] else 'is clamped'}: use 'active-set' or 'direct'")
     t1 = time.perf_counter()
     prep = prepare(spec, scene=scene)
     t2 = time.perf_counter()
@@ -315,9 +317,20 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
     return result
 
 
+def _positive_per_body(rho: Any, body_names: Sequence[str]) -> list[float]:
+    """One positive coefficient per body (checked before the scene is built, whose check counts subdomains)."""
+    rho_b = [_number("rho", r) for r in _per_body("rho", rho, body_names)]
+    if not all(r > 0 for r in rho_b):
+        raise InputError("rho", f"must be positive, got {rho_b}")
+    return rho_b
+
+
 def _check_floating(scene: Any, meshes: Sequence[Any], body_names: Sequence[str], el_body: np.ndarray,
-                    two: bool) -> None:
-    """A floating body must be pressed onto the other: body 2 by a negative, body 1 by a positive net load."""
+                    two: bool) -> list[bool]:
+    """A floating body must be pressed onto the other: body 2 by a negative, body 1 by a positive net load.
+
+    Returns whether body 1 and body 2 float.
+    """
     from ..scene.unstructured import _element_areas
 
     floating = [not bool(_body_dirichlet(scene, el_body, k).any()) for k in range(2)]
@@ -345,6 +358,7 @@ def _check_floating(scene: Any, meshes: Sequence[Any], body_names: Sequence[str]
             raise InputError("f", f"body {k + 1} ({body_names[k]!r}) floats and needs a load with {want} "
                                   f"integral (got {net:.6g}) to be pressed onto the other body; otherwise "
                                   f"the contact problem has no unique solution")
+    return floating
 
 
 def _body_dirichlet(scene: Any, el_body: np.ndarray, k: int) -> np.ndarray:
