@@ -112,6 +112,10 @@ def test_bad_input():
         contact_solve(mesh, **{**kw, "method": "lu"})
     with pytest.raises(InputError, match="rho: unknown body 'top'"):
         contact_solve(mesh, **{**kw, "rho": {"top": 1.0}})
+    for rho in (-1.0, (1.0, 0.0), {"left": 1.0, "right": float("nan")}):     # per body, not per subdomain
+        with pytest.raises(InputError, match=r"^rho: must be (positive, got \[|finite, got nan)") as info:
+            contact_solve(mesh, **{**kw, "rho": rho, "parts": 4})
+        assert "subdomain" not in str(info.value)
     # contact boundary that is not between the two bodies
     with pytest.raises(InputError, match=r"contact: boundary 'wall' is not a conforming interface .*near \([-0-9.e]+, "):
         contact_solve(mesh, **{**kw, "contact": "wall", "dirichlet": "gap"})
@@ -123,3 +127,38 @@ def test_two_meshes_non_conforming():
         contact_solve((m1, m2), contact="gap", dirichlet="wall", f=-1.0, method="direct", parts=1)
     with pytest.raises(InputError, match="contact: mesh 1 has no boundary named 'seam'"):
         contact_solve((m1, m2), contact="seam", dirichlet="wall", method="direct", parts=1)
+
+
+def _clamped_both(maxh: float):
+    """Two squares, each clamped at its outer side ("wall" at x = 0, "far" at x = 2), touching on "gap"."""
+    left = MoveTo(0, 0).Rectangle(1, 1).Face()
+    left.faces.name = "left"
+    right = MoveTo(1, 0).Rectangle(1, 1).Face()
+    right.faces.name = "right"
+    shape = Glue([left, right])
+    for edge in shape.edges:
+        edge.name = {0.0: "wall", 1.0: "gap", 2.0: "far"}.get(round(edge.center.x, 9), "free")
+    return ngs.Mesh(OCCGeometry(shape, dim=2).GenerateMesh(maxh=maxh))
+
+
+@pytest.mark.parametrize("f, contact", [({"left": -1.0, "right": 1.0}, False), ({"left": -1.0, "right": -2.0}, True)])
+def test_both_bodies_clamped(f, contact):
+    """No floating body: the direct method kept one pair active whatever the loads (review 2026-11-25:
+    converged=False with a negative multiplier where the bodies separate); it now agrees with the active
+    set method, with and without contact. SMALBE (Chapter 6: body 2 floats) refuses the scene."""
+    mesh = _clamped_both(0.1)
+    res = {method: contact_solve(mesh, ("left", "right"), contact="gap", dirichlet="wall|far", f=f,
+                                 method=method, parts=3, rtol=1e-10) for method in ("active-set", "direct")}
+    for r in res.values():
+        assert r.converged, r.reason
+        assert r.kkt_residual <= 1e-8 and r.multipliers.min() >= 0
+        assert r.gap.min() >= -1e-8 * np.abs(r.u).max()
+    assert res["direct"].active.any() == contact
+    np.testing.assert_array_equal(res["direct"].active, res["active-set"].active)
+    e = res["direct"].energy
+    assert abs(res["active-set"].energy - e) <= 1e-9 * abs(e)
+    if not contact:        # the two unconstrained membranes, apart: the gap is positive everywhere
+        assert res["direct"].gap.min() > 0.1 and np.all(res["direct"].multipliers == 0)
+    with pytest.raises(InputError, match=r"^method: 'smalbe' \(Chapter 6\) needs body 1 clamped and body 2 "
+                                         r"floating.*here body 1 is clamped and body 2 is clamped"):
+        contact_solve(mesh, ("left", "right"), contact="gap", dirichlet="wall|far", f=f, method="smalbe")
