@@ -353,3 +353,20 @@ def test_hybrid_multiplier_weight_changes_only_the_stopping_test() -> None:
         assert np.linalg.norm(out.extra["lambda"] - ref.extra["lambda"]) / np.linalg.norm(ref.extra["lambda"]) < 1e-6
     with pytest.raises(ValueError, match="multiplier_weight"):
         hyb.solve(active, multiplier_weight=0.0)
+
+
+@pytest.mark.parametrize("rtol", [0.1, 0.05])
+def test_active_set_at_a_loose_rtol_is_not_called_converged(rtol) -> None:
+    """rtol 0.1 made the sign tests (10 rtol) accept a face with 1 of the 24 active pairs (KKT residual 0.48)
+    and 100 rtol accepted it (review of 2026-11-25); the acceptance limit is capped at 1e-2."""
+    import ddsolve
+    from ddsolve.contact.run import KKT_ACCEPT_CEILING
+
+    loose = ddsolve.solve(ProblemSpec(problem="contact", method="active-set", subdomains=4, elements=8, rtol=rtol))
+    assert loose.extra["kkt_residual"] > KKT_ACCEPT_CEILING
+    assert not loose.converged and loose.reason.startswith("not accepted")
+    assert f"> {KKT_ACCEPT_CEILING:.1e} = min(max(100 rtol, 1e-08), 0.01)" in loose.reason
+    tight = ddsolve.solve(ProblemSpec(problem="contact", method="active-set", subdomains=4, elements=8, rtol=1e-6))
+    direct = ddsolve.solve(ProblemSpec(problem="contact", method="direct", subdomains=4, elements=8))
+    assert tight.converged and tight.extra["kkt_residual"] <= 1e-4
+    assert tight.extra["n_active"] == direct.extra["n_active"] == 24
