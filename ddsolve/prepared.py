@@ -87,7 +87,7 @@ def unstructured_scene_from_spec(spec: ProblemSpec) -> "Scene":
         interface with its location), ``f`` (a contact load that does not press
         Omega^2 onto Omega^1).
     """
-    from .scene.unstructured import _check_contact_load, scene_from_mesh, unstructured_scene
+    from .scene.unstructured import _check_contact_load, floating_bodies, scene_from_mesh, unstructured_scene
 
     kind, value = parse_rho(spec.rho)
     f_kind, f_value = parse_f(spec.f)
@@ -122,6 +122,8 @@ def unstructured_scene_from_spec(spec: ProblemSpec) -> "Scene":
     if contact and (spec.mesh_file or f_kind == "random"):
         loads = scene.f if isinstance(scene.f, np.ndarray) else np.full(scene.elements.shape[0], float(scene.f))
         _check_contact_load(scene, loads)
+    if contact and spec.method == "smalbe":
+        check_smalbe_scene(floating_bodies(scene))
     part = np.arange(scene.n_subdomains) % spec.parts
     if kind == "checkerboard":
         scene.rho = np.where(part % 2 == 1, value, 1.0)
@@ -135,6 +137,20 @@ def unstructured_scene_from_spec(spec: ProblemSpec) -> "Scene":
     else:
         scene.rho = np.full(scene.n_subdomains, value)
     return scene
+
+
+def check_smalbe_scene(floating: list[bool]) -> None:
+    """SMALBE (Chapter 6) solves the setting of (3.1) only: body 1 clamped, body 2 floating.
+
+    Raises
+    ------
+    InputError
+        ``method``, for any other pair of clamped and floating bodies.
+    """
+    if list(floating) != [False, True]:
+        state = " and ".join(f"body {k + 1} {'floats' if f else 'is clamped'}" for k, f in enumerate(floating))
+        raise InputError("method", f"'smalbe' (Chapter 6) needs body 1 clamped and body 2 floating, as in (3.1); "
+                                   f"here {state}: use 'active-set' or 'direct'")
 
 
 def check_decomposition(spec: ProblemSpec) -> None:

@@ -221,7 +221,7 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
         whose load does not press it onto the other, bad numbers.
     """
     from ..contact.run import contact_result_fields, run_contact_method
-    from ..prepared import prepare
+    from ..prepared import check_smalbe_scene, prepare
     from ..presets import solver_options
     from ..scene.unstructured import _assemble_scene, netgen_arrays, scene_from_mesh
     from ..spec import ProblemSpec
@@ -274,10 +274,8 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
     else:
         scene.f = _load(f)
     floating = _check_floating(scene, meshes, body_names, el_body, two)
-    if method == "smalbe" and floating != [False, True]:
-        raise InputError("method", "'smalbe' (Chapter 6) needs body 1 clamped and body 2 floating, as in (3.1); "
-                                   f"here body 1 {'floats' if floating[0] else 'is clamped'} and body 2 "
-                                   f"{'floats' if floating[1] else 'is clamped'}: use 'active-set' or 'direct'")
+    if method == "smalbe":
+        check_smalbe_scene(floating)
     t1 = time.perf_counter()
     prep = prepare(spec, scene=scene)
     t2 = time.perf_counter()
@@ -331,9 +329,9 @@ def _check_floating(scene: Any, meshes: Sequence[Any], body_names: Sequence[str]
 
     Returns whether body 1 and body 2 float.
     """
-    from ..scene.unstructured import _element_areas
+    from ..scene.unstructured import _element_areas, floating_bodies
 
-    floating = [not bool(_body_dirichlet(scene, el_body, k).any()) for k in range(2)]
+    floating = floating_bodies(scene)
     if all(floating):
         raise InputError("dirichlet", "both bodies float (no u = 0 boundary on either); clamp at least one")
     for k in range(2):
@@ -360,10 +358,3 @@ def _check_floating(scene: Any, meshes: Sequence[Any], body_names: Sequence[str]
                                   f"the contact problem has no unique solution")
     return floating
 
-
-def _body_dirichlet(scene: Any, el_body: np.ndarray, k: int) -> np.ndarray:
-    """Dirichlet node copies of body k, shape (n_nodes,) bool."""
-    mask = np.zeros(scene.n_nodes, dtype=bool)
-    nodes = np.unique(scene.elements[el_body == k])
-    mask[nodes] = scene.dirichlet[nodes]
-    return mask

@@ -340,6 +340,10 @@ def split_bodies(data: NetgenData, body_of_material: np.ndarray, *, dirichlet: s
                                         f"one geometry so that their nodes match on the contact line)")
         on = np.isin(key[ia], seg_key)
         ia, ib = ia[on], ib[on]
+    single = np.ones(key.size, dtype=bool)
+    single[shared_a] = False
+    single[shared_b] = False
+    _check_conforming(data.coords, lo[single], hi[single])
     ba, bb = ebody[ia], ebody[ib]
     b1, b2 = np.minimum(ba, bb), np.maximum(ba, bb)
     nodes = np.r_[lo[ia], hi[ia]]
@@ -352,6 +356,40 @@ def split_bodies(data: NetgenData, body_of_material: np.ndarray, *, dirichlet: s
         xy = data.coords[node]
         pairs = pairs[np.lexsort((xy[:, 0], xy[:, 1], p2, p1))]
     return SplitMesh(data.coords[copy_node], new_els, el_body, dirichlet_mask, pairs, adjacent)
+
+
+def _check_conforming(coords: np.ndarray, a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> None:
+    """Refuse a mesh in which a node of a boundary edge lies on another boundary edge.
+
+    ``a``, ``b``: the end nodes of the edges of exactly one element. In a conforming mesh they
+    form the outer boundary and meet only at shared nodes. A node inside another such edge (a
+    hanging node), or on top of another node with another number, means elements that do not
+    share their nodes: two bodies meshed apart along their common side, which would be tied at
+    their coincident corners only and answer another problem. A k-d tree of the edge midpoints
+    finds the candidates: O(m log m) for m boundary edges.
+    """
+    from scipy.spatial import cKDTree
+
+    if a.size == 0:
+        return
+    pa, pb = coords[a], coords[b]
+    d = pb - pa
+    length2 = np.einsum("ij,ij->i", d, d)
+    nodes = sorted_unique(np.r_[a, b])
+    radius = 0.5 * float(np.sqrt(length2.max())) * (1.0 + 1e-6)
+    near = cKDTree(coords[nodes]).sparse_distance_matrix(cKDTree(0.5 * (pa + pb)), radius, output_type="ndarray")
+    i, j = near["i"], near["j"]
+    keep = (nodes[i] != a[j]) & (nodes[i] != b[j])
+    i, j = i[keep], j[keep]
+    p = coords[nodes[i]]
+    t = np.einsum("ij,ij->i", p - pa[j], d[j]) / np.maximum(length2[j], 1e-300)
+    gap = p - (pa[j] + t[:, None] * d[j])
+    on = (np.einsum("ij,ij->i", gap, gap) <= tol ** 2 * length2[j]) & (t > -tol) & (t < 1 + tol)
+    if on.any():
+        x, y = p[np.flatnonzero(on)[0]]
+        count = int(np.unique(nodes[i[on]]).size)
+        raise InputError("mesh", f"the mesh is not conforming near ({x:.6g}, {y:.6g}): {count} boundary node(s) "
+                                 "lie on another boundary edge (hanging nodes, or bodies meshed apart)")
 
 
 def _bc_index(data: NetgenData, name: str, field_name: str) -> list[int]:
@@ -372,6 +410,7 @@ def _assemble_scene(data: NetgenData, body_of_material: np.ndarray, *, parts: in
     n_bodies = int(el_body.max()) + 1
     if np.any(np.bincount(el_body, minlength=n_bodies) == 0):
         raise InputError("bodies", "every body needs at least one element")
+    _check_areas(coords, elements)
     element_subdomain = np.empty(elements.shape[0], dtype=np.int64)
     if n_bodies == 1:
         order, bounds = np.arange(elements.shape[0]), np.array([0, elements.shape[0]])
@@ -400,11 +439,24 @@ def _assemble_scene(data: NetgenData, body_of_material: np.ndarray, *, parts: in
         raise InputError("rho", f"must be positive: a number or one value per subdomain ({n_sub})")
     if isinstance(f, np.ndarray) and f.shape != (elements.shape[0],):
         raise InputError("f", f"an array load needs one value per element ({elements.shape[0]}), got {f.shape}")
+    if contact is not None and pairs.size and dir_mask[pairs].any(axis=1).all():
+        raise InputError("dirichlet", f"every node pair of the contact boundary {contact!r} is a Dirichlet node: "
+                                      "no contact condition is left")
     log.info("unstructured scene: %d nodes, %d triangles, %d bodies x %d parts, %d pairs",
              coords.shape[0], elements.shape[0], n_bodies, parts, pairs.shape[0])
     return Scene(coords=coords, elements=elements.astype(np.int64), element_subdomain=element_subdomain,
                  subdomain_body=np.repeat(np.arange(n_bodies), int(parts)), rho=rho_arr, dirichlet=dir_mask,
                  f=f, contact_pairs=pairs)
+
+
+def _check_areas(coords: np.ndarray, elements: np.ndarray, tol: float = 1e-12) -> None:
+    """Refuse a mesh with a degenerate triangle (area at most ``tol`` times the mean area): its element
+    matrix is singular or infinite, and every solver would fail in its own way."""
+    areas = _element_areas(coords, elements)
+    bad = np.flatnonzero(~(areas > tol * areas.mean())) if areas.size else areas
+    if bad.size:
+        x, y = coords[elements[bad[0]]].mean(axis=0)
+        raise InputError("mesh", f"{bad.size} degenerate triangle(s) of zero area, the first near ({x:.6g}, {y:.6g})")
 
 
 def _element_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
@@ -479,18 +531,36 @@ def unstructured_scene(problem: str = "poisson", *, geometry: str | None = None,
     return scene
 
 
+def floating_bodies(scene: Scene) -> list[bool]:
+    """Whether each body of a contact scene floats (has no Dirichlet node), shape (n_bodies,)."""
+    el_body = scene.subdomain_body[scene.element_subdomain]
+    touches = np.zeros(scene.n_bodies, dtype=bool)
+    node_dirichlet = scene.dirichlet[scene.elements].any(axis=1)          # elements with a Dirichlet node
+    touches[np.unique(el_body[node_dirichlet])] = True
+    return [not bool(t) for t in touches]
+
+
 def _check_contact_load(scene: Scene, loads: np.ndarray) -> None:
-    """The floating membrane must be pressed onto Omega^1 (see :func:`ddsolve.scene.contact.two_membranes`)."""
+    """A floating body must be pressed onto the other (see :func:`ddsolve.scene.contact.two_membranes`).
+
+    Body 2 (Omega^2, above) by a load with negative integral, body 1 by one with a positive
+    integral; a clamped body takes any load. Both bodies floating is refused (``dirichlet``).
+    """
     if not np.all(np.isfinite(loads)):
         raise InputError("f", "must be finite on every element")
-    on2 = scene.subdomain_body[scene.element_subdomain] == 1
-    area = _element_areas(scene.coords, scene.elements)[on2]
-    integral = float(np.sum(loads[on2] * area))
-    magnitude = float(np.sum(np.abs(loads[on2]) * area))
-    if not integral < -NET_LOAD_FLOOR * magnitude:
-        raise InputError("f", f"the floating membrane Omega^2 needs a load with negative integral "
-                              f"(got {integral:.6g}); otherwise it is not pressed onto Omega^1 and (3.1) "
-                              f"has no unique solution")
+    floating = floating_bodies(scene)
+    if all(floating):
+        raise InputError("dirichlet", "both bodies float (no Dirichlet node on either); clamp at least one")
+    el_body = scene.subdomain_body[scene.element_subdomain]
+    areas = _element_areas(scene.coords, scene.elements)
+    for body in np.flatnonzero(floating):
+        on = el_body == body
+        integral = float(np.sum(loads[on] * areas[on]))
+        magnitude = float(np.sum(np.abs(loads[on]) * areas[on]))
+        sign, want, me, other = (-1.0, "negative", 2, 1) if body == 1 else (1.0, "positive", 1, 2)
+        if not sign * integral > NET_LOAD_FLOOR * magnitude:     # else (3.1) has no unique solution
+            raise InputError("f", f"the floating membrane Omega^{me} needs a load with {want} integral (got "
+                                  f"{integral:.6g}) to be pressed onto Omega^{other}")
 
 
 def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
