@@ -335,6 +335,18 @@ def _path_text(field: str, value: Any) -> str:
     return value.strip()
 
 
+def _check_writable(directory: str) -> None:
+    """Refuse an ``output`` whose directory takes no new file (read-only, /proc, no permission) before
+    the solve, not after it: the writer creates a temporary file there and renames it."""
+    import tempfile
+
+    try:
+        with tempfile.NamedTemporaryFile(dir=directory, prefix=".ddsolve-check-", suffix=".tmp"):
+            pass
+    except OSError as exc:
+        raise InputError("output", f"cannot write in directory {brief(directory)}: {exc.strerror or exc}") from None
+
+
 def _names_text(field: str, value: Any, default: str) -> str:
     """Comma-separated names (netgen boundaries or materials), normalised to 'a,b'."""
     value = _plain(value)
@@ -409,6 +421,7 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
             raise InputError("output", f"directory {brief(parent)} does not exist")
         if os.path.isdir(output):
             raise InputError("output", f"{brief(output)} is a directory")
+        _check_writable(parent)
     return dict(mesh=mesh, geometry=geometry, maxh=maxh, refine=refine, parts=parts, mesh_file=mesh_file,
                 dirichlet=dirichlet, contact_boundary=contact_boundary, bodies_materials=bodies_materials,
                 primal=primal, output=output)
