@@ -163,7 +163,8 @@ def _human(summary: dict[str, Any]) -> str:
         lines.append(f"cond ~ {summary['cond']:.4f} (lambda_min {summary['lambda_min']:.4f}, "
                      f"lambda_max {summary['lambda_max']:.4f})")
     if summary["error_vs_direct"] is not None:
-        lines.append(f"relative energy error vs direct: {summary['error_vs_direct']:.3e}")
+        norm = "l2" if summary.get("problem") == "contact" else "energy"       # docs/cli.md, --check
+        lines.append(f"relative {norm} error vs direct: {summary['error_vs_direct']:.3e}")
     lines.append(f"setup {summary['setup_seconds']:.3f} s, solve {summary['solve_seconds']:.3f} s, "
                  f"{summary['n_factorizations']} factorizations")
     return "\n".join(lines)

@@ -311,6 +311,9 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int:
               f"({exc})", file=sys.stderr)
         return 2
     comm = MPI.COMM_WORLD
+    if comm.Get_rank() != 0:        # the ranks run the same algorithm: rank 0 alone logs its warnings (and -v)
+        root = logging.getLogger()
+        root.setLevel(max(root.getEffectiveLevel(), logging.ERROR))
     try:
         result = solve(spec, comm=comm, gather=spec.check)
         if comm.Get_rank() == 0:
