@@ -59,6 +59,36 @@ def _nonconforming_mesh(path: Path) -> Path:
     return path
 
 
+def _squares_mesh(path: Path) -> Path:
+    """Two unit squares glued along x = 1 ("contact"), with outer sides "clampL" (x = 0) and "clampR" (x = 2)."""
+    from netgen.occ import Glue, MoveTo, OCCGeometry
+
+    left, right = MoveTo(0, 0).Rectangle(1, 1).Face(), MoveTo(1, 0).Rectangle(1, 1).Face()
+    left.faces.name, right.faces.name = "left", "right"
+    shape = Glue([left, right])
+    for edge in shape.edges:
+        edge.name = {0.0: "clampL", 1.0: "contact", 2.0: "clampR"}.get(round(edge.center.x, 9), "free")
+    OCCGeometry(shape, dim=2).GenerateMesh(maxh=0.25).Save(str(path))
+    return path
+
+
+def _zero_area_mesh(path: Path) -> Path:
+    """Three triangles of the unit square, one of them degenerate (its vertices on y = 0)."""
+    from netgen.csg import Pnt
+    from netgen.meshing import Element1D, Element2D, FaceDescriptor, Mesh, MeshPoint
+
+    m = Mesh(dim=2)
+    p = [m.Add(MeshPoint(Pnt(x, y, 0))) for x, y in ((0, 0), (1, 0), (1, 1), (0, 1), (0.5, 0))]
+    m.Add(FaceDescriptor(surfnr=1, domin=1, bc=1))
+    m.SetMaterial(1, "body")
+    for tri in ([p[0], p[4], p[2]], [p[0], p[2], p[3]], [p[4], p[1], p[2]], [p[0], p[1], p[4]]):
+        m.Add(Element2D(1, tri))
+    m.Add(Element1D([p[3], p[0]], index=1))
+    m.SetBCName(0, "clamp")
+    m.Save(str(path))
+    return path
+
+
 @pytest.fixture(scope="module")
 def mesh_files(tmp_path_factory):
     from ddsolve.scene.unstructured import mesh_geometry
@@ -67,6 +97,8 @@ def mesh_files(tmp_path_factory):
     mesh_geometry("contact", maxh=0.2).Save(str(root / "membranes.vol"))
     (root / "text.vol").write_text("this is not a mesh\n")
     _nonconforming_mesh(root / "nonconforming.vol")
+    _squares_mesh(root / "squares.vol")
+    _zero_area_mesh(root / "zeroarea.vol")
     return root
 
 
@@ -133,12 +165,56 @@ def test_output_must_be_vtu(capsys, tmp_path, monkeypatch):
       "--bodies-materials", "body0"], "bodies_materials"),                # body1 is in the mesh, not listed
     (["--mesh-file", "membranes.vol", "--maxh", "0.3"], "maxh"),
     (["--problem", "multibody", "--mesh-file", "membranes.vol", "--bodies", "3"], "bodies"),
+    # review of 2026-11-25: scenes a method cannot solve, unbounded problems, broken meshes (they ran and
+    # reported converged=false, or aborted under mpiexec)
+    (["--mesh-file", "squares.vol", "--problem", "contact", "--method", "smalbe", "--dirichlet", "clampL,clampR"],
+     "method"),
+    (["--mesh-file", "squares.vol", "--problem", "contact", "--method", "smalbe", "--dirichlet", "clampR",
+      "--f", "1"], "method"),                                              # body 1 floats, pressed onto body 2
+    (["--mesh-file", "squares.vol", "--problem", "contact", "--dirichlet", "clampR"], "f"),   # pulled away
+    (["--mesh-file", "squares.vol", "--problem", "contact", "--dirichlet", "clampL,contact"], "dirichlet"),
+    (["--mesh-file", "zeroarea.vol", "--dirichlet", "clamp", "--parts", "2"], "mesh_file"),
+    (["--mesh-file", "nonconforming.vol", "--problem", "multibody", "--method", "direct", "--dirichlet", "clamp",
+      "--parts", "1"], "mesh_file"),                   # was tied at the coincident corners only, 'converged'
 ])
 def test_bad_mesh_files(extra, field, mesh_files, capsys, tmp_path, monkeypatch):
     argv = [a if not a.endswith(".vol") else str(mesh_files / a) for a in extra]
     line = refused(U + argv, field, capsys, tmp_path, monkeypatch)
     if field == "contact_boundary" and "nonconforming" in " ".join(argv):
         assert "not a conforming interface" in line and "near (1, 0.5)" in line
+    if "smalbe" in argv:
+        assert "needs body 1 clamped and body 2 floating" in line
+    if "multibody" in argv and "nonconforming" in " ".join(argv):
+        # the corners (1, 0) and (1, 1) are two nodes each, and (1, 0.5) lies inside the left body's side
+        assert "the mesh is not conforming near (1, 0): 5 boundary node(s) lie on another boundary edge" in line
+    if "zeroarea.vol" in " ".join(argv):
+        assert "1 degenerate triangle(s) of zero area, the first near (0.5, 0)" in line
+
+
+def test_both_bodies_clamped_contact(mesh_files):
+    """No floating body: the direct method (which kept one pair active) and the active set method agree, with
+    contact (both pressed together) and without (pulled apart: no active pair, zero multipliers)."""
+    for f, pressed in (("dostal:3,-1", True), ("dostal:-3,1", False)):       # patch loads on body 1, body 2
+        runs = {m: solve(ProblemSpec(problem="contact", method=m, mesh="unstructured", parts=2, f=f,
+                                     mesh_file=str(mesh_files / "squares.vol"), dirichlet="clampL,clampR",
+                                     **({"rtol": 1e-10} if m != "direct" else {})))
+                for m in ("direct", "active-set")}
+        for run in runs.values():
+            assert run.converged, run.reason
+            assert run.extra["kkt_residual"] <= 1e-8
+        assert runs["direct"].extra["n_active"] == runs["active-set"].extra["n_active"]
+        e = runs["direct"].extra["energy"]
+        assert abs(runs["active-set"].extra["energy"] - e) <= 1e-8 * abs(e)
+        assert (runs["direct"].extra["n_active"] > 0) == pressed
+
+
+def test_output_directory_must_take_a_file(capsys, tmp_path, monkeypatch):
+    """A directory that exists but takes no file (/proc) is refused before the solve (was a traceback after it)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["solve", "--output", "/proc/u.vtu"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.splitlines()) == 1
+    assert err.startswith(f"{PREFIX}output: cannot write in directory '/proc'")
 
 
 def test_mesh_file_matches_builtin_contact(mesh_files):

@@ -350,3 +350,17 @@ def test_repair_reads_the_inner_graph_off_the_full_graph():
     assert is_connected_partition(sc.elements, fixed) and not is_connected_partition(sc.elements, label)
     np.testing.assert_array_equal(fixed, repair_partition(label, first, second, 5,
                                                           graph=_adjacency(n, first, second)))
+
+
+def test_check_conforming_finds_hanging_and_duplicate_nodes():
+    """Boundary edges (of one element each) meeting only at shared nodes pass; a node inside another boundary
+    edge, or a second node on top of one, is refused with where it is."""
+    from ddsolve.scene.unstructured import _check_conforming
+
+    coords = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [1, 0.5], [1, 0.0]], dtype=float)
+    square = (np.array([0, 1, 2, 3]), np.array([1, 2, 3, 0]))              # the outer boundary of a square
+    _check_conforming(coords, *square)
+    with pytest.raises(InputError, match=r"^mesh: the mesh is not conforming near \(1, 0.5\): 1 boundary node"):
+        _check_conforming(coords, np.r_[square[0], 1, 4], np.r_[square[1], 4, 2])   # (1, 0.5) hangs on 1-2
+    with pytest.raises(InputError, match=r"^mesh: the mesh is not conforming near \(1, 0\): 2 boundary node"):
+        _check_conforming(coords, np.r_[square[0], 5], np.r_[square[1], 2])          # node 5 on top of node 1
