@@ -164,6 +164,7 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     F, M = summed_dual_operators(B, B_D, primal_solver.solve, schur.matvec, exchange)
     d = exchange.sum(B @ primal_solver.solve(sub.f_W))
     setup = time.perf_counter() - t0
+    mpi_at_setup = comm.counters.seconds          # the solve's MPI time starts here
     n = shared.n
     t1 = time.perf_counter()
     kr, per_iteration = distributed_pcg(linear_operator(n, F), d, comm=comm, owned=shared.owned,
@@ -174,6 +175,7 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     out = MethodOutput(u=u, krylov=kr, nlambda=n_lam,
                        n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
                        setup_seconds=setup, extra={"n_primal": primal_solver.n_primal})
-    info = {"coarse_seconds": primal_solver.coarse_seconds, "krylov_seconds": krylov_seconds,
+    info = {"mpi_at_setup": mpi_at_setup,
+            "coarse_seconds": primal_solver.coarse_seconds, "krylov_seconds": krylov_seconds,
             "per_iteration": per_iteration}
     return out, info

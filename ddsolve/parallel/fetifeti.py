@@ -212,6 +212,7 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
         e = comm.allreduce_sum(R_loc.T @ sub.f_W)
     q = piece["q"] if projection != "orthogonal" else None      # Q of ddsolve.dd.dual.projection_weights
     setup = time.perf_counter() - t0
+    mpi_at_setup = comm.counters.seconds          # the solve's MPI time starts here
     sol = distributed_solve_dual(F, M, d, G, e, q, comm=comm, owned=shared.owned, rtol=rtol, maxiter=maxiter,
                                  cond=cond)
     u_W = primal_solver.solve(sub.f_W - B.T @ sol.lam)
@@ -222,6 +223,7 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
                        n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
                        setup_seconds=setup,
                        extra={"n_floating_bodies": k, "n_active": piece["n_active"]})
-    info = {"coarse_seconds": primal_solver.coarse_seconds + sol.coarse_seconds,
+    info = {"mpi_at_setup": mpi_at_setup,
+            "coarse_seconds": primal_solver.coarse_seconds + sol.coarse_seconds,
             "krylov_seconds": sol.krylov_seconds, "per_iteration": sol.per_iteration}
     return out, info

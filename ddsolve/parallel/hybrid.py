@@ -441,6 +441,7 @@ class DistributedHybrid:
             b = d * b
             xs = None if xs is None else xs / d
         setup = time.perf_counter() - t0
+        mpi_at_setup = self.comm.counters.seconds     # the solve's MPI time starts here
         t1 = time.perf_counter()
         reductions = Reductions(self.comm, owned)
         atol = rtol * _rhs_norm(b, M.matvec, norm, reductions) if rtol_rule == "max" else 0.0
@@ -465,7 +466,7 @@ class DistributedHybrid:
                            setup_seconds=self.setup_seconds + setup,
                            extra={"n_gamma": self.gamma.n_global, "n_floating": int(nf), "n_active": a.n_active,
                                   "constraint_residual": jump, "lambda": lam, "u_gamma": u_g, "s_ol": s_ol})
-        info = {"coarse_seconds": coarse, "krylov_seconds": krylov_seconds,
+        info = {"mpi_at_setup": mpi_at_setup, "coarse_seconds": coarse, "krylov_seconds": krylov_seconds,
                 "per_iteration": counter.per_iteration(kr.iterations)}
         return out, info
 

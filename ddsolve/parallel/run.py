@@ -292,7 +292,9 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         out, info = method(prob, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
                            gather=gather or spec.check, **options)
         total = time.perf_counter() - t1
-        info = {**info, "mpi_seconds": comm.counters.seconds - mpi0}      # includes the method's own setup
+        # time inside MPI calls in the solve phase (after the method's own setup: its first coarse solve waits
+        # there for the slowest rank's setup), so that the spread over ranks is the imbalance of the solve
+        info = {**info, "mpi_seconds": comm.counters.seconds - info.pop("mpi_at_setup", mpi0)}
         result = _result(spec, prob, out, info, prep_seconds + out.setup_seconds, total - out.setup_seconds, comm)
         if result is not None and spec.output:        # rank 0 alone writes, after the timed solve (as serial)
             from types import SimpleNamespace
