@@ -81,6 +81,7 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     f_W = space.to_primal(sub.f_W)
     gamma_mask = hat.interface
     schur = DirichletSchur(hat, gamma_mask, cache)
+    schur.explicit                                      # decided (dense blocks formed) in the setup
     primal_solver = PrimalConstrainedSolver(hat, hat.vertex, cache)
     primal_solver.assemble_basis()                      # in the setup, not in the first solve
     iface = InterfaceMap(hat, gamma_mask)

@@ -50,6 +50,7 @@ def solve_bddc_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     t0 = time.perf_counter()
     cache: dict = {}
     schur = DirichletSchur(sub, sub.interface, cache)
+    schur.explicit                                      # decided (dense blocks formed) in the setup
     primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs)
     primal_solver.assemble_basis()                      # in the setup, not in the first solve
     iface = InterfaceMap(sub, sub.interface)                       # this rank's interface dofs (global ids)

@@ -24,6 +24,7 @@ import scipy.sparse as sp
 
 from ..dd.common import MethodOutput
 from ..dd.dual import dual_operators
+from ..dd.fetidp import dual_solve
 from ..dd.operators import DirichletSchur, linear_operator
 from .coarse import DistributedPrimalSolver
 from .comm import NeighbourSum, SharedIndex, shared_indices
@@ -160,8 +161,9 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs)
     primal_solver.assemble_basis()                      # in the setup, not in the first solve
     schur = DirichletSchur(sub, sub.interface, cache)
+    schur.explicit                                      # decided (dense blocks formed) in the setup
     exchange = NeighbourSum(comm, shared)
-    F, M = summed_dual_operators(B, B_D, primal_solver.solve, schur.matvec, exchange)
+    F, M = summed_dual_operators(B, B_D, dual_solve(primal_solver, B), schur.matvec, exchange)
     d = exchange.sum(B @ primal_solver.solve(sub.f_W))
     setup = time.perf_counter() - t0
     mpi_at_setup = comm.counters.seconds          # the solve's MPI time starts here
