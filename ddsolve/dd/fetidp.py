@@ -70,8 +70,9 @@ def dual_solve(primal_solver: PrimalConstrainedSolver, B: sp.csr_matrix) -> Call
     B^T lambda lives on the dual interface entries and B reads only those, so the interior values
     of A~^{-1} B^T lambda are never needed: :meth:`PrimalConstrainedSolver.interface` applies the
     restriction, by dense interface blocks (one GEMM per template group plus the coarse solve)
-    once they pay off (measured on 16 x 16 subdomains, H/h = 64, one process: the solve phase
-    1.56-1.66 s -> 0.88-0.91 s), else by the full solve.
+    once they pay off, else by the full solve. Measured on 16 x 16 subdomains, H/h = 64, one
+    process, three alternating runs: the solve phase 1.56-1.66 s -> 0.88-0.91 s with the blocks
+    still formed in it; 0.17-0.18 s once they are formed here (docs/performance.md).
 
     Parameters
     ----------
