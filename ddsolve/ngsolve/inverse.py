@@ -470,11 +470,15 @@ class DDInverse(ngsolve.BaseMatrix):
             f = f - np.bincount(self.T_w.ravel(), weights=g.ravel(), minlength=f.size)
         return f, fb
 
+    def _primal_load(self, f_condensed: np.ndarray) -> np.ndarray:
+        """The W load (scaled, in the primal space) of a condensed rhs of shape (ndof,)."""
+        sub = self.sub
+        return self.space.to_primal(sub.delta * f_condensed[self.h1_of_gdof][sub.l2g])
+
     def _condense_rhs(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Free rhs -> W load (bubbles condensed) and the bubble loads (n_elements, n_b)."""
         f, fb = self._condensed(f)
-        sub = self.sub
-        return self.space.to_primal(sub.delta * f[self.h1_of_gdof][sub.l2g]), fb
+        return self._primal_load(f), fb
 
     def _relative_residual(self, u: np.ndarray, f_condensed: np.ndarray) -> float:
         """||f - A u|| / ||f|| of the condensed problem (the free non-bubble dofs; the bubbles are exact).
@@ -503,7 +507,7 @@ class DDInverse(ngsolve.BaseMatrix):
         t = time.perf_counter()
         f = _check_vector("f", f, self.fes.ndof)
         f_condensed, fb = self._condensed(f)
-        f_W = self.space.to_primal(self.sub.delta * f_condensed[self.h1_of_gdof][self.sub.l2g])
+        f_W = self._primal_load(f_condensed)
         if self.method == "bddc" or self._bddc.n_g == 0:
             u_W, kr = self._bddc.solve(f_W, self.rtol, self.maxiter, self.want_cond)
         elif self.method == "fetidp":

@@ -175,3 +175,32 @@ def test_blocked_superlu_solve_equals_one_call(monkeypatch, shape):
     np.testing.assert_allclose(K @ X, B, rtol=0, atol=1e-10)
     monkeypatch.setattr(local, "SUPERLU_BLOCK_ENTRIES", 1)           # blocks of the minimum, 8 columns
     np.testing.assert_allclose(local._blocked_solve(factor, B), factor.solve(B), rtol=1e-13, atol=0)
+
+
+@pytest.mark.parametrize("explicit", [True, False])
+@pytest.mark.parametrize("labels", ["structured", "wedges"])
+def test_dual_solve_equals_the_full_solve_on_the_dual_entries(explicit, labels, monkeypatch):
+    """fetidp.dual_solve (A~^{-1} restricted to B's columns, dense blocks or the full solve) gives the
+    full W-level solve's values on the dual entries, and zero elsewhere, for b supported there."""
+    from ddsolve.dd import operators
+    from ddsolve.dd.fetidp import dual_solve
+    from ddsolve.dd.primal import PrimalConstrainedSolver
+
+    if explicit:                         # the pays-off rule takes the blocks at once
+        monkeypatch.setattr(operators, "EXPLICIT_SETUP_MATVECS", 10 ** 6)
+    else:                                # it refuses them (and never switches here)
+        monkeypatch.setattr(operators, "EXPLICIT_SETUP_MATVECS", 0)
+        monkeypatch.setattr(operators, "EXPLICIT_MAX_BLOCK", 0)
+    scene = _scene(4, 6, rho="checkerboard:100")
+    scene = wedges(scene) if labels == "wedges" else scene
+    sub = Substructures(assemble(scene))
+    B, _ = sub.jump_operators(sub.interface & ~sub.vertex)
+    solver = PrimalConstrainedSolver(sub, sub.vertex, {})
+    solve = dual_solve(solver, B.tocsr())
+    mask = np.zeros(sub.n_W, dtype=bool)
+    mask[B.tocsr().indices] = True
+    assert solver.interface(mask).explicit == explicit
+    b = B.T @ np.random.default_rng(2).standard_normal(B.shape[0])
+    x, full = solve(b), solver.solve(b)
+    np.testing.assert_allclose(x[mask], full[mask], rtol=0, atol=1e-11 * np.abs(full).max())
+    assert not x[~mask].any()
