@@ -7,9 +7,12 @@ P_R = I - R_c (R_c^T R_c)^{-1} R_c^T removes the mean on every floating body.
 whose dofs form a contiguous range (the usual numbering: bodies one after
 another) it works on slices, with no gather and no index array.
 
-The sums are accumulated left to right in increasing position, the order of
-``np.bincount``, so serial and distributed results stay bitwise equal
-(``np.cumsum`` is a sequential sum as well; ``np.sum``, pairwise, is not).
+Serial and distributed results stay bitwise equal where a floating body lies on
+one rank: both sum the same entries in the same order by the same deterministic
+rule. With one floating body that rule is numpy's pairwise ``sum`` of a
+contiguous array (about 15x faster than a sequential sum, whose chain of
+dependent additions costs 3.3 ns an entry here: 0.04 s of a 0.96 s active set
+solve); with several, ``np.bincount`` (left to right in increasing position).
 """
 from __future__ import annotations
 
@@ -54,8 +57,8 @@ class FloatingSums:
     def sums(self, u: np.ndarray) -> np.ndarray:
         """R_c^T u over the summed entries, shape (n_float,)."""
         if self._single:
-            part = u[self._sum_pos]
-            return np.cumsum(part)[-1:] if part.size else np.zeros(1)
+            part = np.ascontiguousarray(u[self._sum_pos])
+            return np.array([part.sum()])
         return np.bincount(self._sum_column, weights=u[self._sum_pos], minlength=self.n_float)
 
     def subtract(self, u: np.ndarray, values: np.ndarray) -> np.ndarray:
