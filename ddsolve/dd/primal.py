@@ -182,7 +182,7 @@ class PrimalConstrainedSolver:
             D = sp.diags(keep)
             S_PiPi = D @ S_PiPi @ D + sp.diags(1.0 - keep)
         self.S_PiPi = S_PiPi.tocsc()
-        self.coarse = coarse_factor(self.S_PiPi) if self.n_primal else None
+        self.coarse = self._factor_coarse(self.S_PiPi) if self.n_primal else None
         self.n_factorizations = self.rr.n_new_factorizations + (1 if self.n_primal else 0)
         self._psi_global: sp.csr_matrix | None = None      # Psi as sparse (n_W, n_primal), on first use
         self._psi_global_T: sp.csr_matrix | None = None
@@ -257,6 +257,10 @@ class PrimalConstrainedSolver:
     def _assemble_coarse(self, S_PiPi: sp.csr_matrix) -> sp.csr_matrix:
         """The coarse matrix from the subdomains' contributions (hook: summed over ranks in parallel)."""
         return S_PiPi
+
+    def _factor_coarse(self, S_PiPi: sp.csc_matrix):
+        """The factor of the coarse matrix (hook: a rank factors only the blocks it reads)."""
+        return coarse_factor(S_PiPi)
 
     @property
     def Psi_global(self) -> sp.csr_matrix:

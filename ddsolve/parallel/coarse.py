@@ -9,9 +9,16 @@ Allreduce of n_primal doubles and solved redundantly on every rank. Why
 redundant: the coarse space is small (one dof per cross point), its solve
 costs less than a gather to one rank plus a scatter back (two latency-bound
 messages per application on the critical path), and every rank needs the
-whole u_Pi anyway. The limit of this choice (the allgather and the redundant
-factorization grow with P) is what the performance model of
+u_Pi of its subdomains anyway. The limit of this choice (the allgather and
+the redundant factorization grow with P) is what the performance model of
 :mod:`ddsolve.parallel.model` projects.
+
+Where the coarse matrix falls apart into independent blocks (its connected
+components: one per body in multibody and contact scenes, whose primal
+vertices couple only within their body), a rank factors and solves only the
+blocks holding a coarse dof of its own subdomains (:class:`RestrictedCoarse`).
+Two contact membranes on two ranks: each rank solves its body's block, half
+the coarse problem. With one block (a single body) nothing changes.
 """
 from __future__ import annotations
 
@@ -20,11 +27,13 @@ from collections.abc import Sequence
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from ..dd.operators import PrimalConstrainedSolver
+from ..dd.primal import coarse_factor
 from .comm import CountingComm
 
-__all__ = ["DistributedPrimalSolver", "pinned_vertices"]
+__all__ = ["DistributedPrimalSolver", "RestrictedCoarse", "pinned_vertices"]
 
 
 class DistributedPrimalSolver(PrimalConstrainedSolver):
@@ -84,6 +93,59 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
             S = D @ S @ D + sp.diags(1.0 - keep)
         self.coarse_seconds += time.perf_counter() - t0
         return S
+
+    def _factor_coarse(self, S_PiPi: sp.csc_matrix):
+        """The factor of the blocks of S_PiPi that hold a coarse dof of this rank (see the module docstring)."""
+        touched = np.zeros(self.n_primal, dtype=bool)
+        touched[self.coarse_of_W[self.primal]] = True
+        return RestrictedCoarse.of(S_PiPi, touched)
+
+
+class RestrictedCoarse:
+    """The factor of the diagonal blocks of a block-diagonal coarse matrix that a rank reads.
+
+    Parameters
+    ----------
+    factor : object with ``solve``
+        Factor of ``S[np.ix_(index, index)]``.
+    index : ndarray of int, shape (m,)
+        Sorted coarse dofs of the kept blocks.
+    n : int
+        Size of the coarse problem.
+
+    ``solve(b)`` returns a vector of length n: the solution on ``index`` (each kept block is
+    independent of the others, so these entries are those of the whole solve) and zero elsewhere,
+    entries the rank never reads.
+    """
+
+    def __init__(self, factor, index: np.ndarray, n: int) -> None:
+        self.factor, self.index, self.n = factor, index, n
+
+    @classmethod
+    def of(cls, S: sp.spmatrix, touched: np.ndarray):
+        """The factor of the connected components of S (an undirected graph) that meet ``touched``:
+        :func:`~ddsolve.dd.primal.coarse_factor` of S itself when that is all of them.
+
+        Parameters
+        ----------
+        S : sparse matrix, shape (n, n)
+            Structurally symmetric.
+        touched : ndarray of bool, shape (n,)
+        """
+        n_comp, label = connected_components(S, directed=False)
+        need = np.zeros(n_comp, dtype=bool)
+        need[label[touched]] = True
+        keep = need[label]
+        if keep.all():
+            return coarse_factor(S)
+        index = np.flatnonzero(keep)
+        S = sp.csr_matrix(S)
+        return cls(coarse_factor(S[index][:, index]), index, S.shape[0])
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        x = np.zeros(self.n)
+        x[self.index] = self.factor.solve(b[self.index])
+        return x
 
 
 class _SummedCoarse:
