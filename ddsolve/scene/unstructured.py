@@ -365,8 +365,14 @@ def _check_conforming(coords: np.ndarray, a: np.ndarray, b: np.ndarray, tol: flo
     form the outer boundary and meet only at shared nodes. A node inside another such edge (a
     hanging node), or on top of another node with another number, means elements that do not
     share their nodes: two bodies meshed apart along their common side, which would be tied at
-    their coincident corners only and answer another problem. A k-d tree of the edge midpoints
-    finds the candidates: O(m log m) for m boundary edges.
+    their coincident corners only and answer another problem.
+
+    Candidates: the boundary nodes within half an edge's length of its midpoint. The edges are
+    grouped by the power of two of their length, and each group is one k-d tree query with the
+    radius of its longest edge (at most twice each edge's own), so a strongly graded boundary
+    costs what a uniform one does: O(m log m) for m boundary edges in a mesh of non-overlapping
+    edges. (One radius for all edges, half the longest, made a cluster of 4,000 short edges
+    beside one long edge cost 4.9 s, and 16,000 of them ran out of memory.)
     """
     from scipy.spatial import cKDTree
 
@@ -376,9 +382,19 @@ def _check_conforming(coords: np.ndarray, a: np.ndarray, b: np.ndarray, tol: flo
     d = pb - pa
     length2 = np.einsum("ij,ij->i", d, d)
     nodes = sorted_unique(np.r_[a, b])
-    radius = 0.5 * float(np.sqrt(length2.max())) * (1.0 + 1e-6)
-    near = cKDTree(coords[nodes]).sparse_distance_matrix(cKDTree(0.5 * (pa + pb)), radius, output_type="ndarray")
-    i, j = near["i"], near["j"]
+    node_tree = cKDTree(coords[nodes])
+    mid = 0.5 * (pa + pb)
+    # half length < 2**e: group by e (a zero-length edge: radius of the smallest double, coincident nodes)
+    _, exponent = np.frexp(np.maximum(0.5 * np.sqrt(length2), np.finfo(float).tiny))
+    order = np.argsort(exponent, kind="stable")
+    bounds = np.flatnonzero(np.diff(exponent[order])) + 1
+    found_i, found_j = [], []
+    for group in np.split(order, bounds):
+        radius = float(np.ldexp(1.0, int(exponent[group[0]]))) * (1.0 + 1e-6)
+        near = node_tree.sparse_distance_matrix(cKDTree(mid[group]), radius, output_type="ndarray")
+        found_i.append(near["i"])
+        found_j.append(group[near["j"]])
+    i, j = np.concatenate(found_i), np.concatenate(found_j)
     keep = (nodes[i] != a[j]) & (nodes[i] != b[j])
     i, j = i[keep], j[keep]
     p = coords[nodes[i]]

@@ -364,3 +364,42 @@ def test_check_conforming_finds_hanging_and_duplicate_nodes():
         _check_conforming(coords, np.r_[square[0], 1, 4], np.r_[square[1], 4, 2])   # (1, 0.5) hangs on 1-2
     with pytest.raises(InputError, match=r"^mesh: the mesh is not conforming near \(1, 0\): 2 boundary node"):
         _check_conforming(coords, np.r_[square[0], 5], np.r_[square[1], 2])          # node 5 on top of node 1
+
+
+def _graded_square(n_fine: int):
+    """The unit square's boundary: the bottom side's first 1/100 in n_fine edges, then one edge to (1, 0)."""
+    xs = np.linspace(0.0, 0.01, n_fine + 1)
+    coords = np.r_[np.c_[xs, np.zeros_like(xs)], [[1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]]
+    a = np.arange(coords.shape[0])
+    return coords, a, (a + 1) % a.size
+
+
+def test_check_conforming_on_a_graded_boundary(monkeypatch):
+    """Edges of very different lengths: the candidates stay O(m) (one radius for all, half the longest
+    edge, gave every fine node every fine edge: about m^2 pairs, out of memory at 16,000), and hanging
+    nodes are still found both among the short edges and on the long one."""
+    import scipy.spatial
+
+    from ddsolve.scene.unstructured import _check_conforming
+
+    pairs = []
+
+    class Counted(scipy.spatial.cKDTree):
+        def sparse_distance_matrix(self, other, r, **kw):
+            out = super().sparse_distance_matrix(other, r, **kw)
+            pairs.append(out.size)
+            return out
+
+    monkeypatch.setattr(scipy.spatial, "cKDTree", Counted)
+    n_fine = 2000
+    coords, a, b = _graded_square(n_fine)
+    _check_conforming(coords, a, b)
+    assert sum(pairs) <= 4 * a.size                         # was about n_fine^2 / 2 = 2e6
+    x = 0.5 * (coords[10, 0] + coords[11, 0])                                     # inside fine edge 10-11
+    hang_fine = np.r_[coords, [[x, 0.0], [x, 5e-6]]]
+    k = coords.shape[0]
+    with pytest.raises(InputError, match=r"not conforming near \(5.25e-05, 0\): 1 boundary node"):
+        _check_conforming(hang_fine, np.r_[a, k, k + 1], np.r_[b, k + 1, 10])      # k -> k + 1 -> 10
+    hang_long = np.r_[coords, [[0.5, 0.0], [0.5, 0.5]]]                              # inside the long edge
+    with pytest.raises(InputError, match=r"not conforming near \(0.5, 0\): 1 boundary node"):
+        _check_conforming(hang_long, np.r_[a, k, k + 1], np.r_[b, k + 1, n_fine + 2])   # k -> k + 1 -> (1, 1)
