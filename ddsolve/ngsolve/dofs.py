@@ -288,7 +288,11 @@ def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = 
         except NgException as exc:
             raise InputError("a", f"integrator {k} cannot be assembled element by element on "
                                   f"Discontinuous(fes): {exc}") from None
-    ad.Assemble()
+    try:
+        ad.Assemble()
+    except NgException as exc:          # e.g. a skeleton (interior facet) term, which couples two elements
+        raise InputError("a", f"a term couples elements (dx(skeleton=True)?): not assembled element by element "
+                              f"({exc})") from None
     ne = fes.mesh.ne
     vals, cols, ptr = (np.asarray(x) for x in ad.mat.CSR())     # views, no copy
     width = n_local * n_local

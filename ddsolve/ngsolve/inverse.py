@@ -9,6 +9,7 @@ from typing import Any
 import ngsolve
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from ..dd import Substructures
 from ..dd.deluxe import DeluxeScaling, deluxe_scaling
@@ -73,29 +74,65 @@ def _check_vector(name: str, v: np.ndarray, ndof: int) -> np.ndarray:
     return v
 
 
-def _check_not_singular(Ke: np.ndarray, T: np.ndarray, free: np.ndarray, nv: int) -> None:
-    """Refuse a form that annihilates the constants when no vertex dof is fixed (a pure Neumann problem).
+def _mesh_pieces(part: np.ndarray, graph: tuple[np.ndarray, np.ndarray]) -> tuple[int, np.ndarray]:
+    """The disjoint pieces of the mesh: the number, and the piece of every part, shape (n_parts,).
+
+    The connected components of the graph of the parts (two parts are joined when two of their
+    elements share a facet): one pass over the facet pairs ``graph`` and a graph of P nodes.
+    ``part``: the connected part of every element.
+    """
+    first, second = graph
+    n_parts = int(part.max()) + 1 if part.size else 0
+    cut = part[first] != part[second]
+    joined = sp.csr_matrix((np.ones(int(cut.sum())), (part[first][cut], part[second][cut])), shape=(n_parts, n_parts))
+    return connected_components(joined, directed=False)
+
+
+def _check_not_singular(Ke: np.ndarray, T: np.ndarray, free: np.ndarray, nv: int, part: np.ndarray,
+                        n_pieces: int, piece_of_part: np.ndarray) -> None:
+    """Refuse a form that annihilates the constants on a piece of the mesh with no fixed vertex dof.
 
     In NGSolve's hierarchical H1 basis the constant 1 is 1 on the vertex dofs
-    (``dof < nv``) and 0 on the edge, face and bubble dofs. With every vertex dof
-    free (fixing only edge, face or bubble dofs, e.g. ``freedofs=fes.FreeDofs(True)``,
-    keeps the constant) and A c = 0 the constrained matrix is singular; the
-    substructuring solvers would then fail in one of several ways (a singular
-    coarse or projection factorization, a PCG breakdown, or a huge u that the
-    final residual check of :meth:`DDInverse.solve` flags), so one
-    ``InputError`` names ``a`` instead.
+    (``dof < nv``) and 0 on the edge, face and bubble dofs. On a connected piece of
+    the mesh (:func:`_mesh_pieces`) with every vertex dof free (fixing only edge,
+    face or bubble dofs, e.g. ``freedofs=fes.FreeDofs(True)``, keeps the constant)
+    and A c = 0 there (a pure Neumann problem on that piece: the whole mesh, or one
+    of several disjoint bodies of which only another is clamped) the constrained
+    matrix is singular; the substructuring solvers would then fail in one of
+    several ways (a singular coarse or projection factorization, a PCG breakdown,
+    or a huge u that the final residual check of :meth:`DDInverse.solve` flags),
+    so one ``InputError`` names ``a`` instead. A c is formed only on the pieces
+    whose vertex dofs are all free.
 
     Ke : (n_elements, n_local, n_local) element matrices (``ds`` terms added);
-    T : (n_elements, n_local) element-to-dof table; free : (ndof,) bool.
+    T : (n_elements, n_local) element-to-dof table; free : (ndof,) bool;
+    part : (n_elements,) connected part of every element.
     """
-    if not free[:nv].all():
+    piece = piece_of_part[part]                                   # (n_elements,)
+    vertex = T < nv
+    fixed = np.zeros(n_pieces, dtype=bool)
+    fixed[piece[np.nonzero(vertex & ~free[T])[0]]] = True         # pieces with a fixed vertex dof
+    if fixed.all():
         return
-    c = (T < nv).astype(float)
-    Ac = np.bincount(T.ravel(), weights=np.einsum("eij,ej->ei", Ke, c).ravel(), minlength=free.size)
-    diag = np.einsum("eii->ei", Ke)
-    if np.abs(Ac).max() <= 1e-10 * np.abs(diag).max():
-        raise InputError("a", "the form is singular: it annihilates the constants and no vertex dof is fixed (a "
-                              "pure Neumann problem); give Dirichlet boundaries, freedofs, or a reaction or Robin term")
+    el = np.flatnonzero(~fixed[piece])                            # the elements of the other pieces
+    Ac = np.bincount(T[el].ravel(), weights=np.einsum("eij,ej->ei", Ke[el], vertex[el].astype(float)).ravel(),
+                     minlength=free.size)
+    dofs = T[el].ravel()
+    dof_piece = np.full(free.size, -1)
+    dof_piece[dofs] = np.repeat(piece[el], T.shape[1])
+    scale = np.zeros(n_pieces)                                    # max |diagonal| of each piece
+    np.maximum.at(scale, dof_piece[dofs], np.abs(np.einsum("eii->ei", Ke[el])).ravel())
+    worst = np.zeros(n_pieces)                                    # max |A c| of each piece
+    held = dof_piece >= 0
+    np.maximum.at(worst, dof_piece[held], np.abs(Ac[held]))
+    # a pure Neumann form leaves |A c| at rounding, <= 1e-15 of the largest diagonal entry (measured at orders
+    # 1-6 in 2D, 1-3 in 3D); a reaction term eps u v adds about eps h^2 in 2D, so a threshold of 1e-10 refused
+    # eps = 1e-6 on a 129k-dof P1 mesh (7e-12): 1e-13 refuses only condition numbers of about 1e13 and more
+    singular = ~fixed & (worst <= 1e-13 * scale)
+    if singular.any():
+        where = "the mesh" if n_pieces == 1 else f"{int(singular.sum())} of {n_pieces} disjoint mesh pieces"
+        raise InputError("a", f"the form is singular on {where}: no vertex dof fixed, constants in the kernel "
+                              "(pure Neumann); fix dofs or add a reaction term")
 
 
 def _no_interface() -> KrylovResult:
@@ -279,7 +316,12 @@ class DDInverse(ngsolve.BaseMatrix):
     rtol, maxiter : float, int
         Krylov stopping rule ||r_k|| <= rtol ||r_0|| on the interface / dual problem.
     freedofs : BitArray or array of bool, optional
-        Defaults to ``fes.FreeDofs()``.
+        Defaults to ``fes.FreeDofs()``. A form built with ``condense=True`` (NGSolve's static
+        condensation: ``a.mat`` is the Schur complement on the coupling dofs) is inverted as
+        ``a.mat.Inverse(fes.FreeDofs(True))`` is: the cell-interior (``LOCAL_DOF``) dofs count as
+        free and are eliminated inside, their loads are read as zero and their values returned as
+        zero, so ``DDInverse`` drops into NGSolve's condensation recipe (``harmonic_extension_trans``,
+        the inverse, ``harmonic_extension``, ``inner_solve``).
     cond : bool
         Lanczos condition-number estimate of the preconditioned operator.
     scaling : {"diagonal", "rho", "multiplicity", "deluxe"}
@@ -348,6 +390,15 @@ class DDInverse(ngsolve.BaseMatrix):
         self.relative_residual: float | None = None
         self.scaled_residual: float | None = None
         self.free = _free_mask(fes, freedofs)
+        # the dofs whose loads a solve reads and whose values it returns: the free ones, except for a form
+        # with condense=True, whose a.mat is NGSolve's Schur complement on the coupling dofs; DDInverse
+        # then inverts that (as a.mat.Inverse(fes.FreeDofs(True))): the cell-interior (LOCAL_DOF) dofs are
+        # free inside and eliminated, their loads read as zero and their values returned as zero
+        self.io_free = self.free
+        if a.condense:
+            local = np.array(fes.FreeDofs(False), dtype=bool) & ~np.array(fes.FreeDofs(True), dtype=bool)
+            self.free = self.free | local
+            self.io_free = self.free & ~local
         ndof = fes.ndof
 
         t = time.perf_counter()
@@ -366,8 +417,9 @@ class DDInverse(ngsolve.BaseMatrix):
         t = time.perf_counter()
         graph, boundary = facet_adjacency(V, dim, ndof)     # facet graph, boundary vertex dofs (= vertex numbers)
         part = element_parts(fes.mesh, V, parts, partition, seed=seed, graph=graph)
+        n_pieces, piece_of_part = _mesh_pieces(part, graph)
         self.timings["partition"] = time.perf_counter() - t
-        _check_not_singular(Ke, T, self.free, fes.mesh.nv)     # after the argument checks of the partition
+        _check_not_singular(Ke, T, self.free, fes.mesh.nv, part, n_pieces, piece_of_part)   # after the partition's checks
         t = time.perf_counter()
         self.cond_data = condense(Ke, T, self.free)
         del Ke
@@ -377,6 +429,8 @@ class DDInverse(ngsolve.BaseMatrix):
 
         t = time.perf_counter()
         pm = part_matrices(c.S, self.T_w, part, self.free, ndof, boundary)
+        if n_pieces > 1:     # disjoint pieces of the mesh are bodies: no primal node joins one to another
+            pm.local.scene.n_bodies, pm.local.scene.subdomain_body = n_pieces, piece_of_part.astype(np.int64)
         self.n_parts = pm.n_parts
         sub = Substructures(pm.local, scaling="multiplicity" if scaling == "multiplicity" else "rho",
                             templates=False, primal=primal)
@@ -425,12 +479,14 @@ class DDInverse(ngsolve.BaseMatrix):
         self._feti: _FETI | None = None
         if method == "feti":
             # the constants are 1 on the vertex dofs and 0 on the edge/bubble dofs of a hierarchical basis;
-            # a part floats when its matrix annihilates them (no Dirichlet dof, no reaction or Robin term)
+            # a part floats when it has a free vertex dof and its matrix annihilates them (no fixed vertex
+            # dof, no reaction or Robin term; fixed edge or bubble dofs leave the constants in the kernel)
             vertex_W = pm.node_dof[sub.node_of_W] < fes.mesh.nv
             R1 = sub.K_W @ vertex_W.astype(float)
             res = np.bincount(sub.sub_of_W, weights=np.abs(R1), minlength=sub.n_sub)
             scale = np.bincount(sub.sub_of_W, weights=np.abs(sub.K_W.diagonal()), minlength=sub.n_sub)
-            sub.floating_sub = sub.floating_sub & (res <= 1e-10 * scale)
+            has_vertex = np.bincount(sub.sub_of_W, weights=vertex_W, minlength=sub.n_sub) > 0
+            sub.floating_sub = has_vertex & (res <= 1e-10 * scale)
             self._feti = _FETI(sub, self._bddc, vertex_W)
 
     # ----------------------------------------------------------- BaseMatrix
@@ -467,7 +523,7 @@ class DDInverse(ngsolve.BaseMatrix):
     # ------------------------------------------------------------- solves
     def _condensed(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Free rhs, bubbles condensed, shape (ndof,), and the bubble loads (n_elements, n_b) or None."""
-        f = np.where(self.free, f, 0.0)
+        f = np.where(self.io_free, f, 0.0)
         c = self.cond_data
         fb = None
         if c.b.size:
@@ -518,7 +574,7 @@ class DDInverse(ngsolve.BaseMatrix):
             uw = u[self.T_w]
             ub = np.einsum("ebc,ec->eb", c.Kbb_inv, fb) - np.einsum("ebw,ew->eb", c.E, uw)
             u[self.T_b] = ub
-        return np.where(self.free, u, 0.0)
+        return np.where(self.io_free, u, 0.0)
 
     def solve(self, f: np.ndarray) -> np.ndarray:
         """u with A u = f on the free dofs, zero elsewhere; f, u of shape (ndof,)."""

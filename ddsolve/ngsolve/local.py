@@ -81,7 +81,7 @@ def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: in
             raise InputError("parts", f"must be a positive integer, got {parts!r}")
         if parts > ne:
             raise InputError("parts", f"{parts} parts requested but the mesh has only {ne} elements")
-        return partition_elements(V, int(parts), seed=seed, field="parts", adjacency=graph)
+        return partition_elements(V, int(parts), seed=seed, field="parts", adjacency=graph, pieces=True)
     if isinstance(partition, str) and partition == "coarse":
         return coarse_partition(mesh, V, parts, seed=seed, graph=graph)
     if isinstance(partition, str):
@@ -94,6 +94,9 @@ def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: in
             raise InputError("partition", f"expected {ne} element labels, got shape {label.shape}")
         if not np.issubdtype(label.dtype, np.integer) or (label.size and label.min() < 0):
             raise InputError("partition", "labels must be non-negative integers")
+        if label.size and label.max() >= ne:
+            raise InputError("partition", f"labels must be 0..P-1 with P parts at most the {ne} elements, got label "
+                                          f"{int(label.max())}")
         counts = np.bincount(label)
         if (counts == 0).any():
             raise InputError("partition", f"{int((counts == 0).sum())} empty parts (labels must be 0..P-1, "

@@ -64,7 +64,8 @@ def _adjacency(n: int, first: np.ndarray, second: np.ndarray) -> sp.csr_matrix:
 
 def partition_elements(elements: np.ndarray, parts: int, *, seed: int = METIS_SEED,
                        field: str = "parts",
-                       adjacency: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                       adjacency: tuple[np.ndarray, np.ndarray] | None = None,
+                       pieces: bool = False) -> np.ndarray:
     """Split the elements of one connected body into ``parts`` connected subdomains.
 
     Parameters
@@ -81,6 +82,11 @@ def partition_elements(elements: np.ndarray, parts: int, *, seed: int = METIS_SE
         The element graph of ``elements`` as pairs (e, f), e < f, in any order
         (:func:`element_graph` when None; :func:`ddsolve.scene.unstructured.split_bodies`
         hands over the one found by its own edge sort).
+    pieces : bool
+        A disconnected body: refused (False), or (True) each connected piece is
+        partitioned on its own into a share of ``parts`` in proportion to its
+        elements, at least one (so the labels may number a little more or less
+        than ``parts``).
 
     Returns
     -------
@@ -91,8 +97,8 @@ def partition_elements(elements: np.ndarray, parts: int, *, seed: int = METIS_SE
     Raises
     ------
     InputError
-        ``parts`` < 1 or above the number of elements; a disconnected body; a
-        METIS partition with empty parts.
+        ``parts`` < 1 or above the number of elements; a disconnected body (unless
+        ``pieces``); a METIS partition with empty parts.
     """
     n_el = int(np.shape(elements)[0])
     if isinstance(parts, bool) or int(parts) != parts or parts < 1:
@@ -103,10 +109,12 @@ def partition_elements(elements: np.ndarray, parts: int, *, seed: int = METIS_SE
                                 f"use fewer parts or a finer mesh (smaller maxh, more refine)")
     first, second = element_graph(elements) if adjacency is None else adjacency
     graph = _adjacency(n_el, first, second)
-    n_comp, _ = connected_components(graph, directed=False)
+    n_comp, comp = connected_components(graph, directed=False)
     if n_comp > 1:
-        raise InputError("mesh", f"a body of {n_el} elements is not connected ({n_comp} pieces); "
-                                 f"give each piece its own material")
+        if not pieces:
+            raise InputError("mesh", f"a body of {n_el} elements is not connected ({n_comp} pieces); "
+                                     f"give each piece its own material")
+        return _partition_pieces(elements, parts, comp, n_comp, first, second, seed=seed, field=field)
     if parts == 1:
         return np.zeros(n_el, dtype=np.int64)
     import pymetis
@@ -120,6 +128,34 @@ def partition_elements(elements: np.ndarray, parts: int, *, seed: int = METIS_SE
     if np.any(counts == 0):
         raise InputError(field, f"METIS left {int(np.sum(counts == 0))} of {parts} subdomains empty on a body of "
                                 f"{n_el} elements; use fewer parts or a finer mesh")
+    return label
+
+
+def _partition_pieces(elements: np.ndarray, parts: int, comp: np.ndarray, n_comp: int, first: np.ndarray,
+                      second: np.ndarray, *, seed: int, field: str) -> np.ndarray:
+    """:func:`partition_elements` of every connected piece (``comp``: piece of each element) on its own.
+
+    Piece k gets max(1, round(parts n_k / n)) parts (at most its n_k elements); the pairs are
+    sorted by piece once, so the cost is one METIS call per piece with more than one part.
+    """
+    n_el = comp.size
+    size = np.bincount(comp, minlength=n_comp)
+    share = np.minimum(np.maximum(1, np.rint(parts * size / n_el).astype(np.int64)), size)
+    offset = np.concatenate([[0], np.cumsum(share)])
+    label = offset[comp].astype(np.int64)                  # pieces of one part: their offset
+    position = np.zeros(n_el, dtype=np.int64)              # index of an element within its piece
+    by_piece = np.argsort(comp, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(size)])
+    position[by_piece] = np.arange(n_el) - np.repeat(starts[:-1], size)
+    pair_piece = comp[first]
+    pair_order = np.argsort(pair_piece, kind="stable")
+    pair_bounds = np.searchsorted(pair_piece[pair_order], np.arange(n_comp + 1))
+    for k in np.flatnonzero(share > 1):
+        members = by_piece[starts[k]:starts[k + 1]]
+        pairs = pair_order[pair_bounds[k]:pair_bounds[k + 1]]
+        sub = partition_elements(elements[members], int(share[k]), seed=seed, field=field,
+                                 adjacency=(position[first[pairs]], position[second[pairs]]))
+        label[members] += sub
     return label
 
 
