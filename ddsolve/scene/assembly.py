@@ -197,7 +197,10 @@ def assemble(scene: Scene) -> LocalProblems:
         ``scene.f`` is a number, or a callable ``f(x, y)`` that receives
         NGSolve's coordinate functions and returns a CoefficientFunction (so it
         may use ``ngsolve.IfPos`` etc.), or an ndarray of shape (n_elements,)
-        of element-wise constant loads.
+        of element-wise constant loads; on a P1 scene also an ndarray of shape
+        (n_elements, 3), the element load vectors int_e f phi_j in the vertex
+        order of ``scene.elements`` (:func:`ddsolve.ngsolve.contact.contact_solve`
+        integrates a user's CoefficientFunction on the user's mesh).
 
     Returns
     -------
@@ -267,6 +270,8 @@ def _loads(scene: Scene, mesh: Any, fes: Any, order: np.ndarray, offsets: np.nda
 
     n_sub = scene.n_subdomains
     v = fes.TestFunction()
+    if isinstance(scene.f, np.ndarray) and scene.f.ndim != 1:
+        raise ValueError(f"scene.f of shape {scene.f.shape}: element load vectors are for P1 scenes only")
     if isinstance(scene.f, np.ndarray):
         l2 = ngs.L2(mesh, order=0)
         gf = ngs.GridFunction(l2)
@@ -313,7 +318,12 @@ def _assemble_p1(scene: Scene) -> LocalProblems:
     a.Assemble()
     A = _csr(a.mat, (fes.ndof, fes.ndof))
     stiffness = [diagonal_block(A, offsets[s], offsets[s + 1]) for s in range(n_sub)]
-    loads = _loads(scene, mesh, fes, order, offsets)
+    if isinstance(scene.f, np.ndarray) and scene.f.ndim == 2:      # element load vectors, given
+        fvec = np.bincount(broken.ravel(), weights=np.asarray(scene.f, dtype=float)[order].ravel(),
+                           minlength=fes.ndof)
+        loads = [fvec[offsets[s]:offsets[s + 1]] for s in range(n_sub)]
+    else:
+        loads = _loads(scene, mesh, fes, order, offsets)
     log.info("assembled %d P1 subdomains (%d broken dofs)", n_sub, fes.ndof)
     return LocalProblems(scene=scene, nodes=nodes, template=np.arange(n_sub), stiffness=stiffness, loads=loads)
 

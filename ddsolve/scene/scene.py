@@ -89,8 +89,10 @@ class Scene:
         Positive coefficient of each subdomain.
     dirichlet : ndarray of bool, shape (n_nodes,)
         True where u = 0 is imposed.
-    f : float or callable
-        Right-hand side of -div(rho grad u) = f (a number or ``f(x, y)``).
+    f : float, callable or ndarray
+        Right-hand side of -div(rho grad u) = f: a number, ``f(x, y)``, element-wise
+        constants of shape (n_elements,), or (P1 scenes) the element load vectors of
+        shape (n_elements, 3) (:func:`ddsolve.scene.assembly.assemble`).
     subdomain_grid : ndarray of int, shape (n_subdomains, 2), optional
         (column, row) of each subdomain in its body for structured scenes
         (used for checkerboard patterns and reporting only).

@@ -339,6 +339,12 @@ def split_bodies(data: NetgenData, body_of_material: np.ndarray, *, dirichlet: s
                                         f"{seg_key.size} segments belong to one body only (mesh the bodies as "
                                         f"one geometry so that their nodes match on the contact line)")
         on = np.isin(key[ia], seg_key)
+        if not on.all():           # the pairs of the contact problem are every location the bodies share
+            k = np.flatnonzero(~on)[0]
+            mid = 0.5 * (data.coords[lo[ia[k]]] + data.coords[hi[ia[k]]])
+            raise InputError("contact", f"the bodies share {int((~on).sum())} edges off {contact!r}, e.g. near "
+                                        f"({mid[0]:.6g}, {mid[1]:.6g}): their whole interface must be the contact "
+                                        f"boundary")
         ia, ib = ia[on], ib[on]
     single = np.ones(key.size, dtype=bool)
     single[shared_a] = False
@@ -458,6 +464,11 @@ def _assemble_scene(data: NetgenData, body_of_material: np.ndarray, *, parts: in
     if contact is not None and pairs.size and dir_mask[pairs].any(axis=1).all():
         raise InputError("dirichlet", f"every node pair of the contact boundary {contact!r} is a Dirichlet node: "
                                       "no contact condition is left")
+    one_sided = np.flatnonzero(dir_mask[pairs].sum(axis=1) == 1) if contact is not None and pairs.size else []
+    if len(one_sided):             # u^1 = 0 would leave the bound u^2 >= 0, a row with one entry: not supported
+        x, y = coords[pairs[one_sided[0], 0]]
+        raise InputError("dirichlet", f"{len(one_sided)} contact vertices are clamped in one body only, e.g. "
+                                      f"({x:.6g}, {y:.6g}): clamp both bodies there or neither")
     log.info("unstructured scene: %d nodes, %d triangles, %d bodies x %d parts, %d pairs",
              coords.shape[0], elements.shape[0], n_bodies, parts, pairs.shape[0])
     return Scene(coords=coords, elements=elements.astype(np.int64), element_subdomain=element_subdomain,
