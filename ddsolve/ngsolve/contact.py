@@ -260,7 +260,7 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
     from ..contact.run import contact_result_fields, run_contact_method
     from ..prepared import check_smalbe_scene, prepare
     from ..presets import solver_options
-    from ..scene.unstructured import _assemble_scene, netgen_arrays, scene_from_mesh
+    from ..scene.unstructured import _assemble_scene, _check_contact_load, netgen_arrays, scene_from_mesh
     from ..spec import ProblemSpec
 
     if method not in CONTACT_METHODS:
@@ -321,7 +321,8 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
             scene.f = _element_loads(f, mesh, data.elements)
     else:
         scene.f = _number("f", f)
-    floating = _check_floating(scene, body_names, el_body)
+    loads = scene.f if isinstance(scene.f, np.ndarray) else np.full(scene.elements.shape[0], float(scene.f))
+    floating = _check_contact_load(scene, loads, body_names)
     if method == "smalbe":
         check_smalbe_scene(floating)
     t1 = time.perf_counter()
@@ -369,35 +370,3 @@ def _positive_per_body(rho: Any, body_names: Sequence[str]) -> list[float]:
     if not all(r > 0 for r in rho_b):
         raise InputError("rho", f"must be positive, got {rho_b}")
     return rho_b
-
-
-def _check_floating(scene: Any, body_names: Sequence[str], el_body: np.ndarray) -> list[bool]:
-    """A floating body must be pressed onto the other: body 2 by a negative, body 1 by a positive net load.
-
-    Returns whether body 1 and body 2 float.
-    """
-    from ..scene.unstructured import _element_areas, floating_bodies
-
-    floating = floating_bodies(scene)
-    if all(floating):
-        raise InputError("dirichlet", "both bodies float (no u = 0 boundary on either); clamp at least one")
-    for k in range(2):
-        if not floating[k]:
-            continue
-        on = el_body == k
-        if isinstance(scene.f, np.ndarray) and scene.f.ndim == 2:      # element load vectors: sum_j = int_e f
-            net, size = float(np.sum(scene.f[on])), float(np.sum(np.abs(scene.f[on])))
-        elif isinstance(scene.f, np.ndarray):
-            net = float(np.sum(scene.f[on] * _element_areas(scene.coords, scene.elements)[on]))
-            size = float(np.sum(np.abs(scene.f[on]) * _element_areas(scene.coords, scene.elements)[on]))
-        else:
-            area = float(_element_areas(scene.coords, scene.elements)[on].sum())
-            net, size = float(scene.f) * area, abs(float(scene.f)) * area
-        sign = -1.0 if k == 1 else 1.0
-        if not sign * net > 1e-10 * size:
-            want = "negative" if k == 1 else "positive"
-            raise InputError("f", f"body {k + 1} ({body_names[k]!r}) floats and needs a load with {want} "
-                                  f"integral (got {net:.6g}) to be pressed onto the other body; otherwise "
-                                  f"the contact problem has no unique solution")
-    return floating
-

@@ -567,27 +567,47 @@ def floating_bodies(scene: Scene) -> list[bool]:
     return [not bool(t) for t in touches]
 
 
-def _check_contact_load(scene: Scene, loads: np.ndarray) -> None:
+def _check_contact_load(scene: Scene, loads: np.ndarray, body_names: Sequence[str] | None = None) -> list[bool]:
     """A floating body must be pressed onto the other (see :func:`ddsolve.scene.contact.two_membranes`).
 
     Body 2 (Omega^2, above) by a load with negative integral, body 1 by one with a positive
     integral; a clamped body takes any load. Both bodies floating is refused (``dirichlet``).
+
+    Parameters
+    ----------
+    scene : Scene
+    loads : ndarray, shape (n_elements,) or (n_elements, 3)
+        Element-wise constant loads, or element load vectors int_e f phi_j (their sum is int_e f).
+    body_names : (str, str), optional
+        Names for the messages (:func:`ddsolve.ngsolve.contact_solve`); else Omega^1, Omega^2.
+
+    Returns
+    -------
+    list of bool
+        Whether body 1 and body 2 float (:func:`floating_bodies`).
     """
     if not np.all(np.isfinite(loads)):
         raise InputError("f", "must be finite on every element")
     floating = floating_bodies(scene)
     if all(floating):
-        raise InputError("dirichlet", "both bodies float (no Dirichlet node on either); clamp at least one")
+        raise InputError("dirichlet", "both bodies float (no u = 0 boundary on either); clamp at least one")
     el_body = scene.subdomain_body[scene.element_subdomain]
-    areas = _element_areas(scene.coords, scene.elements)
+    if loads.ndim == 1:
+        areas = _element_areas(scene.coords, scene.elements)
+        integrals, magnitudes = loads * areas, np.abs(loads) * areas
+    else:
+        integrals, magnitudes = loads.sum(axis=1), np.abs(loads).sum(axis=1)
     for body in np.flatnonzero(floating):
         on = el_body == body
-        integral = float(np.sum(loads[on] * areas[on]))
-        magnitude = float(np.sum(np.abs(loads[on]) * areas[on]))
+        integral, magnitude = float(np.sum(integrals[on])), float(np.sum(magnitudes[on]))
         sign, want, me, other = (-1.0, "negative", 2, 1) if body == 1 else (1.0, "positive", 1, 2)
         if not sign * integral > NET_LOAD_FLOOR * magnitude:     # else (3.1) has no unique solution
-            raise InputError("f", f"the floating membrane Omega^{me} needs a load with {want} integral (got "
-                                  f"{integral:.6g}) to be pressed onto Omega^{other}")
+            if body_names is None:
+                raise InputError("f", f"the floating membrane Omega^{me} needs a load with {want} integral (got "
+                                      f"{integral:.6g}) to be pressed onto Omega^{other}")
+            raise InputError("f", f"body {me} ({body_names[body]!r}) floats and needs a load with {want} integral "
+                                  f"(got {integral:.6g}) to be pressed onto the other body")
+    return floating
 
 
 def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
