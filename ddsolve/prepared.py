@@ -87,7 +87,8 @@ def unstructured_scene_from_spec(spec: ProblemSpec) -> "Scene":
         interface with its location), ``f`` (a contact load that does not press
         Omega^2 onto Omega^1).
     """
-    from .scene.unstructured import _check_contact_load, floating_bodies, scene_from_mesh, unstructured_scene
+    from .scene.contact import check_contact_load, floating_bodies
+    from .scene.unstructured import scene_from_mesh, unstructured_scene
 
     kind, value = parse_rho(spec.rho)
     f_kind, f_value = parse_f(spec.f)
@@ -121,7 +122,7 @@ def unstructured_scene_from_spec(spec: ProblemSpec) -> "Scene":
         scene.f = float(f_value)
     if contact and (spec.mesh_file or f_kind == "random"):
         loads = scene.f if isinstance(scene.f, np.ndarray) else np.full(scene.elements.shape[0], float(scene.f))
-        _check_contact_load(scene, loads)
+        check_contact_load(scene, loads)
     if contact and spec.method == "smalbe":
         check_smalbe_scene(floating_bodies(scene))
     part = np.arange(scene.n_subdomains) % spec.parts

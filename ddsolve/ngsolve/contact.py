@@ -260,7 +260,8 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
     from ..contact.run import contact_result_fields, run_contact_method
     from ..prepared import check_smalbe_scene, prepare
     from ..presets import solver_options
-    from ..scene.unstructured import _assemble_scene, _check_contact_load, netgen_arrays, scene_from_mesh
+    from ..scene.contact import check_contact_load
+    from ..scene.unstructured import _assemble_scene, netgen_arrays, scene_from_mesh
     from ..spec import ProblemSpec
 
     if method not in CONTACT_METHODS:
@@ -322,7 +323,7 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
     else:
         scene.f = _number("f", f)
     loads = scene.f if isinstance(scene.f, np.ndarray) else np.full(scene.elements.shape[0], float(scene.f))
-    floating = _check_contact_load(scene, loads, body_names)
+    floating = check_contact_load(scene, loads, body_names)
     if method == "smalbe":
         check_smalbe_scene(floating)
     t1 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""The two-membrane contact scene of model problem (3.1).
+"""The two-membrane contact scene of model problem (3.1), and the checks of any contact scene.
 
 Omega^1 = (0, 1)^2 is clamped on x = 0; Omega^2 = (1, 2) x (0, 1) floats. Both
 bodies are split into N x N square subdomains (1/H = N) of m x m Q1 elements
@@ -9,10 +9,12 @@ N = m = 4.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ..errors import InputError
-from .scene import Scene
+from .scene import Scene, triangle_areas
 from .structured import body_grid
 
 #: Load patches of the semicoercive benchmark of Dostal et al. (the thesis's
@@ -99,3 +101,55 @@ def two_membranes(subdomains: int, elements: int, *, f: float | np.ndarray | Non
                               f"(or only by a round-off-sized force) and (3.1) has no unique solution")
     scene.f = loads
     return scene
+
+
+def floating_bodies(scene: Scene) -> list[bool]:
+    """Whether each body of a contact scene floats (has no Dirichlet node), shape (n_bodies,)."""
+    el_body = scene.subdomain_body[scene.element_subdomain]
+    touches = np.zeros(scene.n_bodies, dtype=bool)
+    node_dirichlet = scene.dirichlet[scene.elements].any(axis=1)          # elements with a Dirichlet node
+    touches[np.unique(el_body[node_dirichlet])] = True
+    return [not bool(t) for t in touches]
+
+
+def check_contact_load(scene: Scene, loads: np.ndarray, body_names: Sequence[str] | None = None) -> list[bool]:
+    """A floating body must be pressed onto the other (see :func:`ddsolve.scene.contact.two_membranes`).
+
+    Body 2 (Omega^2, above) by a load with negative integral, body 1 by one with a positive
+    integral; a clamped body takes any load. Both bodies floating is refused (``dirichlet``).
+
+    Parameters
+    ----------
+    scene : Scene
+    loads : ndarray, shape (n_elements,) or (n_elements, 3)
+        Element-wise constant loads, or element load vectors int_e f phi_j (their sum is int_e f).
+    body_names : (str, str), optional
+        Names for the messages (:func:`ddsolve.ngsolve.contact_solve`); else Omega^1, Omega^2.
+
+    Returns
+    -------
+    list of bool
+        Whether body 1 and body 2 float (:func:`floating_bodies`).
+    """
+    if not np.all(np.isfinite(loads)):
+        raise InputError("f", "must be finite on every element")
+    floating = floating_bodies(scene)
+    if all(floating):
+        raise InputError("dirichlet", "both bodies float (no u = 0 boundary on either); clamp at least one")
+    el_body = scene.subdomain_body[scene.element_subdomain]
+    if loads.ndim == 1:
+        areas = triangle_areas(scene.coords, scene.elements)
+        integrals, magnitudes = loads * areas, np.abs(loads) * areas
+    else:
+        integrals, magnitudes = loads.sum(axis=1), np.abs(loads).sum(axis=1)
+    for body in np.flatnonzero(floating):
+        on = el_body == body
+        integral, magnitude = float(np.sum(integrals[on])), float(np.sum(magnitudes[on]))
+        sign, want, me, other = (-1.0, "negative", 2, 1) if body == 1 else (1.0, "positive", 1, 2)
+        if not sign * integral > NET_LOAD_FLOOR * magnitude:     # else (3.1) has no unique solution
+            if body_names is None:
+                raise InputError("f", f"the floating membrane Omega^{me} needs a load with {want} integral (got "
+                                      f"{integral:.6g}) to be pressed onto Omega^{other}")
+            raise InputError("f", f"body {me} ({body_names[body]!r}) floats and needs a load with {want} integral "
+                                  f"(got {integral:.6g}) to be pressed onto the other body")
+    return floating

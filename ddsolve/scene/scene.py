@@ -243,3 +243,9 @@ class Scene:
         mask = np.zeros(self.n_nodes, dtype=bool)
         mask[pair_node] = True
         return mask
+
+
+def triangle_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """Areas of the triangles ``elements`` (n_elements, 3) of the points ``coords`` (n_nodes, 2), shape (n_elements,)."""
+    p0, p1, p2 = (coords[elements[:, k]] for k in range(3))
+    return 0.5 * np.abs((p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0]))

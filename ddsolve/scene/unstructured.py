@@ -38,9 +38,9 @@ import numpy as np
 
 from ..errors import InputError
 from ..options import GEOMETRIES  # geometries of each problem (the first is the default)
-from .contact import DOSTAL_LOADS, NET_LOAD_FLOOR, dostal_loads
+from .contact import DOSTAL_LOADS, check_contact_load, dostal_loads
 from .partition import partition_elements
-from .scene import RightHandSide, Scene, sorted_unique
+from .scene import RightHandSide, Scene, sorted_unique, triangle_areas
 from .volfile import check_vol_text
 
 log = logging.getLogger(__name__)
@@ -479,16 +479,11 @@ def _assemble_scene(data: NetgenData, body_of_material: np.ndarray, *, parts: in
 def _check_areas(coords: np.ndarray, elements: np.ndarray, tol: float = 1e-12) -> None:
     """Refuse a mesh with a degenerate triangle (area at most ``tol`` times the mean area): its element
     matrix is singular or infinite, and every solver would fail in its own way."""
-    areas = _element_areas(coords, elements)
+    areas = triangle_areas(coords, elements)
     bad = np.flatnonzero(~(areas > tol * areas.mean())) if areas.size else areas
     if bad.size:
         x, y = coords[elements[bad[0]]].mean(axis=0)
         raise InputError("mesh", f"{bad.size} degenerate triangle(s) of zero area, the first near ({x:.6g}, {y:.6g})")
-
-
-def _element_areas(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    p0, p1, p2 = (coords[elements[:, k]] for k in range(3))
-    return 0.5 * np.abs((p1[:, 0] - p0[:, 0]) * (p2[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (p2[:, 0] - p0[:, 0]))
 
 
 def unstructured_scene(problem: str = "poisson", *, geometry: str | None = None, maxh: float = 0.1,
@@ -547,7 +542,7 @@ def unstructured_scene(problem: str = "poisson", *, geometry: str | None = None,
         if not isinstance(loads, np.ndarray) and not callable(loads):
             loads = np.full(scene.elements.shape[0], float(loads))
         if isinstance(loads, np.ndarray):
-            _check_contact_load(scene, loads)
+            check_contact_load(scene, loads)
         scene.f = loads
     else:
         scene = _assemble_scene(data, body_of_material, parts=parts, dirichlet="boundary", contact=None,
@@ -556,58 +551,6 @@ def unstructured_scene(problem: str = "poisson", *, geometry: str | None = None,
     log.info("unstructured %s/%s: mesh %.3fs split %.3fs partition %.3fs", problem, geometry, t1 - t0,
              LAST_TIMINGS["split"], LAST_TIMINGS["partition"])
     return scene
-
-
-def floating_bodies(scene: Scene) -> list[bool]:
-    """Whether each body of a contact scene floats (has no Dirichlet node), shape (n_bodies,)."""
-    el_body = scene.subdomain_body[scene.element_subdomain]
-    touches = np.zeros(scene.n_bodies, dtype=bool)
-    node_dirichlet = scene.dirichlet[scene.elements].any(axis=1)          # elements with a Dirichlet node
-    touches[np.unique(el_body[node_dirichlet])] = True
-    return [not bool(t) for t in touches]
-
-
-def _check_contact_load(scene: Scene, loads: np.ndarray, body_names: Sequence[str] | None = None) -> list[bool]:
-    """A floating body must be pressed onto the other (see :func:`ddsolve.scene.contact.two_membranes`).
-
-    Body 2 (Omega^2, above) by a load with negative integral, body 1 by one with a positive
-    integral; a clamped body takes any load. Both bodies floating is refused (``dirichlet``).
-
-    Parameters
-    ----------
-    scene : Scene
-    loads : ndarray, shape (n_elements,) or (n_elements, 3)
-        Element-wise constant loads, or element load vectors int_e f phi_j (their sum is int_e f).
-    body_names : (str, str), optional
-        Names for the messages (:func:`ddsolve.ngsolve.contact_solve`); else Omega^1, Omega^2.
-
-    Returns
-    -------
-    list of bool
-        Whether body 1 and body 2 float (:func:`floating_bodies`).
-    """
-    if not np.all(np.isfinite(loads)):
-        raise InputError("f", "must be finite on every element")
-    floating = floating_bodies(scene)
-    if all(floating):
-        raise InputError("dirichlet", "both bodies float (no u = 0 boundary on either); clamp at least one")
-    el_body = scene.subdomain_body[scene.element_subdomain]
-    if loads.ndim == 1:
-        areas = _element_areas(scene.coords, scene.elements)
-        integrals, magnitudes = loads * areas, np.abs(loads) * areas
-    else:
-        integrals, magnitudes = loads.sum(axis=1), np.abs(loads).sum(axis=1)
-    for body in np.flatnonzero(floating):
-        on = el_body == body
-        integral, magnitude = float(np.sum(integrals[on])), float(np.sum(magnitudes[on]))
-        sign, want, me, other = (-1.0, "negative", 2, 1) if body == 1 else (1.0, "positive", 1, 2)
-        if not sign * integral > NET_LOAD_FLOOR * magnitude:     # else (3.1) has no unique solution
-            if body_names is None:
-                raise InputError("f", f"the floating membrane Omega^{me} needs a load with {want} integral (got "
-                                      f"{integral:.6g}) to be pressed onto Omega^{other}")
-            raise InputError("f", f"body {me} ({body_names[body]!r}) floats and needs a load with {want} integral "
-                                  f"(got {integral:.6g}) to be pressed onto the other body")
-    return floating
 
 
 def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
