@@ -89,3 +89,17 @@ def test_lint_is_clean(workdir):
     for args in ((), ("--configfile", "config/quick.yaml")):
         proc = snakemake(workdir, "--lint", *args, check=False)
         assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+@pytest.mark.parametrize("extra", ["", "rho: checkerboard:10\n", "scaling: multiplicity\n", "gamma: 2\n"])
+def test_evidence_reports_only_for_the_thesis_coefficient(workdir, extra):
+    """The contact work-precision report runs its own solves with rho = 1, rho-scaling, gamma = 1: a study with
+    another coefficient or scaling does not make it (its numbers were rho = 1's under the study's name)."""
+    (workdir / "contact.yaml").write_text(
+        "kind: contact\nstudy: evidence\nproblem: contact\nmethods: [active-set, smalbe]\nsubdomains: [2]\n"
+        "elements: [4]\nrtol: 1.0e-6\ncond: false\ncheck: false\nthesis_tables: config/thesis_tables\n"
+        "tables:\n  table_5_1: {method: active-set}\n  table_6_1: {method: smalbe}\n"
+        "figure_5_2: {method: active-set, subdomains: 2, elements: 4}\n" + extra)
+    text = "".join(snakemake(workdir, "-n", "--cores", "1", "--configfile", "contact.yaml").stdout)
+    assert "table_5_1" in text
+    assert ("contact_work_precision" in text) == (extra == "")
