@@ -184,3 +184,23 @@ def test_schema_rejects_bad_config(change):
     config = {"kind": "grid", "study": "s", "methods": ["feti"], "subdomains": [2], "elements": [4], **change}
     with pytest.raises(ConfigError):
         validate(config)
+
+
+def test_label_presets_splits_the_rule_sets():
+    """A grid study with presets [default, thesis] has two runs per case and method: the table refused them
+    (ValueError: several runs for the same case) and the plot fitted both as one; each pair is now a method."""
+    from ddstudies.report.tables import condition_table, label_presets
+
+    df = pd.DataFrame({"method": ["fetidp", "fetidp", "feti", "feti"], "subdomains": [2, 2, 2, 2],
+                       "elements": [4, 4, 4, 4], "preset": ["default", "thesis", "default", "thesis"],
+                       "cond": [1.2, 1.3, 1.6, 1.7], "iterations": [3, 4, 5, 6]})
+    with pytest.raises(ValueError, match="several runs for the same case"):
+        condition_table(df, methods=["fetidp", "feti"])
+    labelled, methods = label_presets(df, ["fetidp", "feti"])
+    assert methods == ["fetidp [default]", "fetidp [thesis]", "feti [default]", "feti [thesis]"]
+    table = condition_table(labelled, methods=methods)
+    assert table.loc[(2, 4), ("feti [thesis]", "iterations")] == 6
+    assert table.loc[(2, 4), ("fetidp [default]", "cond")] == pytest.approx(1.2)
+    one = df[df["preset"] == "default"]
+    same, names = label_presets(one, ["fetidp", "feti"])
+    assert same is one and names == ["fetidp", "feti"]

@@ -6,10 +6,10 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
-    from ddstudies.report.tables import condition_table, describe_constants, to_latex, to_markdown
+    from ddstudies.report.tables import condition_table, describe_constants, label_presets, to_latex, to_markdown
 
-    df = pd.read_csv(snakemake.input[0])  # noqa: F821
-    table = condition_table(df, methods=snakemake.params.methods)  # noqa: F821
+    df, methods = label_presets(pd.read_csv(snakemake.input[0]), snakemake.params.methods)  # noqa: F821
+    table = condition_table(df, methods=methods)
     study = snakemake.wildcards.study  # noqa: F821
     heading = (f"# Study `{study}`: condition number estimates and iterations\n\n"
                f"cond: Lanczos estimate of the condition number; iter: Krylov iterations; "

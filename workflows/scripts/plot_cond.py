@@ -6,9 +6,10 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddstudies.report.plots import plot_cond_vs_Hh
+    from ddstudies.report.tables import label_presets
 
-    df = pd.read_csv(snakemake.input[0])  # noqa: F821
-    fits = plot_cond_vs_Hh(df, snakemake.output[0], methods=snakemake.params.methods,  # noqa: F821
+    df, methods = label_presets(pd.read_csv(snakemake.input[0]), snakemake.params.methods)  # noqa: F821
+    fits = plot_cond_vs_Hh(df, snakemake.output[0], methods=methods,  # noqa: F821
                            title=f"Study {snakemake.wildcards.study}: cond vs H/h")  # noqa: F821
     for (method, ns), (c, r2) in fits.items():
         print(f"{method} 1/H={ns}: C={c:.4g} R2={r2:.4f}")

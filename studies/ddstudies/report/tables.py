@@ -168,6 +168,28 @@ def condition_table(df: pd.DataFrame, *, rows: Sequence[str] = ("subdomains", "e
     return wide
 
 
+def label_presets(df: pd.DataFrame, methods: Sequence[str] | None = None) -> tuple[pd.DataFrame, list[str] | None]:
+    """A summary of several rule sets: each (method, preset) becomes its own method label ``"method [preset]"``.
+
+    A grid study with ``presets: [default, thesis]`` solves every case once per rule set; without this
+    the table refused the pairs (several runs for the same case) and the plot fitted both as one.
+    With one preset (or no ``preset`` column) ``df`` and ``methods`` come back unchanged.
+
+    Returns
+    -------
+    df : DataFrame
+    methods : list of str or None
+        The labels in display order: each method's presets together, in order of appearance.
+    """
+    if "preset" not in df.columns or df["preset"].nunique(dropna=False) <= 1:
+        return df, (list(methods) if methods is not None else None)
+    presets = list(dict.fromkeys(df["preset"].astype(str)))
+    out = df.copy()
+    out["method"] = out["method"].astype(str) + " [" + out["preset"].astype(str) + "]"
+    names = list(methods) if methods is not None else list(dict.fromkeys(df["method"].astype(str)))
+    return out, [f"{m} [{p}]" for m in names for p in presets]
+
+
 def flatten(table: pd.DataFrame, sep: str = "_") -> pd.DataFrame:
     """Wide table -> flat frame: index as columns, ``(method, q)`` as ``method<sep>q``."""
     out = table.copy()
