@@ -39,6 +39,10 @@ def _option(name: str) -> list[Any]:
         from ddsolve.spec import ProblemSpec
 
         return list(ProblemSpec.fields())
+    if name == "FIT_MODELS":   # the fit models of the figures (ddstudies.report.plots)
+        from .report.plots import FIT_MODELS
+
+        return list(FIT_MODELS)
     attr, _, key = name.partition(".")
     value = getattr(options, attr)
     if key:

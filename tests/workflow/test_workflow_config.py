@@ -103,3 +103,12 @@ def test_evidence_reports_only_for_the_thesis_coefficient(workdir, extra):
     text = "".join(snakemake(workdir, "-n", "--cores", "1", "--configfile", "contact.yaml").stdout)
     assert "table_5_1" in text
     assert ("contact_work_precision" in text) == (extra == "")
+
+
+def test_figure_fit_model_is_checked():
+    """An unknown fit model was accepted and failed the figure job (ValueError) after every solve had run."""
+    data = yaml.safe_load((ROOT / "config" / "table_4.yaml").read_text())
+    name = next(n for n, fig in data["figures"].items() if "model" in fig)
+    data["figures"][name]["model"] = "cubic"
+    with pytest.raises(ConfigError, match=rf"figures/{name}/model: 'cubic' is not one of \['linear'"):
+        validate(data, SCHEMA_DIR / "config.schema.yaml")
