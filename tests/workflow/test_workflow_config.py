@@ -112,3 +112,17 @@ def test_figure_fit_model_is_checked():
     data["figures"][name]["model"] = "cubic"
     with pytest.raises(ConfigError, match=rf"figures/{name}/model: 'cubic' is not one of \['linear'"):
         validate(data, SCHEMA_DIR / "config.schema.yaml")
+
+
+@pytest.mark.parametrize("config", [
+    "kind: contact\nstudy: nocond\nproblem: contact\nmethods: [active-set, smalbe]\nsubdomains: [2]\nelements: [4]\n"
+    "check: false\nthesis_tables: config/thesis_tables\ntables:\n  table_5_1: {method: active-set}\n"
+    "  table_6_1: {method: smalbe}\nfigure_5_2: {method: active-set, subdomains: 2, elements: 4}\n",
+    "kind: grid\nstudy: nocond\nmethods: [fetidp, direct]\nsubdomains: [2]\nelements: [2]\n",
+])
+def test_cond_default_applies_to_methods_with_an_estimate(workdir, config):
+    """Leaving cond out (schema default true) refused every contact method and direct ('cond: true does not
+    apply'): a study's cond now asks for the estimates of the methods that have them."""
+    (workdir / "nocond.yaml").write_text(config)
+    out = snakemake(workdir, "-n", "--cores", "1", "--configfile", "nocond.yaml")
+    assert "solve_case" in out.stdout + out.stderr

@@ -25,6 +25,8 @@ CONTACT = KIND == "contact"
 
 #: Config keys shared by every case, passed unchanged to ddsolve.spec.ProblemSpec
 #: (a multibody case overrides `bodies` with its own value and adds `contact`).
+from ddsolve.spec import COND_METHODS  # noqa: E402  (methods with a Lanczos estimate)
+
 SHARED_SPEC_KEYS = ("problem", "bodies", "rho", "f", "scaling", "gamma", "norm", "projection", "rtol", "maxiter",
                     "cond", "check", "preset")
 
@@ -81,9 +83,18 @@ def tag_preset(tag):
     return tag[1:] if tag else "default"
 
 
+def shared_spec(method, exclude=()):
+    """The study's keys of SHARED_SPEC_KEYS for a case of ``method``: a study's ``cond`` (default true) asks
+    for the Lanczos estimates of the methods that have them (COND_METHODS), and the others run without."""
+    spec = {key: config[key] for key in SHARED_SPEC_KEYS if key in config and key not in exclude}
+    if spec.get("cond") and method not in COND_METHODS:
+        del spec["cond"]
+    return spec
+
+
 def case_spec(wildcards):
     """The ProblemSpec mapping of one case (a plain dict: a params value)."""
-    spec = {key: config[key] for key in SHARED_SPEC_KEYS if key in config and key != "preset"}
+    spec = shared_spec(wildcards.method, exclude=("preset",))
     spec.update(method=wildcards.method, subdomains=int(wildcards.subdomains),
                 elements=int(wildcards.elements))
     preset = tag_preset(wildcards.preset_tag)
@@ -139,7 +150,7 @@ def thesis_inputs(entry, default):
 
 def figure_5_2_spec():
     """The ProblemSpec mapping of Figure 5.2: the study's shared keys, the case of `figure_5_2`."""
-    spec = {key: config[key] for key in SHARED_SPEC_KEYS if key in config}
+    spec = shared_spec(config["figure_5_2"]["method"])
     spec.update(problem="contact", bodies=2, **config["figure_5_2"])
     return spec
 
