@@ -126,3 +126,17 @@ def test_cond_default_applies_to_methods_with_an_estimate(workdir, config):
     (workdir / "nocond.yaml").write_text(config)
     out = snakemake(workdir, "-n", "--cores", "1", "--configfile", "nocond.yaml")
     assert "solve_case" in out.stdout + out.stderr
+
+
+@pytest.mark.parametrize(("tables", "message"), [
+    ({"table_5_1": {"method": "smalbe"}}, r"tables/table_5_1/method: 'active-set' was expected"),
+    ({"table_6_1": {"method": "active-set"}}, r"tables/table_6_1/method: 'smalbe' was expected"),
+    ({"table_9": {"method": "smalbe"}}, r"tables: Additional properties are not allowed \('table_9'"),
+])
+def test_contact_tables_are_the_thesis_tables(tables, message):
+    """Table 5.1 is the active set method's and Table 6.1 SMALBE's: a table_5_1 with method smalbe was accepted
+    and rendered as an empty table (its method key was not read), an unknown table failed a job later."""
+    data = yaml.safe_load((ROOT / "config" / "table_5_6.yaml").read_text())
+    data["tables"] = tables
+    with pytest.raises(ConfigError, match=message):
+        validate(data, SCHEMA_DIR / "config.schema.yaml")
