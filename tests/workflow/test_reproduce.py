@@ -88,6 +88,9 @@ def test_default_run_plans_every_report(workdir):
      "names must be unique"),
     ("studies: [{name: a, configfile: config/nothere.yaml}]", "cannot read configfile config/nothere.yaml"),
     ("studies: [{name: 1a, configfile: config/poisson.yaml}]", "does not match"),
+    ("studies: [{name: a, configfile: config/poisson.yaml, set: {study: same}}, "
+     "{name: b, configfile: config/poisson.yaml, set: {study: same, methods: [bddc]}}]",
+     "studies: a and b both write study 'same'"),      # was Snakemake's AmbiguousRuleException
 ])
 def test_bad_study_lists_are_rejected(workdir, studies, message):
     (workdir / "bad.yaml").write_text(studies + "\n")

@@ -33,6 +33,13 @@ def study_config(entry):
 STUDIES = [entry["name"] for entry in config["studies"]]
 if len(set(STUDIES)) != len(STUDIES):
     raise WorkflowError(f"studies: names must be unique, got {STUDIES}")
+_OUTPUT_OF = {}      # two entries with one `study` would write the same results/<study>/ (Snakemake: ambiguous rules)
+for entry in config["studies"]:
+    _study = study_config(entry).get("study")
+    if _study is not None and _study in _OUTPUT_OF:
+        raise WorkflowError(f"studies: {_OUTPUT_OF[_study]} and {entry['name']} both write study {_study!r} "
+                            f"(results/{_study}/); give each entry its own `study`")
+    _OUTPUT_OF[_study] = entry["name"]
 
 for entry in config["studies"]:
     # module <name>: snakefile: "Snakefile"; config: study_config(entry)
