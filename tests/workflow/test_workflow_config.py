@@ -140,3 +140,18 @@ def test_contact_tables_are_the_thesis_tables(tables, message):
     data["tables"] = tables
     with pytest.raises(ConfigError, match=message):
         validate(data, SCHEMA_DIR / "config.schema.yaml")
+
+
+def test_unstructured_methods_per_problem():
+    """Each problem's series takes only its own methods (poisson: active-set was accepted and failed the job
+    with a ValueError); the lists are those of ddstudies.bench.unstructured.METHODS."""
+    from ddstudies.bench.unstructured import METHODS
+
+    schema = load_schema(SCHEMA_DIR / "unstructured.schema.yaml")
+    for problem, methods in METHODS.items():
+        assert schema["properties"]["problems"]["properties"][problem]["properties"]["methods"]["items"]["enum"] \
+            == list(methods)
+    data = {"kind": "unstructured", "problems": {"poisson": {"maxh": 0.2, "refine": [0], "parts": 2,
+                                                             "methods": ["fetidp", "active-set"]}}}
+    with pytest.raises(ConfigError, match=r"problems/poisson/methods/1: 'active-set' is not one of"):
+        validate(data, SCHEMA_DIR / "unstructured.schema.yaml")
