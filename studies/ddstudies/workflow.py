@@ -229,6 +229,7 @@ def check_cases(cases: Iterable[tuple[str, Mapping[str, Any]]], max_memory: floa
     """
     from ddsolve.errors import InputError
     from ddsolve.limits import _human, estimate, parse_size
+    from ddsolve.prepared import check_decomposition
     from ddsolve.spec import ProblemSpec
 
     try:
@@ -239,6 +240,7 @@ def check_cases(cases: Iterable[tuple[str, Mapping[str, Any]]], max_memory: floa
     for label, mapping in cases:
         try:
             spec = ProblemSpec.from_mapping(dict(mapping))
+            check_decomposition(spec)      # what `ddsolve solve` refuses before building the scene
             _contact_load(spec)
         except InputError as err:
             raise ConfigError(f"invalid config: case {label}: {err}") from None

@@ -155,3 +155,14 @@ def test_unstructured_methods_per_problem():
                                                              "methods": ["fetidp", "active-set"]}}}
     with pytest.raises(ConfigError, match=r"problems/poisson/methods/1: 'active-set' is not one of"):
         validate(data, SCHEMA_DIR / "unstructured.schema.yaml")
+
+
+def test_cases_are_checked_as_the_solver_checks_them():
+    """A contact case with one subdomain per body side passed the planning and failed its job with a traceback;
+    check_cases refuses what `ddsolve solve` refuses before building a scene (ddsolve.prepared.check_decomposition)."""
+    from ddstudies.workflow import check_cases
+
+    case = {"problem": "contact", "method": "active-set", "bodies": 2, "subdomains": 1, "elements": 4}
+    with pytest.raises(ConfigError, match=r"^invalid config: case c1: subdomains: method 'active-set' needs at least 2"):
+        check_cases([("c1", case)])
+    assert set(check_cases([("c2", {**case, "subdomains": 2})])) == {"c2"}
