@@ -166,3 +166,18 @@ def test_cases_are_checked_as_the_solver_checks_them():
     with pytest.raises(ConfigError, match=r"^invalid config: case c1: subdomains: method 'active-set' needs at least 2"):
         check_cases([("c1", case)])
     assert set(check_cases([("c2", {**case, "subdomains": 2})])) == {"c2"}
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"tables": {"table_9": {"method": "feti-feti", "title": "T9"}}},
+     "no transcription 'table_9' in 'config/thesis_tables' (it has ['table_4_1'"),
+    ({"thesis_tables": "config/nothere"}, "no transcription 'table_4_1' in 'config/nothere' (no such folder)"),
+])
+def test_missing_thesis_transcriptions_are_config_errors(workdir, change, message):
+    """A table without a thesis transcription, or a missing folder, ended in Snakemake's MissingInputException."""
+    data = yaml.safe_load((ROOT / "config" / "table_4.yaml").read_text())
+    for key, value in change.items():
+        data[key] = {**data[key], **value} if isinstance(value, dict) else value
+    (workdir / "t4.yaml").write_text(yaml.safe_dump(data))
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "t4.yaml", check=False)
+    assert proc.returncode != 0 and message in proc.stdout + proc.stderr

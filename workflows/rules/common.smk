@@ -138,8 +138,16 @@ def case_files(wildcards=None):
 
 
 def thesis_table(name):
-    """Path of a thesis transcription (config key thesis_tables)."""
-    return f"{config['thesis_tables']}/{name}.csv"
+    """Path of a thesis transcription (config key thesis_tables); a missing one is a config error while planning
+    (it was Snakemake's MissingInputException of a report job)."""
+    folder = config["thesis_tables"]
+    path = f"{folder}/{name}.csv"
+    if not os.path.isfile(path):
+        have = sorted(f[:-4] for f in os.listdir(folder) if f.endswith(".csv")) if os.path.isdir(folder) else None
+        raise WorkflowError(f"invalid config: thesis_tables: no transcription {name!r} in {folder!r} "
+                            + (f"(it has {have}); a table's name or its `thesis` key names one" if have is not None
+                               else "(no such folder)"))
+    return path
 
 
 def thesis_inputs(entry, default):
@@ -201,6 +209,12 @@ if KIND in GRID_KINDS:
     PRESETS = study_presets()
     CASES = study_cases()
     CONTACTS = list(config.get("contacts", [])) if MULTIBODY else []
+    if MULTIBODY:        # the thesis transcriptions that the tables and figures name exist (multibody.smk's inputs)
+        for _table, _entry in config["tables"].items():
+            thesis_inputs(_entry, _table)
+        for _entry in config["figures"].values():
+            if "thesis" in _entry:
+                thesis_inputs(_entry, None)
     # Every case is a valid ProblemSpec that fits the machine, before any job runs.
     CASE_SIZES = checked_cases(_case_specs())
     if CONTACT:
