@@ -39,6 +39,10 @@ def _option(name: str) -> list[Any]:
         from ddsolve.spec import ProblemSpec
 
         return list(ProblemSpec.fields())
+    if name == "BENCH_PROBLEMS":   # the problems of the work-precision benchmark (ddstudies.bench.problems)
+        from .bench.problems import PROBLEMS
+
+        return list(PROBLEMS)
     if name == "FIT_MODELS":   # the fit models of the figures (ddstudies.report.plots)
         from .report.plots import FIT_MODELS
 

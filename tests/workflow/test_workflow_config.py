@@ -181,3 +181,16 @@ def test_missing_thesis_transcriptions_are_config_errors(workdir, change, messag
     (workdir / "t4.yaml").write_text(yaml.safe_dump(data))
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "t4.yaml", check=False)
     assert proc.returncode != 0 and message in proc.stdout + proc.stderr
+
+
+@pytest.mark.parametrize(("problems", "message"), [
+    ({"heat": {"spec": {"subdomains": 2, "elements": 4}, "methods": ["fetidp"]}},
+     r"problems: 'heat' is not one of \['poisson', 'multibody', 'contact'\]"),
+    ({"poisson": {"spec": {"subdomains": 2, "elements": 4}, "methods": [], "peers": []}},
+     r"problems/poisson/methods: \[\] should be non-empty"),
+])
+def test_bench_problems_are_checked(problems, message):
+    """An unknown problem was a KeyError in the planning (no key path); no methods and no peers an empty report."""
+    data = {"kind": "bench", "rtols": [1e-2], "problems": problems}
+    with pytest.raises(ConfigError, match=message):
+        validate(data, SCHEMA_DIR / "bench.schema.yaml")
