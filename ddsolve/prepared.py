@@ -121,8 +121,7 @@ def unstructured_scene_from_spec(spec: ProblemSpec) -> "Scene":
     elif f_kind == "constant" and spec.mesh_file:
         scene.f = float(f_value)
     if contact and (spec.mesh_file or f_kind == "random"):
-        loads = scene.f if isinstance(scene.f, np.ndarray) else np.full(scene.elements.shape[0], float(scene.f))
-        check_contact_load(scene, loads)
+        check_contact_load(scene, scene.f)
     if contact and spec.method == "smalbe":
         check_smalbe_scene(floating_bodies(scene))
     part = np.arange(scene.n_subdomains) % spec.parts

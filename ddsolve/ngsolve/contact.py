@@ -200,6 +200,8 @@ def _element_loads(f: Any, mesh: Any, elements: np.ndarray) -> np.ndarray:
     lf = ngsolve.LinearForm(cf * v * ngsolve.dx(bonus_intorder=1)).Assemble()
     b = np.array(lf.vec.FV().NumPy()).reshape(-1, 3)       # element by element, in element_dofs order
     T = element_dofs(fes)                                  # order 1: the vertex numbers
+    if not np.array_equal(np.sort(T, axis=1), np.sort(elements, axis=1)):
+        raise RuntimeError("the mesh's element vertices differ from netgen's element table")
     position = np.argmax(T[:, None, :] == elements[:, :, None], axis=2)
     b = np.take_along_axis(b, position, axis=1)
     if not np.all(np.isfinite(b)):
@@ -322,8 +324,7 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
             scene.f = _element_loads(f, mesh, data.elements)
     else:
         scene.f = _number("f", f)
-    loads = scene.f if isinstance(scene.f, np.ndarray) else np.full(scene.elements.shape[0], float(scene.f))
-    floating = check_contact_load(scene, loads, body_names)
+    floating = check_contact_load(scene, scene.f, body_names)
     if method == "smalbe":
         check_smalbe_scene(floating)
     t1 = time.perf_counter()

@@ -112,7 +112,7 @@ def floating_bodies(scene: Scene) -> list[bool]:
     return [not bool(t) for t in touches]
 
 
-def check_contact_load(scene: Scene, loads: np.ndarray, body_names: Sequence[str] | None = None) -> list[bool]:
+def check_contact_load(scene: Scene, loads: float | np.ndarray, body_names: Sequence[str] | None = None) -> list[bool]:
     """A floating body must be pressed onto the other (see :func:`ddsolve.scene.contact.two_membranes`).
 
     Body 2 (Omega^2, above) by a load with negative integral, body 1 by one with a positive
@@ -121,8 +121,9 @@ def check_contact_load(scene: Scene, loads: np.ndarray, body_names: Sequence[str
     Parameters
     ----------
     scene : Scene
-    loads : ndarray, shape (n_elements,) or (n_elements, 3)
-        Element-wise constant loads, or element load vectors int_e f phi_j (their sum is int_e f).
+    loads : float or ndarray, shape (n_elements,) or (n_elements, 3)
+        A constant load, element-wise constant loads, or element load vectors int_e f phi_j (their
+        sum is int_e f).
     body_names : (str, str), optional
         Names for the messages (:func:`ddsolve.ngsolve.contact_solve`); else Omega^1, Omega^2.
 
@@ -131,6 +132,9 @@ def check_contact_load(scene: Scene, loads: np.ndarray, body_names: Sequence[str
     list of bool
         Whether body 1 and body 2 float (:func:`floating_bodies`).
     """
+    loads = np.asarray(loads, dtype=float)
+    if loads.ndim == 0:
+        loads = np.full(scene.elements.shape[0], float(loads))
     if not np.all(np.isfinite(loads)):
         raise InputError("f", "must be finite on every element")
     floating = floating_bodies(scene)

@@ -14,16 +14,7 @@ from netgen.occ import Glue, MoveTo, OCCGeometry
 
 from ddsolve.errors import InputError
 from ddsolve.ngsolve import contact_solve
-
-
-
-def _wall_gap_far(c):
-    return "wall" if abs(c.x) < 1e-9 else "gap" if abs(c.x - 1) < 1e-9 else "far" if abs(c.x - 2) < 1e-9 else None
-
-
-def two_materials(maxh: float):
-    """Two unit squares, materials left and right, glued at x = 1 ('gap'); x = 0 'wall', x = 2 'far'."""
-    return _named(maxh, _wall_gap_far)
+from test_ngsolve_contact import two_materials     # the two unit squares: wall, gap, far
 
 
 @pytest.fixture(scope="module")
