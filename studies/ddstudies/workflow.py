@@ -20,7 +20,8 @@ from ddsolve import options
 __all__ = ["rule_sets", "contact_precision_grids", "KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate",
            "unique_labels", "bench_tol_label", "bench_rtols", "check_finite", "check_cases", "case_mem_mb",
            "case_runtime", "machine_memory", "check_results", "quarantine", "remove_stale_tmp", "release_complete",
-           "record_lock_owner", "release_stale_lock", "sha256", "write_manifest", "read_manifest"]
+           "record_lock_owner", "release_stale_lock", "sha256", "write_manifest", "read_manifest",
+           "canonical_numbers"]
 
 #: Study kinds (config key ``kind``) and the schema each is validated against.
 SCHEMAS: dict[str, str] = {"grid": "config", "table_4": "config", "contact": "config", "bench": "bench",
@@ -163,6 +164,23 @@ def check_finite(data: Any, where: str = "") -> None:
     elif isinstance(data, (list, tuple)):
         for index, value in enumerate(data):
             check_finite(value, f"{where}/{index}" if where else str(index))
+
+
+def canonical_numbers(data: Any) -> Any:
+    """Write every integral float of a config as an int, in place (``gamma: 1.0`` -> ``1``); the config.
+
+    YAML reads ``1`` and ``1.0`` as different types, and Snakemake's params
+    rerun-trigger compares their ``repr``: without this, writing a value the other
+    way would rerun every finished case. Non-integral floats (``rtol: 1.0e-6``)
+    and booleans are left as they are.
+    """
+    items = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list) else ()
+    for key, value in list(items):
+        if isinstance(value, float) and value.is_integer() and abs(value) < 2.0**53:
+            data[key] = int(value)
+        else:
+            canonical_numbers(value)
+    return data
 
 
 def machine_memory() -> int:
@@ -366,7 +384,9 @@ def check_results(paths: Iterable[str | os.PathLike], summary: str | os.PathLike
     column) is missing now (moved aside here, or deleted), the summary and its
     ``consumers`` (the reports made from it) are removed: the run then recomputes
     the result and everything after it. So are they when a result is newer than
-    the manifest and differs from it (a job rewrote it after the aggregation). (A new case, never in the summary, needs
+    the manifest and differs from it (a job rewrote it after the aggregation), and when the summary itself
+    differs from the SHA-256 the manifest records for it (truncated or edited, its time kept or not;
+    manifests written before the summary was recorded skip this). (A new case, never in the summary, needs
     nothing: Snakemake's input rerun-trigger sees the changed inputs.)
 
     Returns
@@ -393,17 +413,21 @@ def check_results(paths: Iterable[str | os.PathLike], summary: str | os.PathLike
                 log(f"ddsolve: corrupt result {os.fspath(path)} ({problem}): moved to {target}; it is recomputed")
     if summary is None or not os.path.exists(summary):
         return removed
-    gone = [path for path in (list(recorded) or summarized_files(summary)) if not os.path.exists(path)]
-    if gone or rewritten:
+    summary_key = os.fspath(summary)
+    altered = summary_key in recorded and sha256(summary) != recorded[summary_key]
+    results = [path for path in recorded if path != summary_key] or summarized_files(summary)
+    gone = [path for path in results if not os.path.exists(path)]
+    if gone or rewritten or altered:
         for consumer in [summary, *([manifest] if manifest else []), *consumers]:
             if os.path.exists(consumer):
                 os.unlink(consumer)
                 removed.append(os.fspath(consumer))
         if log is not None:
-            what = (f"{len(gone)} result(s) of {os.fspath(summary)} are missing ({gone[0]}"
+            what = (f"{len(gone)} result(s) of {summary_key} are missing ({gone[0]}"
                     f"{', ...' if len(gone) > 1 else ''})" if gone else
-                    f"{len(rewritten)} result(s) were rewritten after {os.fspath(summary)} ({rewritten[0]}"
-                    f"{', ...' if len(rewritten) > 1 else ''})")
+                    f"{len(rewritten)} result(s) were rewritten after {summary_key} ({rewritten[0]}"
+                    f"{', ...' if len(rewritten) > 1 else ''})" if rewritten else
+                    f"{summary_key} differs from the SHA-256 recorded when it was written")
             log(f"ddsolve: {what}: removed it and the reports made from it; all are rebuilt")
     return removed
 

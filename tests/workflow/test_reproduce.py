@@ -107,6 +107,10 @@ def test_study_finished_alone_is_not_rerun_by_the_reproduction(workdir):
     assert (workdir / "reports" / "tiny" / "table.md").is_file()
     again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "repro.yaml")
     assert "Nothing to be done" in again.stdout + again.stderr
+    # the same value written as a float (gamma: 1.0 for the schema's default 1) is the same params: no rerun
+    (workdir / "repro.yaml").write_text("studies: [{name: tiny, configfile: tiny.yaml, set: {gamma: 1.0}}]\n")
+    again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "repro.yaml")
+    assert "Nothing to be done" in again.stdout + again.stderr
     # an override in the list reruns exactly the affected cases, under the module's rule names
     (workdir / "repro.yaml").write_text("studies: [{name: tiny, configfile: tiny.yaml, set: {rtol: 1.0e-8}}]\n")
     rerun = jobs((lambda p: p.stdout + p.stderr)(snakemake(workdir, "-n", "--cores", "1", "--configfile",

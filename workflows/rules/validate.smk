@@ -37,8 +37,8 @@ def validate_config(data, schema, key="config"):
 def validate_study(data):
     """Validate a single-study config against the schema of its `kind`; the kind.
 
-    Numbers must be finite (YAML .nan / .inf are refused, naming the key); the cases
-    themselves are checked through ddsolve.spec.ProblemSpec in common.smk.
+    Numbers must be finite (YAML .nan / .inf are refused, naming the key), and integral floats
+    become ints after validation (studies_workflow.canonical_numbers); the cases themselves are checked through ddsolve.spec.ProblemSpec in common.smk.
     """
     try:
         studies_workflow.check_finite(data)
@@ -49,6 +49,7 @@ def validate_study(data):
         raise WorkflowError(f"invalid config: kind: {kind!r} is not one of {list(studies_workflow.SCHEMAS)} "
                             f"(every single-study config names its kind)")
     validate_config(data, studies_workflow.SCHEMAS[kind])
+    studies_workflow.canonical_numbers(data)   # gamma: 1.0 and gamma: 1 are the same params (no rerun)
     return kind
 
 

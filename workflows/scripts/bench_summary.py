@@ -10,7 +10,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     sm = snakemake  # noqa: F821
     df = collect(sm.input, quarantine=True)
     write_table(df, sm.output.summary)
-    write_manifest(sm.input, sm.output.manifest)
+    write_manifest([*sm.input, sm.output.summary], sm.output.manifest)
     table = summary_table(df)
     write_table(table, sm.output.table)
     print(table.to_string(), flush=True)

@@ -13,7 +13,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     sm = snakemake  # noqa: F821
     df = collect(sm.input, quarantine=True)
     write_table(df, sm.output.summary)
-    write_manifest(sm.input, sm.output.manifest)
+    write_manifest([*sm.input, sm.output.summary], sm.output.manifest)
     summary = scaling_summary(df, dict(sm.params.targets))
     write_table(summary["table"], sm.output.table)
     text = summary_markdown(summary)

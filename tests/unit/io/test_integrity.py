@@ -268,7 +268,7 @@ def _study(tmp_path):
     paths = [os.path.relpath(p, tmp_path) for p in paths]
     (tmp_path / "results" / "summary.csv").write_text("x,file\n" + "".join(f"1,{p}\n" for p in paths))
     (tmp_path / "report.md").write_text("table")
-    wf.write_manifest(paths, tmp_path / "results" / "summary.sha256")
+    wf.write_manifest([*paths, "results/summary.csv"], tmp_path / "results" / "summary.sha256")
     return paths
 
 
@@ -310,6 +310,26 @@ def test_a_valid_result_rewritten_after_the_summary_makes_it_stale(tmp_path, mon
                             manifest="results/summary.sha256") == ["results/summary.csv", "results/summary.sha256",
                                                                    "report.md"]
     assert os.path.exists(b)
+
+
+def test_integral_floats_become_ints_and_nothing_else_changes():
+    config = {"gamma": 1.0, "rtol": 1.0e-6, "cond": True, "subdomains": [2.0, 3], "problems": {"p": {"maxh": 0.5}}}
+    assert wf.canonical_numbers(config) is config
+    assert config == {"gamma": 1, "rtol": 1.0e-6, "cond": True, "subdomains": [2, 3], "problems": {"p": {"maxh": 0.5}}}
+    assert type(config["gamma"]) is int and type(config["subdomains"][0]) is int and config["cond"] is True
+
+
+def test_a_summary_truncated_in_place_is_rebuilt(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    a, b = _study(tmp_path)
+    stat = os.stat("results/summary.csv")
+    with open("results/summary.csv", "r+b") as stream:
+        stream.truncate(8)                                     # one row lost, its time kept
+    os.utime("results/summary.csv", ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    lines = []
+    assert wf.check_results([a, b], "results/summary.csv", ["report.md"], manifest="results/summary.sha256",
+                            log=lines.append) == ["results/summary.csv", "results/summary.sha256", "report.md"]
+    assert "differs from the SHA-256" in lines[0] and os.path.exists(a) and os.path.exists(b)
 
 
 def test_release_complete_keeps_valid_results_of_a_killed_run(tmp_path, monkeypatch):
