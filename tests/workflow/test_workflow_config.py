@@ -73,6 +73,29 @@ def test_workflow_refuses_colliding_bench_labels(workdir):
     assert "rtols: 1e-06 and 1.4e-06 both have the label 'rtol1e-06'" in proc.stdout + proc.stderr
 
 
+@pytest.mark.parametrize("override, message", [
+    ("problems: {poisson: {load_cells: 256}}", "problems: poisson: load_cells: 256 must divide the 128 elements"),
+    ("problems: {poisson: {load_cells: 3}}", "problems: poisson: load_cells: 3 must divide the 128 elements"),
+    ("problems: {multibody: {spec: {f: 1}}}", "problems: multibody: load_cells: 8 applies to a random"),
+])
+def test_workflow_refuses_a_load_grid_the_mesh_does_not_resolve(workdir, override, message):
+    (workdir / "cells.yaml").write_text(override + "\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/bench.yaml", "cells.yaml", check=False)
+    assert proc.returncode != 0 and message in proc.stdout + proc.stderr
+
+
+def test_load_cells_that_tile_the_grid_are_accepted():
+    from ddsolve.spec import ProblemSpec
+    from ddstudies.bench.problems import bench_scene, check_load_cells
+
+    spec = ProblemSpec(problem="poisson", method="fetidp", subdomains=2, elements=4, f="random:0")
+    check_load_cells(spec, 8)
+    check_load_cells(spec, 2)
+    check_load_cells(spec, None)
+    with pytest.raises(ValueError, match="load_cells: 16 must divide the 8 elements per side"):
+        bench_scene(spec, 16)
+
+
 def test_workflow_needs_an_explicit_kind(workdir):
     # a study named stress* is not a stress study: only `kind` says what a study is
     (workdir / "nokind.yaml").write_text("study: stress_like\nmethods: [bddc]\nsubdomains: [2]\nelements: [2]\n")

@@ -266,6 +266,9 @@ def bench_case_files(wildcards=None):
 
 
 if KIND == "bench":
+    from ddsolve.spec import ProblemSpec
+    from ddstudies.bench.problems import check_load_cells
+
     try:
         BENCH_RTOLS = studies_workflow.bench_rtols(config["rtols"])
     except studies_workflow.ConfigError as err:
@@ -275,6 +278,11 @@ if KIND == "bench":
     # each problem's spec: a valid ProblemSpec that fits the machine (the reference solves its 2x refinement)
     BENCH_SIZES = {label.split("/")[1]: size for label, size in checked_cases(
         (f"problems/{kind}/spec", bench_spec(SimpleNamespace(kind=kind))) for kind in config["problems"]).items()}
+    for _kind, _prob in config["problems"].items():   # a load grid the mesh resolves (ddstudies.bench.problems)
+        try:
+            check_load_cells(ProblemSpec.from_mapping(bench_spec(SimpleNamespace(kind=_kind))), _prob.get("load_cells"))
+        except ValueError as err:
+            raise WorkflowError(f"invalid config: problems: {_kind}: {err}") from None
 
 
 # --- kind scaling (scaling.smk) -------------------------------------------------------------

@@ -130,6 +130,29 @@ def cell_loads(scene: Scene, cells: int, seed: int) -> np.ndarray:
     return values[ij[:, 1], ij[:, 0]]
 
 
+def check_load_cells(spec: ProblemSpec, load_cells: int | None) -> None:
+    """Refuse a load grid that the mesh of ``spec`` does not resolve.
+
+    The cells must tile the element grid (``bodies * subdomains * elements``
+    elements per side a multiple of ``load_cells``): then every element, of
+    this mesh and of its refinements, lies in one cell, and the coarse and
+    refined problems discretize the same load.
+
+    Raises
+    ------
+    ValueError
+        ``load_cells: ...`` naming the element grid, or a load that is not ``random:SEED``.
+    """
+    if load_cells is None:
+        return
+    if parse_f(spec.f)[0] != "random":
+        raise ValueError(f"load_cells: {load_cells} applies to a random:SEED load only, not f={spec.f!r}")
+    side = spec.bodies * spec.subdomains * spec.elements
+    if load_cells > side or side % load_cells:
+        raise ValueError(f"load_cells: {load_cells} must divide the {side} elements per side "
+                         f"(bodies * subdomains * elements), so that each element lies in one load cell")
+
+
 def bench_scene(spec: ProblemSpec, load_cells: int | None = None) -> Scene:
     """The structured scene of ``spec`` with a refinement-consistent load.
 
@@ -140,6 +163,7 @@ def bench_scene(spec: ProblemSpec, load_cells: int | None = None) -> Scene:
         Cells per side of the random load grid; default: the elements per
         side of this mesh, bodies * subdomains * elements.
     """
+    check_load_cells(spec, load_cells)
     scene = scene_from_spec(spec)
     kind, value = parse_f(spec.f)
     if kind == "random":
