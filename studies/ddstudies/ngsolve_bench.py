@@ -173,12 +173,8 @@ def run_study(cfg: dict, mesh_of=None) -> list[Row]:
                 rows.append(Row(name, order, n, parts if name.startswith("ddinverse") else 0, s, t, s + t, its,
                                 rel, os.getloadavg()[0], err))
     for sweep in cfg.get("parts_sweep", []) if mesh_of is make_mesh else []:
-        mesh = make_mesh(int(sweep["order"]), int(sweep["ndof"]))
-        for parts in sweep["parts"]:
-            s, t, its, _ = run_solver("ddinverse-bddc", mesh, int(sweep["order"]), int(parts),
-                                      float(cfg["rtol"]), int(cfg["maxiter"]))
-            rows.append(Row("ddinverse-bddc-sweep", int(sweep["order"]), int(sweep["ndof"]), int(parts), s, t,
-                            s + t, its, math.nan, os.getloadavg()[0]))
+        rows += parts_sweep(int(sweep["order"]), int(sweep["ndof"]), [int(p) for p in sweep["parts"]],
+                            float(cfg["rtol"]), maxiter=int(cfg["maxiter"]))
     return rows
 
 
@@ -252,12 +248,14 @@ def _write_atomic(path: str, text: str) -> None:
     os.replace(tmp, path)
 
 
-def parts_sweep(order: int, ndof: int, parts: list[int], rtol: float = 1e-8, method: str = "bddc") -> list[Row]:
-    """DDInverse iterations on one mesh (about ``ndof`` dofs of order ``order``) for each METIS part count."""
+def parts_sweep(order: int, ndof: int, parts: list[int], rtol: float = 1e-8, method: str = "bddc",
+                maxiter: int = 1000) -> list[Row]:
+    """DDInverse iterations on one mesh (about ``ndof`` dofs of order ``order``) for each METIS part count;
+    each row's ``ndof`` is the mesh's own (not the requested ``ndof``)."""
     mesh = make_mesh(order, ndof)
     rows = []
     for p in parts:
-        s, t, its, x = run_solver(f"ddinverse-{method}", mesh, order, int(p), rtol, 1000)
+        s, t, its, x = run_solver(f"ddinverse-{method}", mesh, order, int(p), rtol, maxiter)
         rows.append(Row(f"ddinverse-{method}-sweep", order, int(np.asarray(x).size), int(p), s, t, s + t, its,
                         math.nan, os.getloadavg()[0]))
         log.info("sweep order %d parts %d: %d iterations", order, p, its)

@@ -89,8 +89,49 @@ def _validator_with_defaults():
     return validators.extend(Draft202012Validator, {"properties": set_defaults})
 
 
+_SCALAR_TYPES = {"integer": int, "number": (int, float), "boolean": bool}
+
+
+def _coerce_strings(data: dict[str, Any], errors) -> bool:
+    """Read, in place, the strings that a schema wants as numbers or booleans as YAML; whether any changed.
+
+    Snakemake's ``--config key=[2,3]`` reads the items of a list as strings
+    (YAML's base loader); a string is replaced only where the schema's type
+    lacks "string" and the YAML value has one of the wanted types.
+    """
+    changed = False
+    for err in errors:
+        wanted = err.validator_value if err.validator == "type" else None
+        wanted = [wanted] if isinstance(wanted, str) else list(wanted or [])
+        if not isinstance(err.instance, str) or "string" in wanted or not err.absolute_path:
+            continue
+        try:
+            value = yaml.safe_load(err.instance)
+        except yaml.YAMLError:
+            continue
+        for parse in (int, float):      # YAML 1.1 reads 1e-6 (no dot) as a string
+            if isinstance(value, str):
+                try:
+                    value = parse(value)
+                except ValueError:
+                    pass
+        if not any(isinstance(value, _SCALAR_TYPES[t]) and (t == "boolean" or not isinstance(value, bool))
+                   for t in wanted if t in _SCALAR_TYPES):
+            continue
+        *parents, last = err.absolute_path
+        node = data
+        for part in parents:
+            node = node[part]
+        node[last] = value
+        changed = True
+    return changed
+
+
 def validate(data: dict[str, Any], schema: str | os.PathLike | Mapping[str, Any], key: str = "config") -> dict:
     """Validate ``data`` against a schema (a path: loaded with :func:`load_schema`), filling in defaults.
+
+    A string where the schema wants a number or a boolean is read as YAML first
+    (``--config subdomains=[2,3]``, whose items Snakemake passes as strings).
 
     Raises
     ------
@@ -102,6 +143,8 @@ def validate(data: dict[str, Any], schema: str | os.PathLike | Mapping[str, Any]
     name = os.path.basename(str(schema)) if not isinstance(schema, Mapping) else "schema"
     schema = load_schema(schema) if not isinstance(schema, Mapping) else schema
     errors = list(_validator_with_defaults()(schema).iter_errors(data))
+    while errors and _coerce_strings(data, errors):   # --config subdomains=[2,3] gives ['2', '3']
+        errors = list(_validator_with_defaults()(schema).iter_errors(data))
     if errors:
         best = jsonschema.exceptions.best_match(errors)  # the most specific error of anyOf / if-then
         where = "/".join(str(part) for part in best.absolute_path) or "(top level)"

@@ -20,7 +20,7 @@ def synthetic() -> pd.DataFrame:
             rows.append({"problem": "poisson", "refine": refine, "ndof": int(n), "n_sub": 16 * 4 ** refine,
                          "method": method, "seconds": c * n ** p, "converged": True, "iterations": 10,
                          "cond": 3.0 if method in ("fetidp", "bddc") else math.nan, "peak_mb": 100.0,
-                         "load": 1.0})
+                         "error": 2.5e-9 if method in ("fetidp", "bddc") else 0.0, "load": 1.0})
     for method, t in (("active-set", 2.0), ("pdas", 4.0)):
         rows.append({"problem": "contact", "refine": 0, "ndof": 5000, "n_sub": 8, "method": method,
                      "seconds": t, "converged": True, "iterations": 5, "cond": math.nan, "peak_mb": 90.0,
@@ -64,6 +64,8 @@ def test_fits_recover_exponents_and_targets_are_checked():
     assert len(exps) == 2 and all(c["met"] for c in exps)
     text = summary_markdown(summary)
     assert "| poisson | fetidp | 1.05 |" in text and "## Targets" in text
+    header = next(line for line in text.splitlines() if line.startswith("| problem"))
+    assert " error " in header and "| 2.5e-09 |" in text          # each method's accuracy is in the report
 
 
 def test_series_helpers():

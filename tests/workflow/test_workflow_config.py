@@ -96,6 +96,20 @@ def test_load_cells_that_tile_the_grid_are_accepted():
         bench_scene(spec, 16)
 
 
+def test_list_items_from_the_command_line_are_read_as_numbers():
+    # snakemake --config subdomains=[2,3] passes ['2', '3'] (YAML's base loader)
+    data = {"kind": "bench", "rtols": ["1e-2", "1.0e-6"], "problems": {"poisson": {"spec": {}, "methods": ["bddc"],
+                                                                                   "load_cells": "4"}}}
+    validate(data, SCHEMA_DIR / "bench.schema.yaml")
+    assert data["rtols"] == [1e-2, 1e-6] and data["problems"]["poisson"]["load_cells"] == 4
+    with pytest.raises(ConfigError, match="rtols/1: 'x' is not of type 'number'"):
+        validate({"kind": "bench", "rtols": ["1e-2", "x"], "problems": {"poisson": {"methods": ["bddc"]}}},
+                 SCHEMA_DIR / "bench.schema.yaml")
+    data = {"kind": "grid", "study": "2024", "methods": ["bddc"], "subdomains": ["2", "3"], "elements": ["4"]}
+    validate(data, SCHEMA_DIR / "config.schema.yaml")
+    assert data["subdomains"] == [2, 3] and data["study"] == "2024"      # a string stays where one is wanted
+
+
 def test_workflow_needs_an_explicit_kind(workdir):
     # a study named stress* is not a stress study: only `kind` says what a study is
     (workdir / "nokind.yaml").write_text("study: stress_like\nmethods: [bddc]\nsubdomains: [2]\nelements: [2]\n")

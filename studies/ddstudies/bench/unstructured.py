@@ -280,12 +280,13 @@ def add_ratios(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def unstructured_table(df: pd.DataFrame) -> pd.DataFrame:
-    """One row per (problem, refine, method): sizes, times, ratio, iterations, cond, memory."""
+    """One row per (problem, refine, method): sizes, times, ratio, iterations, cond, memory, and the
+    relative 2-norm difference to the reference peer's solution (``error``)."""
     df = add_ratios(df)
     columns = ["problem", "refine", "ndof", "n_sub", "method", "seconds", "ratio", "cpu_seconds", "cpu_ratio",
                "reference", "setup_seconds",
                "solve_seconds", "partition_seconds", "iterations", "cond", "peak_mb", "added_mb", "converged",
-               "load"]
+               "error", "load"]
     columns = [c for c in columns if c in df]
     return df.sort_values(["problem", "ndof", "method"])[columns].reset_index(drop=True)
 
@@ -341,7 +342,8 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Unstructured m
     lines = [f"# {title}", "", "Wall times in seconds (DD: METIS partition + substructuring + setup + solve; "
              "direct: factorization + solve of the assembled matrix); ratio to the reference of the same job; "
              "cpu_seconds/cpu_ratio: CPU time of the method's own call (DD without partition and "
-             "substructuring) and its ratio; load: 1-minute load average at the start of the run.", ""]
+             "substructuring) and its ratio; error: relative 2-norm difference to the reference peer's solution; "
+             "load: 1-minute load average at the start of the run.", ""]
     shown = table.copy()
     for col in ("seconds", "cpu_seconds", "setup_seconds", "solve_seconds", "partition_seconds"):
         if col in shown:
@@ -351,6 +353,8 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Unstructured m
             shown[col] = shown[col].map(lambda v: f"{v:.2f}" if pd.notna(v) else "")
     if "cond" in shown:
         shown["cond"] = shown["cond"].map(lambda v: f"{v:.1f}" if pd.notna(v) else "")
+    if "error" in shown:
+        shown["error"] = shown["error"].map(lambda v: f"{v:.1e}" if pd.notna(v) else "")
     for col in ("peak_mb", "added_mb"):
         if col in shown:
             shown[col] = shown[col].map(lambda v: f"{v:.0f}" if pd.notna(v) else "")

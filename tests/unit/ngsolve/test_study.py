@@ -100,6 +100,13 @@ def test_parts_sweep_table():
     assert all(0 < r.iterations < 40 for r in rows)
     table = sweep_table(rows)
     assert table.count("\n") == 4 and "| 1 | " in table
+    # the study's parts_sweep rows carry the mesh's dofs, as parts_sweep's do (they read the requested 3000)
+    from ddstudies.ngsolve_bench import run_study
+
+    study = run_study({"orders": [], "parts_sweep": [{"order": 1, "ndof": 3000, "parts": [4]}], "rtol": 1e-8,
+                       "maxiter": 200})
+    assert [(r.solver, r.ndof, r.parts) for r in study] == [("ddinverse-bddc-sweep", rows[0].ndof, 4)]
+    assert rows[0].ndof != 3000
 
 
 def test_scaling_study_table():
