@@ -84,6 +84,26 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.workflow)
 
 
+def two_squares(maxh: float):
+    """NGSolve mesh of the unit squares [0,1]^2 (material "left") and [1,2]x[0,1] ("right"), sharing x = 1.
+
+    Boundaries: "wall" (x = 0), "gap" (x = 1, the shared side), "far" (x = 2); the others unnamed.
+    """
+    import ngsolve as ngs
+    from netgen.occ import Glue, MoveTo, OCCGeometry
+
+    left = MoveTo(0, 0).Rectangle(1, 1).Face()
+    left.faces.name = "left"
+    right = MoveTo(1, 0).Rectangle(1, 1).Face()
+    right.faces.name = "right"
+    shape = Glue([left, right])
+    for edge in shape.edges:
+        for x, name in ((0, "wall"), (1, "gap"), (2, "far")):
+            if abs(edge.center.x - x) < 1e-9:
+                edge.name = name
+    return ngs.Mesh(OCCGeometry(shape, dim=2).GenerateMesh(maxh=maxh))
+
+
 def substructures(**fields) -> Substructures:
     """Assembled Substructures of a structured Poisson spec (fields of ProblemSpec)."""
     return prepare(ProblemSpec.from_mapping(fields)).sub

@@ -5,30 +5,18 @@ import numpy as np
 import pytest
 
 ngs = pytest.importorskip("ngsolve")
-from netgen.occ import Glue, MoveTo, OCCGeometry, X
+from netgen.occ import MoveTo, OCCGeometry, X
 
 from ddsolve.contact.direct import solve_contact_direct
 from ddsolve.errors import InputError
 from ddsolve.ngsolve import contact_solve
+from conftest import two_squares
 
 #: Dostal-like patch loads: -3 on the top strip of body 1, -1 on the bottom strip of body 2 (partial contact).
 LOAD = ngs.IfPos(ngs.x - 1, ngs.IfPos(0.25 - ngs.y, -1.0, 0.0), ngs.IfPos(ngs.y - 0.75, -3.0, 0.0))
 
 
-def two_materials(maxh: float):
-    left = MoveTo(0, 0).Rectangle(1, 1).Face()
-    left.faces.name = "left"
-    right = MoveTo(1, 0).Rectangle(1, 1).Face()
-    right.faces.name = "right"
-    shape = Glue([left, right])
-    for edge in shape.edges:
-        if abs(edge.center.x) < 1e-9:
-            edge.name = "wall"
-        elif abs(edge.center.x - 1) < 1e-9:
-            edge.name = "gap"
-        elif abs(edge.center.x - 2) < 1e-9:
-            edge.name = "far"          # the outer side of body 2 ("wall|far" clamps both bodies)
-    return ngs.Mesh(OCCGeometry(shape, dim=2).GenerateMesh(maxh=maxh))
+two_materials = two_squares      # left / right unit squares; wall, gap, far
 
 
 def one_body(x0: float, maxh: float):

@@ -196,20 +196,10 @@ def test_dd_solvers_match_direct_on_unstructured_poisson(method, geometry, parts
 
 
 def test_scene_from_mesh_file(tmp_path):
-    from netgen.occ import Glue, MoveTo, OCCGeometry
+    from conftest import two_squares
 
-    left = MoveTo(0, 0).Rectangle(1, 1).Face()
-    left.faces.name = "left"
-    right = MoveTo(1, 0).Rectangle(1, 1).Face()
-    right.faces.name = "right"
-    shape = Glue([left, right])
-    for edge in shape.edges:
-        if abs(edge.center.x) < 1e-9:
-            edge.name = "wall"
-        elif abs(edge.center.x - 1) < 1e-9:
-            edge.name = "gap"
     path = tmp_path / "two.vol"
-    OCCGeometry(shape, dim=2).GenerateMesh(maxh=0.2).Save(str(path))
+    two_squares(0.2).ngmesh.Save(str(path))
 
     sc = scene_from_mesh(path, bodies=["left", "right"], dirichlet="wall", contact="gap", parts=2)
     assert sc.n_bodies == 2 and sc.n_subdomains == 4 and _connected_parts(sc)
