@@ -77,4 +77,13 @@ class InputError(ValueError):
         super().__init__(f"{self.field}: {self.message}")
 
 
-__all__ = ["InputError", "brief", "clip", "MAX_VALUE", "MAX_FIELD", "MAX_MESSAGE"]
+class ConvergenceWarning(UserWarning):
+    """A solve that returns without meeting its tolerance (its result says why: ``converged``, ``reason``).
+
+    Raised as a warning, not an exception, by the solvers that hand back a bare
+    solution (``DDInverse * f``); ``warnings.simplefilter("error", ConvergenceWarning)``
+    turns it into an exception.
+    """
+
+
+__all__ = ["InputError", "ConvergenceWarning", "brief", "clip", "MAX_VALUE", "MAX_FIELD", "MAX_MESSAGE"]

@@ -286,6 +286,12 @@ def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = 
             with _expected_proxy_notice():
                 ad += integ
         except NgException as exc:
+            if integrators is not None and "DummyFE" in str(exc):
+                # evaluated on a boundary element, which Discontinuous(fes) does not have: a ds term that
+                # split_integrators found zero on every boundary element (a coefficient 0 there, or a region
+                # that matches none); it adds nothing to a.mat
+                log.debug("integrator %d: a ds term that is zero on every boundary element, skipped", k)
+                continue
             raise InputError("a", f"integrator {k} cannot be assembled element by element on "
                                   f"Discontinuous(fes): {exc}") from None
     try:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+import warnings
 from typing import Any
 
 import ngsolve
@@ -18,7 +19,7 @@ from ..dd.edges import subdomain_edges_3d
 from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from ..dd.projection import Projection
-from ..errors import InputError
+from ..errors import ConvergenceWarning, InputError
 from ..krylov import KrylovResult, pcg
 from ..options import PRIMAL_METHODS, PRIMALS
 from ..scene.scene import sorted_unique
@@ -50,6 +51,13 @@ SCALINGS = ("diagonal", "rho", "multiplicity", "deluxe")
 #: Off: at order 1 the integral and the nodal mean gave condition numbers within 1.3 % of each
 #: other (docs/ngsolve.md), and the nodal one costs no extra assembly.
 EDGE_WEIGHTS_P1 = False
+#: A solve whose Krylov rule is met is reported converged only if its estimated relative energy error
+#: (:meth:`DDInverse._error_estimate`, an upper bound) is at most min(max(ERROR_FACTOR rtol, sqrt(rtol)),
+#: ERROR_CAP). BDDC's rule keeps the error below rtol; FETI-DP's and FETI's dual rules leave it at 1-3 rtol
+#: on smooth problems and up to 1e2-1e4 rtol with coefficient jumps cut by the parts, where the bound
+#: itself overestimates by up to sqrt(cond) (docs/ngsolve.md, "A final error check").
+ERROR_FACTOR = 1000.0
+ERROR_CAP = 0.1
 
 
 def _free_mask(fes: Any, freedofs: Any) -> np.ndarray:
@@ -337,13 +345,25 @@ class DDInverse(ngsolve.BaseMatrix):
 
     Attributes
     ----------
-    iterations, residuals, cond, converged, reason : last solve's Krylov data.
+    iterations, cond, converged, reason : last solve's Krylov data. A solve that does not
+        converge also issues a :class:`~ddsolve.errors.ConvergenceWarning`.
+    residuals : ndarray
+        The last solve's Krylov residual norms ||r_k||, absolute, of the interface (bddc) or
+        dual (fetidp, feti) problem, one per iteration from r_0.
     relative_residual : float
         ||f - A u|| / ||f|| of the last solve, from the subdomain matrices (one product).
     scaled_residual : float
         ||D^{-1/2} (f - A u)|| / ||D^{-1/2} f|| of the last solve, D = diag(A): the relative
-        residual of the Jacobi-scaled equations, which a coefficient jump does not inflate. The
-        solve is reported not converged when it exceeds sqrt(rtol), whatever the Krylov rule said.
+        residual of the Jacobi-scaled equations, which a coefficient jump does not inflate.
+    error_estimate : float
+        sqrt(r^T M^{-1} r / f^T u) of the last solve (M^{-1}: one BDDC application): an upper
+        bound of the relative energy error ||u - u*||_A / ||u||_A, above it by at most sqrt(cond).
+        The solve is reported not converged when it exceeds :attr:`error_limit`, whatever the
+        Krylov rule said.
+    error_limit : float
+        min(max(1000 rtol, sqrt(rtol)), 0.1).
+    ndof : int
+        The space's number of dofs when the inverse was built (see :meth:`Update`).
     timings : dict
         Seconds per phase (dof_table, assembly, partition, condense, substructures, setup, solve).
     n_parts : int
@@ -360,9 +380,6 @@ class DDInverse(ngsolve.BaseMatrix):
         check_space(fes)
         if not fes.mesh == a.space.mesh:
             raise InputError("fes", "is on another mesh than the form's space; give a space on the form's mesh or None")
-        if fes.ndof != a.space.ndof:        # another order or mesh: the inverse would not be one of a.mat
-            raise InputError("fes", f"has {fes.ndof} dofs but the form's space has {a.space.ndof}; give a space "
-                                    "of the form's order on the form's mesh (e.g. other dirichlet=) or None")
         if method not in METHODS:
             raise InputError("method", f"expected one of {METHODS}, got {method!r}")
         if scaling not in SCALINGS:
@@ -370,17 +387,42 @@ class DDInverse(ngsolve.BaseMatrix):
         if primal not in PRIMALS or (primal != "vertices" and method not in PRIMAL_METHODS):
             raise InputError("primal", f"expected one of {PRIMALS} ('vertices' only for method 'feti'), "
                                        f"got {primal!r}")
-        if not (isinstance(rtol, (int, float)) and 0 < rtol < 1):
-            raise InputError("rtol", f"must be in (0, 1), got {rtol!r}")
+        if isinstance(rtol, bool) or not isinstance(rtol, (int, float, np.integer, np.floating)):
+            raise InputError("rtol", f"must be a number in (0, 1), got {type(rtol).__name__}")
+        if not 0 < float(rtol) < 1:
+            raise InputError("rtol", f"must be in (0, 1), got {float(rtol):g}")
+        rtol = float(rtol)
+        if not isinstance(cond, (bool, np.bool_)):
+            raise InputError("cond", f"must be True or False, got {cond!r}")
         if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
             raise InputError("maxiter", f"must be a positive integer, got {maxiter!r}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
             raise InputError("seed", f"must be an integer, got {seed!r}")
         if scaling == "deluxe" and method == "feti":
             raise InputError("scaling", "'deluxe' needs method 'bddc' or 'fetidp'")
+        self.a, self.fes, self.method, self.rtol, self.maxiter = a, fes, method, rtol, int(maxiter)
+        self.want_cond, self.scaling, self.primal = bool(cond), scaling, primal
+        self._freedofs, self._parts, self._partition, self._seed = freedofs, parts, partition, seed
+        self._setup()
+
+    def Update(self) -> None:
+        """Rebuild from the form's current integrators and the space's current dofs.
+
+        A ``DDInverse`` is a snapshot, like ``a.mat.Inverse()``: it keeps the element matrices of
+        the form as they were when it was built. Call ``Update()`` after changing a coefficient (a
+        ``Parameter``, a ``GridFunction``), or after ``mesh.Refine()`` and ``fes.Update()``; the
+        constructor's arguments are kept (a ``partition`` array must still fit the mesh).
+        """
+        self._setup()
+
+    def _setup(self) -> None:
+        """Validate the form and the space as they are now, then partition, condense and factorize."""
+        a, fes, method, primal, scaling = self.a, self.fes, self.method, self.primal, self.scaling
+        freedofs, parts, partition, seed = self._freedofs, self._parts, self._partition, self._seed
+        if fes.ndof != a.space.ndof:        # another order or mesh: the inverse would not be one of a.mat
+            raise InputError("fes", f"has {fes.ndof} dofs but the form's space has {a.space.ndof}; give a space "
+                                    "of the form's order on the form's mesh (e.g. other dirichlet=) or None")
         dim = int(fes.mesh.dim)
-        self.fes, self.method, self.rtol, self.maxiter, self.want_cond = fes, method, rtol, int(maxiter), cond
-        self.scaling = scaling
         self.timings: dict[str, float] = {}
         self.iterations = 0
         self.residuals = np.zeros(0)
@@ -389,6 +431,7 @@ class DDInverse(ngsolve.BaseMatrix):
         self.reason = ""
         self.relative_residual: float | None = None
         self.scaled_residual: float | None = None
+        self.error_estimate: float | None = None
         self.free = _free_mask(fes, freedofs)
         # the dofs whose loads a solve reads and whose values it returns: the free ones, except for a form
         # with condense=True, whose a.mat is NGSolve's Schur complement on the coupling dofs; DDInverse
@@ -399,7 +442,7 @@ class DDInverse(ngsolve.BaseMatrix):
             local = np.array(fes.FreeDofs(False), dtype=bool) & ~np.array(fes.FreeDofs(True), dtype=bool)
             self.free = self.free | local
             self.io_free = self.free & ~local
-        ndof = fes.ndof
+        ndof = self.ndof = fes.ndof
 
         t = time.perf_counter()
         V = vertex_table(fes.mesh)
@@ -491,29 +534,37 @@ class DDInverse(ngsolve.BaseMatrix):
 
     # ----------------------------------------------------------- BaseMatrix
     def Height(self) -> int:
-        return self.fes.ndof
+        return self.ndof
 
     def Width(self) -> int:
-        return self.fes.ndof
+        return self.ndof
 
     def IsComplex(self) -> bool:
         return False
 
     def CreateColVector(self):
-        return ngsolve.BaseVector(self.fes.ndof, False)
+        return ngsolve.BaseVector(self.ndof, False)
 
     def CreateRowVector(self):
-        return ngsolve.BaseVector(self.fes.ndof, False)
+        return ngsolve.BaseVector(self.ndof, False)
 
     def CreateVector(self, colvector: bool = False):
-        return ngsolve.BaseVector(self.fes.ndof, False)
+        return ngsolve.BaseVector(self.ndof, False)
+
+    def _check_unchanged(self) -> None:
+        """Refuse a space whose dofs changed since the build (mesh.Refine() and fes.Update())."""
+        if self.fes.ndof != self.ndof:
+            raise InputError("fes", f"has {self.fes.ndof} dofs now, {self.ndof} when this DDInverse was built "
+                                    "(mesh.Refine() and fes.Update()?); call Update() or build a new DDInverse")
 
     def Mult(self, x: Any, y: Any) -> None:
-        out = _check_vector("y", y.FV().NumPy(), self.fes.ndof)
+        self._check_unchanged()
+        out = _check_vector("y", y.FV().NumPy(), self.ndof)
         out[:] = self.solve(x.FV().NumPy())
 
     def MultAdd(self, s: float, x: Any, y: Any) -> None:
-        out = _check_vector("y", y.FV().NumPy(), self.fes.ndof)
+        self._check_unchanged()
+        out = _check_vector("y", y.FV().NumPy(), self.ndof)
         out[:] += s * self.solve(x.FV().NumPy())
 
     def MultTrans(self, x: Any, y: Any) -> None:
@@ -542,19 +593,20 @@ class DDInverse(ngsolve.BaseMatrix):
         f, fb = self._condensed(f)
         return self._primal_load(f), fb
 
-    def _residuals(self, u: np.ndarray, f_condensed: np.ndarray) -> tuple[float, float]:
-        """||f - A u|| / ||f|| and ||D^{-1/2} (f - A u)|| / ||D^{-1/2} f|| of the condensed problem.
+    def _residuals(self, u: np.ndarray, f_condensed: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """||f - A u|| / ||f||, ||D^{-1/2} (f - A u)|| / ||D^{-1/2} f|| and r = A u - f of the condensed problem.
 
         The condensed problem: the free non-bubble dofs (the bubbles are exact). A u is assembled
         from the subdomain matrices, sum_i R_i^T K_i R_i u: one product with the block-diagonal K_W,
         shape (n_W, n_W). D = diag(A) = sum_i R_i^T diag(K_i), positive for an SPD form. Both are
         absolute residuals when f = 0.
 
-        Why the scaled one decides: the Krylov rules of FETI-DP and FETI measure the dual residual,
-        the jump B u. A jump of size e in a part with coefficient rho leaves a residual of size
-        rho e there, so with a coefficient jump of 1e6 a solution with an energy error of 2e-7
-        read ||f - A u|| / ||f|| = 1.2e-4 (order 2, rtol 1e-8; docs/ngsolve.md). D^{-1/2} divides
-        that factor out; where the diagonal is uniform the two agree.
+        The scaled one is the residual of the Jacobi-scaled equations: the Krylov rules of FETI-DP
+        and FETI measure the dual residual, the jump B u, and a jump of size e in a part with
+        coefficient rho leaves a residual of size rho e there, so with a coefficient jump of 1e6 a
+        solution with an energy error of 2e-7 read ||f - A u|| / ||f|| = 1.2e-4 (order 2, rtol
+        1e-8; docs/ngsolve.md). D^{-1/2} divides that factor out; where the diagonal is uniform the
+        two agree. r is in the numbering of the free non-bubble dofs (``h1_of_gdof``).
         """
         sub = self.sub
         f_g, u_g = f_condensed[self.h1_of_gdof], u[self.h1_of_gdof]
@@ -564,10 +616,31 @@ class DDInverse(ngsolve.BaseMatrix):
         for res, rhs in ((r, f_g), (r * w, f_g * w)):
             norm_f = float(np.linalg.norm(rhs))
             out.append(float(np.linalg.norm(res)) / (norm_f if norm_f > 0 else 1.0))
-        return out[0], out[1]
+        return out[0], out[1], r
+
+    def _error_estimate(self, r: np.ndarray, u: np.ndarray, f_condensed: np.ndarray) -> float:
+        """Estimated relative energy error sqrt(r^T M^{-1} r / f^T u) of a solve (one BDDC application).
+
+        r = A u - f of the condensed problem (:meth:`_residuals`), M^{-1} the BDDC preconditioner of
+        the full space with exact interior solves (:meth:`_BDDC.precondition`), whose eigenvalues on A
+        lie in [1, kappa]: with e = u - u*, e^T A e <= r^T M^{-1} r <= kappa e^T A e, so the estimate
+        bounds ||e||_A / ||u||_A (f^T u = u^T A u up to the error) from above, and overestimates it by
+        at most sqrt(kappa). 0 for f = 0 (then u = 0); inf if f^T u <= 0 with r != 0 (an SPD form has
+        f^T u* > 0). Bubbles are condensed exactly and carry no error.
+        """
+        sub = self.sub
+        f_g, u_g = f_condensed[self.h1_of_gdof], u[self.h1_of_gdof]
+        if not np.any(r):
+            return 0.0
+        energy = float(f_g @ u_g)
+        if not energy > 0:
+            return math.inf
+        z_W = self._bddc.precondition(self.space.to_primal(sub.delta * r[sub.l2g]))
+        z = sub.average(self.space.from_primal(z_W))
+        return math.sqrt(abs(float(r @ z)) / energy)
 
     def _expand(self, u_W: np.ndarray, fb: np.ndarray | None) -> np.ndarray:
-        u = np.zeros(self.fes.ndof)
+        u = np.zeros(self.ndof)
         u[self.h1_of_gdof] = self.sub.average(self.space.from_primal(u_W))
         c = self.cond_data
         if c.b.size:
@@ -579,7 +652,12 @@ class DDInverse(ngsolve.BaseMatrix):
     def solve(self, f: np.ndarray) -> np.ndarray:
         """u with A u = f on the free dofs, zero elsewhere; f, u of shape (ndof,)."""
         t = time.perf_counter()
-        f = _check_vector("f", f, self.fes.ndof)
+        self._check_unchanged()
+        f = _check_vector("f", f, self.ndof)
+        # solve for f / 2^e with max |f| ~ 2^e: exact (a power of two), so the iterations and the result are
+        # those of f, and a load near the overflow or underflow limits does not overflow the norms
+        exponent = int(np.frexp(np.max(np.abs(f), initial=0.0))[1]) if np.all(np.isfinite(f)) else 0
+        f = np.ldexp(f, -exponent)
         f_condensed, fb = self._condensed(f)
         f_W = self._primal_load(f_condensed)
         if self.method == "bddc" or self._bddc.n_g == 0:
@@ -592,18 +670,31 @@ class DDInverse(ngsolve.BaseMatrix):
         self.converged, self.reason = kr.converged, kr.reason
         u = self._expand(u_W, fb)
         # never call a wrong answer converged: the Krylov rule measures the interface or dual problem,
-        # so the assembled equations are checked too (a singular or inconsistent problem fails here)
-        self.relative_residual, self.scaled_residual = self._residuals(u, f_condensed)
-        if self.converged and not self.scaled_residual <= math.sqrt(self.rtol):
+        # so the error of the assembled equations is estimated too (a singular or inconsistent problem,
+        # or a dual rule that does not bound the error, fails here)
+        self.relative_residual, self.scaled_residual, r = self._residuals(u, f_condensed)
+        self.error_estimate = self._error_estimate(r, u, f_condensed)
+        limit = self.error_limit
+        if self.converged and not self.error_estimate <= limit:
             self.converged = False
-            self.reason = (f"the solution does not satisfy A u = f: scaled residual ||D^-1/2 (f - A u)|| / "
-                           f"||D^-1/2 f|| = {self.scaled_residual:.1e} > sqrt(rtol) = {math.sqrt(self.rtol):.1e} "
-                           f"although the {self.method} iteration met its rule ({kr.reason}); the problem is "
-                           f"singular, or its rule does not bound this residual at this rtol (lower rtol)")
+            self.reason = (f"the solution does not satisfy A u = f to the tolerance: estimated relative energy "
+                           f"error sqrt(r^T M^-1 r / f^T u) = {self.error_estimate:.1e} > {limit:.1e} "
+                           f"(min(max({ERROR_FACTOR:g} rtol, sqrt(rtol)), {ERROR_CAP:g})) although the {self.method} "
+                           f"iteration met its rule "
+                           f"({kr.reason}); the problem is singular or too ill-conditioned, or this method's rule "
+                           f"does not bound the error here (use method='bddc', or a lower rtol)")
+        u = np.ldexp(u, exponent)
         if not self.converged:
             log.warning("DDInverse: %s", self.reason)
+            warnings.warn(f"DDInverse did not converge: {self.reason}", ConvergenceWarning, stacklevel=3)
         self.timings["solve"] = time.perf_counter() - t
         return u
+
+    @property
+    def error_limit(self) -> float:
+        """The largest :attr:`error_estimate` a converged solve may have: min(max(ERROR_FACTOR rtol, sqrt(rtol)),
+        ERROR_CAP)."""
+        return min(max(ERROR_FACTOR * self.rtol, math.sqrt(self.rtol)), ERROR_CAP)
 
     @property
     def preconditioner(self) -> DDPreconditioner:
@@ -619,27 +710,28 @@ class DDPreconditioner(ngsolve.BaseMatrix):
         self.inv = inv
 
     def Height(self) -> int:
-        return self.inv.fes.ndof
+        return self.inv.ndof
 
     def Width(self) -> int:
-        return self.inv.fes.ndof
+        return self.inv.ndof
 
     def IsComplex(self) -> bool:
         return False
 
     def CreateColVector(self):
-        return ngsolve.BaseVector(self.inv.fes.ndof, False)
+        return ngsolve.BaseVector(self.inv.ndof, False)
 
     def CreateRowVector(self):
-        return ngsolve.BaseVector(self.inv.fes.ndof, False)
+        return ngsolve.BaseVector(self.inv.ndof, False)
 
     def CreateVector(self, colvector: bool = False):
-        return ngsolve.BaseVector(self.inv.fes.ndof, False)
+        return ngsolve.BaseVector(self.inv.ndof, False)
 
     def Mult(self, x: Any, y: Any) -> None:
         inv = self.inv
-        out = _check_vector("y", y.FV().NumPy(), inv.fes.ndof)
-        f_W, fb = inv._condense_rhs(_check_vector("f", x.FV().NumPy(), inv.fes.ndof))
+        inv._check_unchanged()
+        out = _check_vector("y", y.FV().NumPy(), inv.ndof)
+        f_W, fb = inv._condense_rhs(_check_vector("f", x.FV().NumPy(), inv.ndof))
         out[:] = inv._expand(inv._bddc.precondition(f_W), fb)
 
     def MultTrans(self, x: Any, y: Any) -> None:
