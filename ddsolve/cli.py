@@ -172,6 +172,15 @@ def _human(summary: dict[str, Any]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status."""
+    import os
+    # under mpiexec (a launcher's environment variable; docs/parallel.md) the ranks check the input each on
+    # its own, then agree (one allgather) before anything else: a rank that alone refused it (a file only it
+    # cannot read, its own memory check) would otherwise leave the others waiting in MPI forever
+    size = None
+    if any(name in os.environ for name in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")):
+        from .parallel.run import mpi_world_size
+        size = mpi_world_size() or 1
+    distributed, error = False, None
     try:
         args = parse_args(argv)
         logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
@@ -179,16 +188,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         max_memory = None if args.max_memory is None else parse_size(args.max_memory, "max-memory")
         spec = _spec_from_args(args)
         check_resources(spec, max_memory=max_memory)   # before NGSolve is imported or anything is built
-        # --- distributed solve under mpiexec (docs/parallel.md): launcher env vars, no mpi4py import otherwise
-        import os
-        if any(name in os.environ for name in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")):
-            from .parallel.run import DISTRIBUTED, check_supported, main as mpi_main, mpi_world_size
-            size = mpi_world_size() or 1
-            if size > 1 or spec.method in DISTRIBUTED.get(spec.problem, ()):    # -n 1: the distributed code too
+        if size is not None:
+            from .parallel.run import DISTRIBUTED, check_supported
+            distributed = size > 1 or spec.method in DISTRIBUTED.get(spec.problem, ())   # -n 1: distributed too
+            if distributed:
                 check_supported(spec, size)
-                return mpi_main(spec, args.json, _human)
-        # --- end of the distributed block
-        from .api import solve
+    except InputError as exc:
+        error = exc
+    if size is not None and size > 1:
+        from .parallel.run import agree_on_input
+        error, status = agree_on_input(error)
+        if status is not None:            # no working mpi4py, or one that does not match the launcher
+            return status
+    try:
+        if error is not None:
+            raise error
+        if distributed:
+            from .parallel.run import main as mpi_main
+            status = mpi_main(spec, args.json, _human)
+            if status is not None:
+                return status
+        from .api import solve         # serial: no launcher, a serial method on one rank, or -n 1 without mpi4py
         result = solve(spec)
     except InputError as exc:
         sys.stderr.write(f"ddsolve: error: {exc}\n")     # one write: under mpiexec ranks' lines never interleave

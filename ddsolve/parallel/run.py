@@ -1,8 +1,8 @@
 """Entry points of a distributed solve: :func:`solve` (library) and :func:`main` (command line).
 
 Under ``mpiexec`` the command line (:func:`ddsolve.cli.main`) validates the
-input on every rank (identically, before any MPI call) and then calls
-:func:`main` here. Rank 0 alone prints the result and writes files. An
+input on every rank, agrees on the result over all ranks (:func:`agree_on_input`,
+one allgather) and then calls :func:`main` here. Rank 0 alone prints the result and writes files. An
 exception on any rank prints one line ``ddsolve: error: <rank r>: <message>``
 on that rank and aborts the whole job (``MPI_Abort``): no rank hangs.
 """
@@ -24,7 +24,8 @@ from .comm import CountingComm
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DISTRIBUTED", "METHODS", "MPI_ENV", "check_supported", "mpi_world_size", "solve", "main"]
+__all__ = ["DISTRIBUTED", "METHODS", "MPI_ENV", "agree_on_input", "check_supported", "mpi_world_size", "solve",
+           "main"]
 
 #: Methods with a distributed implementation (problem poisson); ``mpiexec -n 1`` runs these distributed.
 METHODS = ("fetidp", "bddc", "feti")
@@ -304,15 +305,53 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         return result
 
 
-def main(spec: ProblemSpec, as_json: bool, human) -> int:
-    """Command-line solve under mpiexec; the input is already validated. Returns 0 (or aborts the job)."""
+def _world():
+    """(MPI.COMM_WORLD, None), or (None, the error line) without a working mpi4py or with one whose MPI is not
+    the launcher's (each process would be a job of its own, solving the whole problem)."""
+    size = mpi_world_size()
     try:
         from mpi4py import MPI
     except Exception as exc:     # noqa: BLE001 - not installed, or broken (its MPI library fails to load)
-        print(f"ddsolve: error: mpi: running under mpiexec with {mpi_world_size()} ranks needs mpi4py "
-              f"({exc})", file=sys.stderr)
-        return 2
+        return None, f"mpi: running under mpiexec with {size} ranks needs mpi4py ({exc})"
     comm = MPI.COMM_WORLD
+    if size is not None and comm.Get_size() != size:
+        return None, (f"mpi: the launcher started {size} processes but MPI sees {comm.Get_size()}: mpiexec is "
+                      f"not the one of mpi4py's MPI ({MPI.Get_library_version().splitlines()[0].strip()}); use "
+                      f"its mpiexec (the mpich package's)")
+    return comm, None
+
+
+def agree_on_input(error: InputError | None) -> tuple[InputError | None, int | None]:
+    """Agree on the command line's input checks over all ranks (P > 1), before any other MPI call.
+
+    Every rank checked the input on its own; one allgather gives every rank the lowest failing
+    rank's :class:`InputError` (or None), so that all ranks exit 2 together or go on together.
+
+    Returns
+    -------
+    (error, status)
+        The agreed error and None; or (None, 2) after printing one line when there is no
+        working mpi4py or its MPI does not match the launcher (then nothing can be agreed on).
+    """
+    comm, problem = _world()
+    if problem is not None:
+        sys.stderr.write(f"ddsolve: error: {problem}\n")
+        return None, 2
+    mine = None if error is None else (error.field, error.message)
+    errors = [e for e in comm.allgather(mine) if e is not None]
+    return (InputError(*errors[0]) if errors else None), None
+
+
+def main(spec: ProblemSpec, as_json: bool, human) -> int | None:
+    """Command-line solve under mpiexec; the input is already validated. Returns 0 or 2 (or aborts the job);
+    None on one rank without a working mpi4py (the caller then runs the serial solver: the same answer)."""
+    comm, problem = _world()
+    if problem is not None:
+        if mpi_world_size() in (None, 1) and "needs mpi4py" in problem:
+            log.info("mpiexec -n 1 without a working mpi4py: the serial solver runs (%s)", problem)
+            return None
+        sys.stderr.write(f"ddsolve: error: {problem}\n")
+        return 2
     if comm.Get_rank() != 0:        # the ranks run the same algorithm: rank 0 alone logs its warnings (and -v)
         root = logging.getLogger()
         root.setLevel(max(root.getEffectiveLevel(), logging.ERROR))

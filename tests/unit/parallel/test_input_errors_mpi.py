@@ -7,13 +7,15 @@ test_mpi.py::test_without_mpi4py_is_a_clear_error).
 """
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from launch import MPI_MARKS, mpiexec  # noqa: E402
+from launch import MPI_MARKS, ROOT, TIMEOUT, mpi_env, mpiexec  # noqa: E402
 
 pytestmark = MPI_MARKS
 
@@ -106,3 +108,52 @@ def test_error_line_is_one_write(monkeypatch):
     monkeypatch.setattr(sys, "stderr", Recorder())
     assert main(["solve", "--subdomains", "0"]) == 2
     assert calls == ["ddsolve: error: subdomains: must be an integer in [1, 2147483647], got '0'\n"]
+
+
+def _per_rank_command(tmp_path, per_rank_args: str) -> subprocess.CompletedProcess:
+    """``ddsolve.cli.main`` on 2 ranks, rank r with the command line ``[per_rank_args][r]``."""
+    code = ("import sys, os; from ddsolve.cli import main; "
+            f"sys.exit(main({per_rank_args}[int(os.environ['PMI_RANK'])]))")
+    return mpiexec(2, ["-c", code])
+
+
+def test_an_input_error_of_one_rank_before_mpi_is_agreed_on(tmp_path):
+    """A mesh file (or scene file) that only rank 0 can see, as on node-local disks: rank 1 refused the input
+    before any MPI call and exited 2 while rank 0 waited in MPI forever (fifth review). The ranks now agree
+    on their input checks first (one allgather): every rank prints rank 1's line and exits 2."""
+    mesh = _square_mesh(tmp_path / "square.vol")
+    missing = tmp_path / "only_on_rank_0.vol"
+    args = repr([["solve", "--mesh", "unstructured", "--mesh-file", str(mesh), "--parts", "2"],
+                 ["solve", "--mesh", "unstructured", "--mesh-file", str(missing), "--parts", "2"]])
+    proc = _per_rank_command(tmp_path, args)
+    _one_error_per_rank(proc, 2, "mesh_file: no such file: '")       # the path is clipped in the middle
+    assert proc.stderr.count("only_on_rank_0.vol'") == 2
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("subdomains: 2\nelements: 4\n")
+    args = repr([["solve", str(scene)], ["solve", str(tmp_path / "missing.yaml")]])
+    proc = _per_rank_command(tmp_path, args)
+    assert proc.returncode == 2 and proc.stderr.count("ddsolve: error: ") == 2, proc.stderr
+    assert "missing.yaml" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_a_launcher_that_is_not_mpi4pys_is_refused():
+    """Started with another MPI's environment (here Open MPI's variables on a plain process), mpi4py's MPICH
+    made each process a job of its own: P full solves, P JSON lines, exit 0 (fifth review)."""
+    env = {k: v for k, v in mpi_env().items() if not k.startswith(("PMI_", "HYDRA", "MPIR", "PMIX"))}
+    env.update(OMPI_COMM_WORLD_SIZE="2", OMPI_COMM_WORLD_RANK="0")
+    proc = subprocess.run([sys.executable, "-m", "ddsolve", "solve", "--subdomains", "2", "--elements", "2", "--json"],
+                          capture_output=True, text=True, timeout=TIMEOUT, env=env, cwd=ROOT)
+    assert proc.returncode == 2 and proc.stdout == "", proc.stderr
+    assert "ddsolve: error: mpi: the launcher started 2 processes but MPI sees 1" in proc.stderr
+
+
+def test_one_rank_without_mpi4py_runs_the_serial_solver(tmp_path):
+    """``mpiexec -n 1`` without a working mpi4py was an error ("with 1 ranks needs mpi4py"); one rank is the
+    serial solve, with the same answer."""
+    broken = tmp_path / "mpi4py"
+    broken.mkdir()
+    (broken / "__init__.py").write_text('raise ImportError("mpi4py broken (test)")\n')
+    proc = mpiexec(1, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4", "--json"],
+                   PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT), str(ROOT / "studies")]))
+    assert proc.returncode == 0, proc.stderr
+    assert '"converged": true' in proc.stdout and '"n_ranks"' not in proc.stdout
