@@ -84,10 +84,18 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.workflow)
 
 
-def two_squares(maxh: float):
+def _side_names(center) -> str | None:
+    for x, name in ((0, "wall"), (1, "gap"), (2, "far")):
+        if abs(center.x - x) < 1e-9:
+            return name
+    return None
+
+
+def two_squares(maxh: float, name_edge=_side_names):
     """NGSolve mesh of the unit squares [0,1]^2 (material "left") and [1,2]x[0,1] ("right"), sharing x = 1.
 
-    Boundaries: "wall" (x = 0), "gap" (x = 1, the shared side), "far" (x = 2); the others unnamed.
+    Boundaries named by ``name_edge(edge center)`` (None: unnamed); by default "wall" (x = 0), "gap"
+    (x = 1, the shared side) and "far" (x = 2).
     """
     import ngsolve as ngs
     from netgen.occ import Glue, MoveTo, OCCGeometry
@@ -98,9 +106,9 @@ def two_squares(maxh: float):
     right.faces.name = "right"
     shape = Glue([left, right])
     for edge in shape.edges:
-        for x, name in ((0, "wall"), (1, "gap"), (2, "far")):
-            if abs(edge.center.x - x) < 1e-9:
-                edge.name = name
+        name = name_edge(edge.center)
+        if name:
+            edge.name = name
     return ngs.Mesh(OCCGeometry(shape, dim=2).GenerateMesh(maxh=maxh))
 
 

@@ -14,6 +14,7 @@ from netgen.occ import Glue, MoveTo, OCCGeometry
 
 from ddsolve.errors import InputError
 from ddsolve.ngsolve import contact_solve
+from conftest import two_squares
 from test_ngsolve_contact import two_materials     # the two unit squares: wall, gap, far
 
 
@@ -86,16 +87,7 @@ def test_smooth_load_is_integrated_exactly(mesh):
 
 def _named(maxh: float, name_edge):
     """Two unit squares (materials left, right) glued at x = 1; edges named by ``name_edge(center)``."""
-    left = MoveTo(0, 0).Rectangle(1, 1).Face()
-    left.faces.name = "left"
-    right = MoveTo(1, 0).Rectangle(1, 1).Face()
-    right.faces.name = "right"
-    shape = Glue([left, right])
-    for edge in shape.edges:
-        name = name_edge(edge.center)
-        if name:
-            edge.name = name
-    return ngs.Mesh(OCCGeometry(shape, dim=2).GenerateMesh(maxh=maxh))
+    return two_squares(maxh, name_edge)
 
 
 def test_contact_vertex_clamped_in_one_body_only():
