@@ -19,6 +19,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
+from .dd.check import error_check
 from .krylov import TRUE_RESIDUAL_FACTOR, attained  # noqa: F401  (TRUE_RESIDUAL_FACTOR re-exported)
 from .limits import check_resources
 from .options import METHODS
@@ -267,6 +268,11 @@ def _solve(spec: ProblemSpec) -> SolveResult:
     else:
         kr = out.krylov
         converged, reason = attained(kr, spec.rtol)
+        estimate = out.extra.get("error_estimate")
+        if converged and estimate is not None:      # FETI, FETI-DP: the error of u itself (ddsolve.dd.check)
+            ok, why = error_check(estimate, spec.rtol, spec.method)
+            if not ok:
+                converged, reason = False, f"{why} ({reason})"
         fields.update(converged=converged, reason=reason, iterations=kr.iterations,
                       residuals=np.asarray(kr.residuals, dtype=float), true_residual=kr.true_residual)
         extra["restarts"] = int(getattr(kr, "restarts", 0))

@@ -15,6 +15,7 @@ from scipy.sparse.csgraph import connected_components
 from ..dd import Substructures
 from ..dd.edges import subdomain_edges_3d
 from ..errors import ConvergenceWarning, InputError
+from ..krylov.convergence import ERROR_CAP, ERROR_FACTOR, error_limit
 from ..options import PRIMAL_METHODS, PRIMALS
 from .dofs import (
     add_boundary_matrices,
@@ -45,13 +46,6 @@ SCALINGS = ("diagonal", "rho", "multiplicity", "deluxe")
 #: Off: at order 1 the integral and the nodal mean gave condition numbers within 1.3 % of each
 #: other (docs/ngsolve.md), and the nodal one costs no extra assembly.
 EDGE_WEIGHTS_P1 = False
-#: A solve whose Krylov rule is met is reported converged only if its estimated relative energy error
-#: (:meth:`DDInverse._error_estimate`, an upper bound) is at most min(max(ERROR_FACTOR rtol, sqrt(rtol)),
-#: ERROR_CAP). BDDC's rule keeps the error below rtol; FETI-DP's and FETI's dual rules leave it at 1-3 rtol
-#: on smooth problems and up to 1e2-1e4 rtol with coefficient jumps cut by the parts, where the bound
-#: itself overestimates by up to sqrt(cond) (docs/ngsolve.md, "A final error check").
-ERROR_FACTOR = 1000.0
-ERROR_CAP = 0.1
 
 
 def _free_mask(fes: Any, freedofs: Any) -> np.ndarray:
@@ -549,7 +543,7 @@ class DDInverse(ngsolve.BaseMatrix):
     def error_limit(self) -> float:
         """The largest :attr:`error_estimate` a converged solve may have: min(max(ERROR_FACTOR rtol, sqrt(rtol)),
         ERROR_CAP)."""
-        return min(max(ERROR_FACTOR * self.rtol, math.sqrt(self.rtol)), ERROR_CAP)
+        return error_limit(self.rtol)
 
     @property
     def preconditioner(self) -> DDPreconditioner:

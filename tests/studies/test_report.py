@@ -168,7 +168,7 @@ def test_schema_fills_defaults():
     {"methods": ["feti", "newton"]},        # unknown method
     {"subdomains": [2, -4]},                # negative count
     {"elements": [1]},                      # below the minimum
-    {"rtol": "1e-6"},                       # YAML 1.1 reads 1e-6 as a string
+    {"rtol": "1e-6x"},                      # a string that is no number
     {"maxiter": 0},
     {"rho": "stripes:3"},
     {"study": "../escape"},
@@ -184,6 +184,14 @@ def test_schema_rejects_bad_config(change):
     config = {"kind": "grid", "study": "s", "methods": ["feti"], "subdomains": [2], "elements": [4], **change}
     with pytest.raises(ConfigError):
         validate(config)
+
+
+def test_numbers_read_as_strings_become_numbers():
+    """YAML 1.1 reads 1e-6 (no dot) as a string, and Snakemake's --config list items are strings: where the
+    schema wants a number, the string is read as one (it was refused)."""
+    config = {"kind": "grid", "study": "s", "methods": ["feti"], "subdomains": ["2"], "elements": [4], "rtol": "1e-6"}
+    validate(config)
+    assert config["rtol"] == 1e-6 and config["subdomains"] == [2]
 
 
 def test_label_presets_splits_the_rule_sets():

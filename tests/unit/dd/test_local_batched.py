@@ -93,8 +93,10 @@ def test_one_batched_factorization_per_kind(count_factorizations):
     assert len(made) == 2, made
     assert out.n_factorizations == 3
     made.clear()
-    solve_feti(Substructures(local, templates=False), rtol=1e-10)
-    assert len(made) == 2, made         # K^+ (one node fixed per floating subdomain) and A_II
+    out = solve_feti(Substructures(local, templates=False), rtol=1e-10)
+    # K^+ (one node fixed per floating subdomain), A_II, and A_rr of the final error check (ddsolve.dd.check)
+    assert len(made) == 3, made
+    assert out.extra["error_estimate"] < 1e-8
 
 
 @pytest.mark.parametrize("ns,m", [(4, 6), (5, 9)])      # dense (<= DENSE_LIMIT unknowns) and sparse factor

@@ -1,0 +1,63 @@
+"""The final error check of FETI and FETI-DP (ddsolve.dd.check): an upper bound of the energy error of u.
+
+Found by the fifth black-box review: with multiplicity scaling and coefficient jumps the dual rule met
+rtol while u was 26% (rtol 1e-4, jump 1e6) to 107% (rtol 1e-6, jump 1e12) off, reported converged.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ddsolve import ProblemSpec, solve
+from ddsolve.dd.check import energy_error_estimate, error_check
+from ddsolve.dd.operators import DirichletSchur, PrimalConstrainedSolver
+from ddsolve.prepared import prepare
+
+
+def _energy_error(spec: ProblemSpec, u: np.ndarray) -> float:
+    prep = prepare(spec)
+    A = prep.sub.global_matrix()
+    f = prep.sub.assemble_vector(prep.sub.f_W)
+    from scipy.sparse.linalg import spsolve
+
+    exact = spsolve(A.tocsc(), f)
+    e = u - exact
+    return float(np.sqrt(e @ A @ e / (exact @ A @ exact)))
+
+
+@pytest.mark.parametrize(("method", "jump", "rtol"), [("fetidp", 1e12, 1e-6), ("feti", 1e12, 1e-6),
+                                                      ("fetidp", 1e6, 1e-4), ("feti", 1e6, 1e-4)])
+def test_multiplicity_scaling_with_jumps_is_not_converged(method, jump, rtol):
+    spec = ProblemSpec(method=method, subdomains=4, elements=6, rho=f"checkerboard:{jump:g}", scaling="multiplicity",
+                       rtol=rtol)
+    res = solve(spec)
+    error = _energy_error(spec, res.u)
+    assert error > 0.2                                        # the answer is wrong ...
+    assert res.converged is False                             # ... and says so
+    assert res.reason.startswith("the solution does not satisfy A u = f to the tolerance")
+    assert error <= res.extra["error_estimate"] * (1 + 1e-6) <= 1.5 * error     # rho-scaled BDDC: a tight bound
+
+
+@pytest.mark.parametrize("method", ["fetidp", "feti"])
+@pytest.mark.parametrize("rtol", [1e-2, 1e-4, 1e-8])
+@pytest.mark.parametrize("scaling", ["rho", "multiplicity"])
+def test_a_correct_solve_passes_the_check(method, rtol, scaling):
+    spec = ProblemSpec(method=method, subdomains=4, elements=6, rho="checkerboard:100" if scaling == "rho" else 1,
+                       scaling=scaling, rtol=rtol)
+    res = solve(spec)
+    error = _energy_error(spec, res.u)
+    assert res.converged, res.reason
+    assert error <= res.extra["error_estimate"] * (1 + 1e-6) <= 2 * error + 1e-14
+    assert error < 5 * rtol
+
+
+def test_bddc_has_no_check_and_a_zero_load_estimates_zero():
+    assert "error_estimate" not in solve(ProblemSpec(method="bddc", subdomains=3, elements=4)).extra
+    prep = prepare(ProblemSpec(method="fetidp", subdomains=3, elements=4, f=0))
+    sub = prep.sub
+    cache: dict = {}
+    estimate = energy_error_estimate(sub, np.zeros(sub.ndof), PrimalConstrainedSolver(sub, sub.vertex, cache),
+                                     DirichletSchur(sub, sub.interface, cache))
+    assert estimate == 0.0
+    assert error_check(0.0, 1e-6, "fetidp") == (True, "")
+    assert error_check(np.inf, 1e-6, "fetidp")[0] is False
