@@ -231,6 +231,10 @@ def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: 
     """Write ``spec.output`` (a .vtu file for ParaView, :mod:`ddsolve.io.vtk`) if it is set."""
     if not spec.output or u is None:
         return
+    if not np.all(np.isfinite(u)) or (lam is not None and not np.all(np.isfinite(lam))):
+        # a numerical breakdown: a file of NaN would replace the user's previous result for nothing
+        log.warning("not writing %s: the solution is not finite (the solve broke down)", spec.output)
+        return
     from .io.vtk import solution_fields, write_vtu
     nodal, cellwise = solution_fields(prep, u, lam)
     write_vtu(spec.output, prep.scene, nodal, cellwise)

@@ -185,6 +185,47 @@ def check_decomposition(spec: ProblemSpec) -> None:
                                 f"body has none); use method 'direct'")
 
 
+def check_scene_decomposition(spec: ProblemSpec, scene: "Scene") -> None:
+    """What :func:`check_decomposition` cannot see before a mesh file is read, checked on its scene.
+
+    Raises
+    ------
+    InputError
+        ``parts``: one subdomain in all (poisson), or a floating body of one subdomain (a floating
+        body pins one of its primal vertices); ``dirichlet``: a body of a multibody scene that no
+        chain of tied interfaces joins to a clamped body (the problem is singular).
+    """
+    if spec.method == "direct" or not spec.mesh_file:
+        return
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from .scene.contact import floating_bodies
+
+    if spec.problem == "poisson" and scene.n_subdomains == 1:
+        raise InputError("parts", f"method {spec.method!r} needs at least 2 parts (one subdomain has no "
+                                  f"interface); use method 'direct'")
+    floating = np.array(floating_bodies(scene), dtype=bool)
+    parts = np.bincount(scene.subdomain_body, minlength=scene.n_bodies)
+    lonely = np.flatnonzero(floating & (parts == 1))
+    if lonely.size:
+        raise InputError("parts", f"method {spec.method!r} needs 2 or more parts per floating body, body "
+                                  f"{int(lonely[0]) + 1} has 1: raise parts or use method 'direct'")
+    if spec.problem == "multibody" and scene.n_bodies > 1 and floating.any():
+        node_body = np.zeros(scene.n_nodes, dtype=np.int64)
+        node_body[scene.elements] = scene.subdomain_body[scene.element_subdomain][:, None]
+        a, b = node_body[scene.contact_pairs[:, 0]], node_body[scene.contact_pairs[:, 1]]
+        graph = coo_matrix((np.ones(a.size), (a, b)), shape=(scene.n_bodies, scene.n_bodies))
+        _, label = connected_components(graph, directed=False)
+        held = np.zeros(label.max() + 1, dtype=bool)
+        held[label[~floating]] = True
+        loose = np.flatnonzero(~held[label])
+        if loose.size:
+            raise InputError("dirichlet", f"body {int(loose[0]) + 1} is joined to no clamped body by tied "
+                                          f"interfaces (it floats freely: the problem is singular); clamp it "
+                                          f"or tie it to a clamped body")
+
+
 @dataclass(frozen=True)
 class Prepared:
     """An assembled and decomposed problem, ready for any method of its problem kind.
@@ -258,6 +299,7 @@ def prepare(spec: ProblemSpec | dict[str, Any], scene: "Scene | None" = None) ->
             from .scene.unstructured import LAST_TIMINGS
             scene_timings = {"mesh": LAST_TIMINGS.get("mesh", 0.0),
                              "partition": LAST_TIMINGS.get("split", 0.0) + LAST_TIMINGS.get("partition", 0.0)}
+    check_scene_decomposition(spec, scene)
     t1 = time.perf_counter()
     if spec.mesh != "unstructured" or scene.element_type != "P1":
         scene_timings["mesh"] = t1 - t0

@@ -330,6 +330,8 @@ def _path_text(field: str, value: Any) -> str:
     value = _plain(value)
     if value is None:
         return ""
+    if isinstance(value, os.PathLike):          # pathlib.Path from the Python API
+        value = os.fspath(value)
     if not isinstance(value, str) or len(value) > _MAX_PATH or "\x00" in value:
         raise InputError(field, f"must be a file path, got {brief(value)}")
     return value.strip()

@@ -330,7 +330,8 @@ def atomic_target(path: str | os.PathLike) -> Iterator[Path]:
         if exc.errno in NO_SPACE_ERRNOS:
             raise NoSpaceError(path, exc.errno) from exc
         raise
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}{TMP_SUFFIX}")
+    # a name of up to 255 bytes is legal; the temporary one adds about 30 characters, so keep its stem short
+    tmp = path.with_name(f".{path.name[:200]}.{os.getpid()}.{uuid.uuid4().hex[:8]}{TMP_SUFFIX}")
     try:
         yield tmp
         _inject_enospc(path)

@@ -108,7 +108,7 @@ def write_vtu(path: str | os.PathLike, scene: "Scene", nodal: Mapping[str, np.nd
             coefs.append(gf)
             names.append(name)
     path.parent.mkdir(parents=True, exist_ok=True)
-    base = path.with_name(f".{path.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    base = path.with_name(f".{path.stem[:200]}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")   # a legal name + 30 fits
     written = Path(str(base) + ".vtu")       # VTKOutput appends ".vtu" to its filename argument
     try:
         ngs.VTKOutput(ma=mesh, coefs=coefs, names=names, filename=str(base), subdivision=0).Do()
