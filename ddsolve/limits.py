@@ -153,7 +153,8 @@ def unstructured_triangles(spec: "ProblemSpec") -> float:
         if spec.mesh_file.endswith(".gz"):
             base *= 5.0                       # text compresses about 5:1
     else:
-        base = TRIANGLES_PER_AREA * GEOMETRY_AREA.get(spec.geometry, 1.0) / float(spec.maxh) ** 2
+        maxh = float(spec.maxh)     # divided twice: maxh ** 2 underflows to 0 for maxh = 1e-300 (inf, not an error)
+        base = TRIANGLES_PER_AREA * GEOMETRY_AREA.get(spec.geometry, 1.0) / maxh / maxh
     return base * 4.0 ** int(spec.refine)
 
 
@@ -251,6 +252,8 @@ def _positive(value: Any, field: str) -> float:
 
 
 def _human(nbytes: float) -> str:
+    if not math.isfinite(nbytes):
+        return "an unbounded amount"     # the estimate overflowed (maxh = 1e-300)
     for unit, scale in (("TiB", 1024.0 ** 4), ("GiB", 1024.0 ** 3), ("MiB", 1024.0 ** 2)):
         if nbytes >= scale:
             return f"{nbytes / scale:.3g} {unit}"
@@ -295,7 +298,7 @@ def check_resources(spec: "ProblemSpec", max_memory: Any = None, max_seconds: An
         limit, source = parse_size(max_memory), "--max-memory"
     if est.memory_bytes > limit:
         raise InputError(_largest_field(spec),
-                         f"problem too large: ~{_human(est.memory_bytes)} estimated for {est.n_w:.3g} W dofs, "
+                         f"problem too large: {'~' if math.isfinite(est.memory_bytes) else ''}{_human(est.memory_bytes)} estimated for {est.n_w:.3g} W dofs, "
                          f"limit {_human(limit)} ({source})")
     seconds = MAX_SETUP_SECONDS if max_seconds is None else _positive(max_seconds, "max_seconds")
     if est.setup_seconds > seconds:

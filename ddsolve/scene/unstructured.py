@@ -75,6 +75,10 @@ class NetgenData:
     bc_names: list[str] = field(default_factory=list)
 
 
+#: A .vol.gz may decompress to at most GZ_MAX_RATIO times its size, or GZ_MIN_LIMIT bytes if more.
+GZ_MAX_RATIO = 50
+GZ_MIN_LIMIT = 64 * 2**20
+
 def netgen_arrays(ngmesh: Any) -> NetgenData:
     """Read coordinates, triangles and segments of a netgen mesh with bulk numpy calls.
 
@@ -580,9 +584,19 @@ def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
     if not os.path.isfile(path):
         raise InputError("mesh", f"no such file: {path}")
     opener = gzip.open if path.endswith(".gz") else open
+    # a .gz is read in blocks up to GZ_MAX_RATIO times its size (at least GZ_MIN_LIMIT): a mesh's text
+    # compresses about 5:1, and a 2 MB compression bomb reached 4.3 GB before it was refused
+    limit = max(GZ_MAX_RATIO * os.path.getsize(path), GZ_MIN_LIMIT) if path.endswith(".gz") else None
     try:
         with opener(path, "rb") as fh:
-            text = fh.read().decode("latin-1")
+            if limit is None:
+                data = fh.read()
+            else:
+                data = fh.read(limit + 1)
+                if len(data) > limit:
+                    raise InputError("mesh", f"{path} decompresses to more than {limit / 2**20:.0f} MiB "
+                                             f"({GZ_MAX_RATIO}x its size): not a gzipped netgen mesh")
+            text = data.decode("latin-1")
     except (OSError, EOFError) as exc:           # EOFError: a truncated .gz
         raise InputError("mesh", f"cannot read {path}: {exc}") from None
     mesh_end = check_vol_text(text, path)        # netgen crashes (SIGSEGV) on a truncated or inconsistent file

@@ -49,6 +49,9 @@ _SINGLE = ("dimension", "geomtype")                 # sections of one integer va
 _INT_MAX = 2**31 - 1                                # netgen reads these columns as C ints
 
 
+#: Largest coordinate magnitude of a mesh file: squares and products of coordinates stay finite.
+MAX_COORDINATE = 1e150
+
 def _data_lines(block: str) -> list[str]:
     return [ln for ln in (raw.strip() for raw in block.splitlines()) if ln and not ln.startswith("#")]
 
@@ -107,6 +110,9 @@ def check_vol_text(text: str, name: str = "mesh file") -> int:
             raise InputError("mesh", f"{name}: section 'points' holds a value that is not a number") from None
         if xyz.size != 3 * len(pts) or not np.isfinite(xyz).all():
             raise InputError("mesh", f"{name}: every point needs three finite coordinates")
+        if xyz.size and np.abs(xyz).max() > MAX_COORDINATE:     # squared distances and areas would overflow
+            raise InputError("mesh", f"{name}: a coordinate of magnitude {np.abs(xyz).max():.3g} exceeds "
+                                     f"{MAX_COORDINATE:g} (rescale the mesh)")
         n_points = len(pts)
     if "surfaceelements" in sections:
         lines = sections["surfaceelements"][1:]          # (surfaceelementsuv: uv parameters follow)

@@ -96,3 +96,27 @@ def test_paths_may_be_pathlib_and_names_long(tmp_path):
     res = solve(ProblemSpec(mesh="unstructured", mesh_file=mesh, parts=4, method="bddc", output=out))
     assert res.converged and out.stat().st_size > 1000
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_hostile_sizes_are_one_line(tmp_path, capsys):
+    """maxh = 1e-300 was a ZeroDivisionError, a coordinate of 1e308 a scipy ValueError, and a 2 MB .vol.gz
+    that decompresses to gigabytes took 4.3 GB and 15 s before it was refused."""
+    import gzip
+
+    assert main(["solve", "--mesh", "unstructured", "--maxh", "1e-300"]) == 2
+    assert "maxh: problem too large: an unbounded amount estimated" in capsys.readouterr().err
+    path = pathlib.Path(_square(tmp_path / "sq.vol", maxh=0.5))
+    text = path.read_text()
+    first = text.index("points\n") + len("points\n")
+    count_end = text.index("\n", first)
+    line_end = text.index("\n", count_end + 1)
+    coords = text[count_end + 1:line_end].split()
+    big = tmp_path / "big.vol"
+    big.write_text(text[:count_end + 1] + " ".join(["1e308", *coords[1:]]) + text[line_end:])
+    assert main(["solve", "--mesh", "unstructured", "--mesh-file", str(big)]) == 2
+    assert "a coordinate of magnitude 1e+308 exceeds 1e+150" in capsys.readouterr().err
+    bomb = tmp_path / "bomb.vol.gz"
+    with gzip.open(bomb, "wb", compresslevel=9) as fh:
+        fh.write(b"mesh3d\n" + b" " * (200 * 2**20))
+    assert main(["solve", "--mesh", "unstructured", "--mesh-file", str(bomb)]) == 2
+    assert "decompresses to more than 64 MiB" in capsys.readouterr().err
