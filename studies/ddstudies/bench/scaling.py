@@ -387,7 +387,11 @@ def plot_scaling(df: pd.DataFrame, path: str | os.PathLike | None, *, title: str
     ax.set_ylabel("wall time of setup + solve [s] (assembly excluded)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
-    ax.set_title(title or "Contact problem (3.1), N = 20 subdomains per membrane side")
+    if title is None:
+        sizes = sorted({int(v) for v in df["subdomains"]}) if "subdomains" in df else []
+        title = ("Contact problem (3.1), N = " + ", ".join(map(str, sizes)) + " subdomains per membrane side"
+                 if sizes else "Contact problem (3.1)")
+    ax.set_title(title)
     fig.tight_layout()
     _save(fig, path)
     return fig
