@@ -212,3 +212,26 @@ def test_label_presets_splits_the_rule_sets():
     one = df[df["preset"] == "default"]
     same, names = label_presets(one, ["fetidp", "feti"])
     assert same is one and names == ["fetidp", "feti"]
+
+
+def test_a_study_of_one_other_preset_names_it_and_its_reports_run():
+    """preset: thesis alone: the report jobs failed after every solve ("one_rule_set: no run of rule set
+    'default'"), and the tables looked like the default's (sixth review)."""
+    import pandas as pd
+
+    from ddstudies.report.rule_sets import by_rule_set, chosen_rule_set, one_rule_set
+    from ddstudies.report.tables import label_presets
+
+    df = pd.DataFrame({"method": ["feti", "feti"], "subdomains": [2, 2], "elements": [2, 4],
+                       "preset": ["thesis", "thesis"], "cond": [1.2, 1.6]})
+    assert chosen_rule_set(df) == "thesis" and len(one_rule_set(df)) == 2
+    table = by_rule_set(df, lambda runs: runs.set_index("elements")[["cond"]])
+    assert "rule set 'thesis'" in table.attrs["notes"]["Rule sets:"]
+    labelled, methods = label_presets(df, ["feti"])
+    assert methods == ["feti [thesis]"] and set(labelled["method"]) == {"feti [thesis]"}
+    default = df.drop(columns="preset")
+    assert label_presets(default, ["feti"])[1] == ["feti"]
+    assert "notes" not in by_rule_set(default, lambda runs: runs.set_index("elements")[["cond"]]).attrs
+    both = pd.concat([df, df.assign(preset="other")])
+    with pytest.raises(ValueError, match="no run of rule set 'default'"):
+        one_rule_set(both)

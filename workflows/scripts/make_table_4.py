@@ -13,7 +13,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
     from ddstudies.report.plots import hbhs_growth
-    from ddstudies.report.rule_sets import one_rule_set, rule_sets
+    from ddstudies.report.rule_sets import chosen_rule_set, one_rule_set, rule_sets
     from ddstudies.report.tables import (describe_constants, growth_table,
                                        hbhs_sweep_table, mark_beyond_thesis, multibody_table, to_latex,
                                        to_markdown)
@@ -39,6 +39,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     if spec.get("kind") == "growth":
         base = [int(v) for v in sm.params.base]
         several = len(rule_sets(df)) > 1
+        shown_set = chosen_rule_set(df)     # the default's runs, or those of the one preset a study ran
         df = one_rule_set(df)   # one run per case: the default rule set's (the study may sweep `presets`)
         runs = df[df["method"].isin(["feti-feti", "hybrid"])]
         table = hbhs_sweep_table(df, dict(zip(["feti-feti", "hybrid"], theses)), base=base,
@@ -52,7 +53,8 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
             f"H_b/H_s varies with 1/H_b = {base[0]} and H_s/h = {base[2]} fixed (H_b/h = "
             f"{base[2]} H_b/H_s). {legend}. Rows marked † ({', '.join(map(str, beyond)) or 'none'}) "
             f"go beyond the thesis's tables.{constants(runs)}"
-            f"{' Runs of the default rule set only (the other presets: Tables 4.1 / 4.2).' if several else ''}\n\n")
+            f"{' Runs of the default rule set only (the other presets: Tables 4.1 / 4.2).' if several else ''}"
+            f"{f' Rule set {shown_set}, the only one this study ran.' if shown_set != 'default' else ''}\n\n")
         fits = (
             "\n## Growth in H_b/H_s\n\n"
             "values: ours at the two H_b/H_s values, ratio: their quotient. Fitted laws (least "

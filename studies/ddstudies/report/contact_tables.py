@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from ..aggregate import parse_list
-from .rule_sets import DEFAULT, RULE_SET_COLUMN, by_rule_set, one_rule_set, rule_sets
+from .rule_sets import DEFAULT, RULE_SET_COLUMN, by_rule_set, chosen_rule_set, one_rule_set, rule_sets
 from .tables import NOT_CONVERGED_MARK, NOT_CONVERGED_NOTE, describe_constants, to_latex, to_markdown
 
 #: Our key columns -> the key columns of the thesis transcriptions (table_5_1.csv, table_6_1.csv).
@@ -345,12 +345,14 @@ def render_comparison(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None
         the :func:`comparison_caption` line.
     """
     ran = rule_sets(df)
+    rule_set = chosen_rule_set(df, rule_set)
     df = one_rule_set(df, rule_set)   # one run per grid and method (a study may sweep `presets`)
     table = method_comparison(df, theses, methods=methods)
     caption = comparison_caption(table, methods=methods)
     others = [name for name in ran if name != rule_set]
     shown = (f"Rule set: {rule_set} (the runs of the other rule sets of the study, {', '.join(others)}, are in "
-             "Tables 5.1 / 6.1).\n\n" if others else "")
+             "Tables 5.1 / 6.1).\n\n" if others else
+             f"Rule set: {rule_set}, the only one this study ran.\n\n" if rule_set != DEFAULT else "")
     heading = ("# Active set + hybrid vs SMALBE: total iterations and wall time per grid\n\n"
                f"{shown}{caption}\n\n"
                "total it.: the sum of the inner iterations (Tables 5.1 / 6.1; the active set method's "

@@ -40,7 +40,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from .rule_sets import DEFAULT, one_rule_set, rule_sets  # noqa: E402
+from .rule_sets import DEFAULT, chosen_rule_set, one_rule_set, rule_sets  # noqa: E402
 from .tables import (CONTACT_CASES, LATEX_LABELS, METHOD_LABELS, MULTIBODY_ROW_LABELS,  # noqa: E402
                      ROW_LABELS, THESIS_KEYS, THESIS_QUANTITIES)
 
@@ -381,7 +381,8 @@ def plot_multibody_sweep(df: pd.DataFrame, thesis: pd.DataFrame | None, path: st
     (:func:`thesis_sweep`, when ``thesis`` is given) with fits of ``model``; see
     :func:`plot_sweep_fits` for the returned fits.
     """
-    fixed_rules = f", rule set {rule_set}" if len(rule_sets(df)) > 1 else ""
+    rule_set = chosen_rule_set(df, rule_set)
+    fixed_rules = f", rule set {rule_set}" if len(rule_sets(df)) > 1 or rule_set != DEFAULT else ""
     df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
     series = multibody_sweep(df, method=method, x=x, y=y, base=base, contacts=contacts)
     reference = thesis_sweep(thesis, x=x, y=y, base=base, contacts=contacts) if thesis is not None else None
@@ -514,7 +515,8 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
     dict
         ``{(case, method): ((a, b), r2)}`` of our fits.
     """
-    fixed_rules = f", rule set {rule_set}" if len(rule_sets(df)) > 1 else ""
+    rule_set = chosen_rule_set(df, rule_set)
+    fixed_rules = f", rule set {rule_set}" if len(rule_sets(df)) > 1 or rule_set != DEFAULT else ""
     df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
     theses = dict(theses or {})
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]

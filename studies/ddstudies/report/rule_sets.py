@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["DEFAULT", "RULE_SET_COLUMN", "RULE_SET_LEVEL", "by_rule_set", "closer_sentence", "one_rule_set",
+           "only_sentence", "chosen_rule_set",
            "rule_sets"]
 
 #: column of the aggregated runs naming the rule set (the spec's ``preset``)
@@ -45,21 +46,35 @@ def rule_sets(df: pd.DataFrame) -> list[str]:
     return sorted(names, key=lambda n: (n != DEFAULT, n)) or [DEFAULT]
 
 
+def only_sentence(name: str) -> str:
+    """The note of a table or figure whose every number comes from the one rule set ``name``."""
+    return f"every number here is from rule set {name!r} (ddsolve.presets), the only one this study ran."
+
+
+def chosen_rule_set(df: pd.DataFrame, name: str = DEFAULT) -> str:
+    """The rule set whose runs :func:`one_rule_set` returns for ``name``."""
+    ran = rule_sets(df)
+    return ran[0] if name == DEFAULT and DEFAULT not in ran and len(ran) == 1 else name
+
+
 def one_rule_set(df: pd.DataFrame, name: str = DEFAULT) -> pd.DataFrame:
     """The runs of one rule set, without the column :data:`RULE_SET_COLUMN`.
 
     For the reports that show one run per case (figures, the growth table, the
     contact comparison): a study sweeping ``presets`` has several runs per case,
     and these reports must not mix them. ``df`` without the column is returned
-    unchanged (all its runs are the defaults').
+    unchanged (all its runs are the defaults'). A study that ran one other
+    rule set only (``preset: thesis``) gives its runs for ``name`` = default;
+    the caller names it (:func:`rule_sets`).
 
     Raises
     ------
     ValueError
-        If ``df`` has runs but none of rule set ``name``.
+        If ``df`` has runs but none of rule set ``name`` (and more than one other).
     """
     if RULE_SET_COLUMN not in df.columns:
         return df
+    name = chosen_rule_set(df, name)
     out = _select(df, name)
     if out.empty and not df.empty:
         raise ValueError(f"one_rule_set: no run of rule set {name!r} (have: {', '.join(rule_sets(df))})")
@@ -148,7 +163,10 @@ def by_rule_set(df: pd.DataFrame, build: Callable[[pd.DataFrame], pd.DataFrame],
     """
     names = rule_sets(df)
     if len(names) == 1:
-        return build(df.drop(columns=RULE_SET_COLUMN) if RULE_SET_COLUMN in df.columns else df)
+        table = build(df.drop(columns=RULE_SET_COLUMN) if RULE_SET_COLUMN in df.columns else df)
+        if names[0] != DEFAULT:         # a study of one other preset: say whose numbers these are
+            table.attrs["notes"] = {**table.attrs.get("notes", {}), NOTE_MARK: only_sentence(names[0])}
+        return table
     tables = {name: build(_select(df, name)) for name in names}
     order: list[Any] = []
     for table in tables.values():

@@ -28,7 +28,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from .rule_sets import DEFAULT, RULE_SET_COLUMN, by_rule_set, one_rule_set
+from .rule_sets import DEFAULT, RULE_SET_COLUMN, by_rule_set, chosen_rule_set, one_rule_set, only_sentence
 
 #: Display names of key columns (1/H = subdomains per side, H/h = elements per subdomain side).
 ROW_LABELS: dict[str, str] = {
@@ -173,7 +173,8 @@ def label_presets(df: pd.DataFrame, methods: Sequence[str] | None = None) -> tup
 
     A grid study with ``presets: [default, thesis]`` solves every case once per rule set; without this
     the table refused the pairs (several runs for the same case) and the plot fitted both as one.
-    With one preset (or no ``preset`` column) ``df`` and ``methods`` come back unchanged.
+    With one preset (or no ``preset`` column) ``df`` and ``methods`` come back unchanged, except that
+    the one preset of a study that ran another than the default (``preset: thesis``) is named too.
 
     Returns
     -------
@@ -181,7 +182,8 @@ def label_presets(df: pd.DataFrame, methods: Sequence[str] | None = None) -> tup
     methods : list of str or None
         The labels in display order: each method's presets together, in order of appearance.
     """
-    if "preset" not in df.columns or df["preset"].nunique(dropna=False) <= 1:
+    single = "preset" in df.columns and df["preset"].nunique(dropna=False) == 1
+    if "preset" not in df.columns or (single and str(df["preset"].iloc[0]) in ("", "nan", DEFAULT)):
         return df, (list(methods) if methods is not None else None)
     presets = list(dict.fromkeys(df["preset"].astype(str)))
     out = df.copy()
@@ -423,6 +425,7 @@ def hbhs_sweep_table(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None]
         counts as in :func:`condition_table`.
     """
     quantities = dict(quantities or {})
+    shown_set = chosen_rule_set(df, rule_set)
     df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
     data = df[(pd.to_numeric(df["bodies"]) == int(base[0])) & (pd.to_numeric(df["elements"]) == int(base[2]))]
     parts, marks = [], []
@@ -444,6 +447,8 @@ def hbhs_sweep_table(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None]
     out = out[[c for case in contacts for c in out.columns
                if c[0].startswith(f"({CONTACT_CASES[case]}) ")]].sort_index()
     out.attrs = {"marks": marks, "notes": {NOT_CONVERGED_MARK: NOT_CONVERGED_NOTE} if marks else {}}
+    if shown_set != DEFAULT:
+        out.attrs["notes"]["Rule sets:"] = only_sentence(shown_set)
     mark_beyond_thesis(out)
     return out
 
