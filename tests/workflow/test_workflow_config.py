@@ -231,3 +231,32 @@ def test_bench_problems_are_checked(problems, message):
     data = {"kind": "bench", "rtols": [1e-2], "problems": problems}
     with pytest.raises(ConfigError, match=message):
         validate(data, SCHEMA_DIR / "bench.schema.yaml")
+
+
+@pytest.mark.parametrize("override, message", [
+    ("problems: {poisson: {methods: [fetdp]}}", "invalid config: problems: poisson: methods: unknown benchmark method"),
+    ("problems: {poisson: {peers: [pdas]}}", "invalid config: problems: poisson: peers: method 'pdas' does not solve"),
+    ("direct: cholmod", "invalid config: direct: backend 'cholmod' is not installed here"),
+])
+def test_bench_methods_and_backends_are_checked_while_planning(workdir, override, message):
+    """Were a KeyError traceback without a key path, and a failure of the first job (sixth review)."""
+    from ddstudies.bench.peers import available_direct_solvers
+
+    if "cholmod" in override and "cholmod" in available_direct_solvers():
+        pytest.skip("cholmod is installed here")
+    (workdir / "bad_bench.yaml").write_text(override + "\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/bench.yaml", "bad_bench.yaml", check=False)
+    assert proc.returncode != 0 and message in proc.stdout + proc.stderr
+
+
+def test_a_bad_study_entry_is_named_and_max_memory_reaches_the_studies(workdir):
+    (workdir / "which.yaml").write_text(
+        "studies:\n  - {name: p, configfile: config/poisson.yaml, set: {study: my_p, subdomains: [2], elements: [2]}}\n"
+        "  - {name: c, configfile: config/table_5_6.yaml, set: {study: my_c, rtol: 2.0}}\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "which.yaml", check=False)
+    assert proc.returncode != 0
+    assert "studies: c (config/table_5_6.yaml): invalid config (config.schema.yaml): rtol:" in proc.stdout + proc.stderr
+    (workdir / "tight.yaml").write_text(
+        "max_memory: 1M\nstudies:\n  - {name: p, configfile: config/poisson.yaml, set: {study: my_p}}\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "tight.yaml", check=False)
+    assert proc.returncode != 0 and "more than the 1 MiB" in proc.stdout + proc.stderr    # was 'unexpected key'

@@ -243,6 +243,12 @@ def _bench_cases():
 
     cases = []
     for kind, prob in config["problems"].items():
+        for key in ("methods", "peers"):
+            for name in prob.get(key, []):
+                try:
+                    get_method(name, kind)
+                except KeyError as err:
+                    raise WorkflowError(f"invalid config: problems: {kind}: {key}: {err.args[0]}") from None
         for name in list(prob.get("methods", [])) + list(prob.get("peers", [])):
             if get_method(name, kind).iterative:
                 cases += [(kind, name, tol) for tol in BENCH_RTOLS]
@@ -267,7 +273,12 @@ def bench_case_files(wildcards=None):
 
 if KIND == "bench":
     from ddsolve.spec import ProblemSpec
+    from ddstudies.bench.peers import available_direct_solvers
     from ddstudies.bench.problems import check_load_cells
+
+    if MAIN_PROCESS and config["direct"] not in available_direct_solvers():   # not after the first job
+        raise WorkflowError(f"invalid config: direct: backend {config['direct']!r} is not installed here "
+                            f"(available: {', '.join(available_direct_solvers())})")
 
     try:
         BENCH_RTOLS = studies_workflow.bench_rtols(config["rtols"])

@@ -11,6 +11,8 @@
 # (`table_4_solve_case`, ...). The module and use-rule statements are written as
 # the calls Snakemake compiles them to, so that the list of studies comes from the
 # config.
+import copy
+
 import yaml
 from snakemake.utils import update_config
 
@@ -27,6 +29,11 @@ def study_config(entry):
         raise WorkflowError(f"studies: {entry['name']}: cannot read configfile {entry['configfile']}: "
                             f"{err.strerror}")
     update_config(study, entry.get("set") or {})
+    kind = study.get("kind")
+    if "max_memory" in config and "max_memory" not in study and kind in studies_workflow.SCHEMAS:
+        # the list's max_memory reaches every study whose kind checks case sizes (its schema has the key)
+        if "max_memory" in studies_workflow.load_schema(schema_path(studies_workflow.SCHEMAS[kind]))["properties"]:
+            study["max_memory"] = config["max_memory"]
     return study
 
 
@@ -35,7 +42,12 @@ if len(set(STUDIES)) != len(STUDIES):
     raise WorkflowError(f"studies: names must be unique, got {STUDIES}")
 _OUTPUT_OF = {}      # two entries with one `study` would write the same results/<study>/ (Snakemake: ambiguous rules)
 for entry in config["studies"]:
-    _study = study_config(entry).get("study")
+    _config = study_config(entry)
+    try:        # each study's config, checked here so that an error names its entry
+        validate_study(copy.deepcopy(_config))
+    except WorkflowError as err:
+        raise WorkflowError(f"studies: {entry['name']} ({entry['configfile']}): {err}") from None
+    _study = _config.get("study")
     if _study is not None and _study in _OUTPUT_OF:
         raise WorkflowError(f"studies: {_OUTPUT_OF[_study]} and {entry['name']} both write study {_study!r} "
                             f"(results/{_study}/); give each entry its own `study`")
