@@ -260,3 +260,18 @@ def test_a_bad_study_entry_is_named_and_max_memory_reaches_the_studies(workdir):
         "max_memory: 1M\nstudies:\n  - {name: p, configfile: config/poisson.yaml, set: {study: my_p}}\n")
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "tight.yaml", check=False)
     assert proc.returncode != 0 and "more than the 1 MiB" in proc.stdout + proc.stderr    # was 'unexpected key'
+
+
+@pytest.mark.parametrize("config, message", [
+    ("kind: unstructured\nstudy: u\nproblems: {poisson: {maxh: 1.0e-4, refine: [0], parts: 4, "
+     "methods: [fetidp]}}\n", "invalid config: case problems/poisson/refine/0: needs about"),
+    ("kind: mpi\nstudy: m\nmethod: fetidp\nsubdomains: 20000\nelements: 2000\nranks: [1, 2]\n",
+     "invalid config: case fetidp: needs about"),
+    ("kind: mpi\nstudy: m\nmethod: fetidp\nsubdomains: 2\nelements: 4\nranks: [1, 64]\n",
+     "invalid config: ranks: 64 for fetidp: subdomains: 4 subdomains for 64 ranks"),
+])
+def test_unstructured_and_mpi_cases_are_sized_while_planning(workdir, config, message):
+    """These passed planning and failed (or took the machine's memory) in their jobs (sixth review)."""
+    (workdir / "sized.yaml").write_text(config)
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "sized.yaml", check=False)
+    assert proc.returncode != 0 and message in proc.stdout + proc.stderr

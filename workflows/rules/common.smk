@@ -409,6 +409,14 @@ if KIND == "unstructured":
         if not isinstance(_series["parts"], int) and len(_series["parts"]) != len(_series["refine"]):
             raise WorkflowError(f"invalid config: problems: {_problem}: parts: {len(_series['parts'])} values for "
                                 f"{len(_series['refine'])} refinements")
+    from ddstudies.bench.unstructured import parts_for as _parts_for
+
+    # every job's mesh must fit the machine, as every case of the other kinds (before any job runs)
+    checked_cases((f"problems/{_problem}/refine/{_r}",
+                   {"problem": _problem, "method": "fetidp" if _problem == "poisson" else "active-set",
+                    "mesh": "unstructured", "maxh": float(_series["maxh"]), "refine": int(_r),
+                    "parts": _parts_for(_series["refine"], _series["parts"])[_r]})
+                  for _problem, _series in config["problems"].items() for _r in _series["refine"])
     COND_SPECS = {}
     if "cond_law" in config:
         from ddstudies.bench import cond_law as studies_cond_law
@@ -484,6 +492,20 @@ def mpi_spec(wildcards):
 
 def mpi_case_files(wildcards=None):
     return [f"results/{STUDY}/{method}/P{P}.json" for method in mpi_methods() for P in config["ranks"]]
+
+
+if KIND == "mpi":     # every case must fit the machine (a P = 1 run holds it all), as the other kinds' cases
+    checked_cases((f"{method}", mpi_spec(SimpleNamespace(method=method))) for method in mpi_methods())
+    from ddsolve.errors import InputError
+    from ddsolve.parallel.run import check_supported
+    from ddsolve.spec import ProblemSpec
+
+    for _method in mpi_methods():     # what mpiexec would refuse on every rank (e.g. more ranks than subdomains)
+        for _P in config["ranks"]:
+            try:
+                check_supported(ProblemSpec.from_mapping(mpi_spec(SimpleNamespace(method=_method))), int(_P))
+            except InputError as err:
+                raise WorkflowError(f"invalid config: ranks: {_P} for {_method}: {err}") from None
 
 
 def mpi_previous_case(wildcards):
