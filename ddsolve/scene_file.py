@@ -6,6 +6,7 @@ hostile file is refused cheaply (one :class:`~ddsolve.errors.InputError`, field 
 from __future__ import annotations
 
 import os
+import re
 import stat
 from typing import Any, Mapping
 
@@ -13,10 +14,12 @@ import yaml
 
 from .errors import InputError, brief
 
-__all__ = ["MAX_SCENE_BYTES", "SceneLoader", "read_scene"]
+__all__ = ["MAX_SCENE_BYTES", "PATH_FIELDS", "SceneLoader", "read_scene"]
 
 #: Largest scene file read (bytes).
 MAX_SCENE_BYTES = 1 << 20
+#: File paths of a scene file, read relative to the scene file's directory.
+PATH_FIELDS = ("mesh_file", "output")
 
 
 class SceneLoader(yaml.SafeLoader):
@@ -64,6 +67,36 @@ class SceneLoader(yaml.SafeLoader):
                                           f"(an alias bomb?)")
             node._ddsolve_size = size
         return node
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        """A mapping; a key given twice is an error (YAML's loaders keep the last silently)."""
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            if isinstance(key, (str, int, float, bool)) and key in seen:
+                raise InputError("scene", f"key {brief(key)} is given twice (lines {seen[key] + 1} and "
+                                          f"{key_node.start_mark.line + 1})")
+            if isinstance(key, (str, int, float, bool)):
+                seen[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep=deep)
+
+    def _strict_number(self, node: Any, pattern: Any, construct: Any) -> Any:
+        """YAML 1.1 also reads 1:30 as 90, 1_0 as 10, 0x4 and 0b11: those stay text, so that the
+        fields refuse them as the command line does (`subdomains: must be an integer ...`)."""
+        text = self.construct_scalar(node)
+        return construct(self, node) if pattern.fullmatch(text.strip()) else text
+
+    def construct_strict_int(self, node: Any) -> Any:
+        return self._strict_number(node, _PLAIN_INT, yaml.SafeLoader.construct_yaml_int)
+
+    def construct_strict_float(self, node: Any) -> Any:
+        return self._strict_number(node, _PLAIN_FLOAT, yaml.SafeLoader.construct_yaml_float)
+
+
+_PLAIN_INT = re.compile(r"[-+]?[0-9]+")
+_PLAIN_FLOAT = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?")
+SceneLoader.add_constructor("tag:yaml.org,2002:int", SceneLoader.construct_strict_int)
+SceneLoader.add_constructor("tag:yaml.org,2002:float", SceneLoader.construct_strict_float)
 
 
 def read_scene(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -123,4 +156,10 @@ def read_scene(path: str | os.PathLike[str]) -> dict[str, Any]:
         return {}
     if not isinstance(loaded, Mapping):
         raise InputError("scene", f"{shown} must hold a mapping of fields, got {type(loaded).__name__}")
-    return dict(loaded)
+    out = dict(loaded)
+    base = os.path.dirname(name)
+    for key in PATH_FIELDS:      # relative to the scene file, not to the working directory
+        value = out.get(key)
+        if isinstance(value, str) and value.strip() and not os.path.isabs(value) and base:
+            out[key] = os.path.join(base, value)
+    return out

@@ -120,3 +120,26 @@ def test_hostile_sizes_are_one_line(tmp_path, capsys):
         fh.write(b"mesh3d\n" + b" " * (200 * 2**20))
     assert main(["solve", "--mesh", "unstructured", "--mesh-file", str(bomb)]) == 2
     assert "decompresses to more than 64 MiB" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text, message", [
+    ("rho: 1:30\n", "rho: must be a positive number, got '1:30'"),           # YAML 1.1: 90
+    ("subdomains: 1_0\n", "subdomains: must be an integer in [1, 2147483647], got '1_0'"),   # 10
+    ("subdomains: 0x4\n", "subdomains: must be an integer in [1, 2147483647], got '0x4'"),
+    ("subdomains: 4\nsubdomains: 8\n", "scene: key 'subdomains' is given twice (lines 1 and 2)"),   # last won
+])
+def test_scene_numbers_are_read_as_strictly_as_flags(tmp_path, capsys, text, message):
+    scene = tmp_path / "s.yaml"
+    scene.write_text(text)
+    assert main(["solve", str(scene)]) == 2
+    assert capsys.readouterr().err == f"ddsolve: error: {message}\n"
+
+
+def test_scene_file_paths_are_relative_to_the_scene(tmp_path, monkeypatch):
+    (tmp_path / "scenes").mkdir()
+    _square(tmp_path / "scenes" / "sq.vol")
+    (tmp_path / "scenes" / "s.yaml").write_text("mesh: unstructured\nmesh_file: sq.vol\nparts: 4\nmethod: bddc\n"
+                                                "output: u.vtu\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["solve", "scenes/s.yaml"]) == 0            # was 'mesh_file: no such file: sq.vol'
+    assert (tmp_path / "scenes" / "u.vtu").is_file() and not (tmp_path / "u.vtu").exists()
