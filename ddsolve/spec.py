@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import sys
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -123,11 +124,20 @@ def _as_int(field: str, value: Any, minimum: int, maximum: int = MAX_INT) -> int
     return out
 
 
+def _not_subnormal(field: str, out: float, value: Any) -> float:
+    """Refuse a nonzero value below the smallest normal double: it has fewer significant digits
+    (1e-320 keeps about 3), and a load of 1e-320 gave answers 11-13% off, reported converged."""
+    if out != 0.0 and abs(out) < sys.float_info.min:
+        raise InputError(field, f"{brief(_plain(value))} is below {sys.float_info.min:.3g}, the smallest "
+                                f"normal number (rescale the problem)")
+    return out
+
+
 def _as_positive_float(field: str, value: Any) -> float:
     out = _number(field, value, "a positive number")
     if not math.isfinite(out) or out <= 0:
         raise InputError(field, f"must be a positive finite number, got {brief(_plain(value))}")
-    return out
+    return _not_subnormal(field, out, value)
 
 
 def _as_bool(field: str, value: Any) -> bool:
@@ -226,7 +236,7 @@ def parse_f(value: Any) -> tuple[str, Any]:
     out = _number("f", value, "a number, 'random:SEED' or 'dostal:F1,F2'")
     if not math.isfinite(out):
         raise InputError("f", f"must be a finite number, 'random:SEED' or 'dostal:F1,F2', got {brief(value)}")
-    return "constant", out
+    return "constant", _not_subnormal("f", out, value)
 
 
 def parse_dostal(rest: str) -> tuple[float, float]:
@@ -239,7 +249,7 @@ def parse_dostal(rest: str) -> tuple[float, float]:
     values = (float(parts[0]), float(parts[1]))
     if not all(math.isfinite(v) for v in values):
         raise InputError("f", f"'dostal:F1,F2' needs two finite numbers, got {brief(rest)}")
-    return values
+    return (_not_subnormal("f", values[0], parts[0]), _not_subnormal("f", values[1], parts[1]))
 
 
 def _inapplicable(field: str, value: Any, why: str) -> InputError:

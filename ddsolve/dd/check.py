@@ -51,6 +51,10 @@ def energy_error_estimate(sub: Substructures, u: np.ndarray, primal_solver: Prim
     if not np.all(np.isfinite(u)):
         return math.inf
     f = sub.assemble_vector(sub.f_W)
+    # the ratio is scale-free: divide f and u by a power of two near max |f| (exact), so that the products
+    # neither underflow (a load of 1e-300: f^T u = 1e-600) nor overflow
+    exponent = int(np.frexp(np.max(np.abs(f), initial=0.0))[1])
+    f, u = np.ldexp(f, -exponent), np.ldexp(u, -exponent)
     r = sub.assemble_vector(sub.K_W @ u[sub.l2g]) - f
     if not np.any(r):
         return 0.0
