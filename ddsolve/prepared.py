@@ -99,15 +99,12 @@ def unstructured_scene_from_spec(spec: ProblemSpec) -> "Scene":
         try:
             scene = scene_from_mesh(spec.mesh_file, bodies=names, dirichlet=dirichlet,
                                     contact=spec.contact_boundary if contact else None, parts=spec.parts,
-                                    refine=spec.refine, f=1.0)
+                                    refine=spec.refine, f=1.0, one_body=spec.problem == "poisson")
         except InputError as exc:
             raise InputError(_MESH_FILE_FIELDS.get(exc.field, exc.field), exc.message) from None
         if contact and scene.n_bodies != 2:
             raise InputError("bodies_materials", f"problem 'contact' needs two bodies, the mesh file has "
                                                  f"{scene.n_bodies}")
-        if spec.problem == "poisson" and scene.n_bodies != 1:
-            raise InputError("bodies_materials", f"problem 'poisson' has one body, the mesh file has "
-                                                 f"{scene.n_bodies} (list one material in bodies_materials)")
         if contact and f_kind == "dostal":
             from .scene.contact import dostal_loads
             scene.f = dostal_loads(scene.coords[scene.elements].mean(axis=1), *f_value)

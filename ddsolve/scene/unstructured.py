@@ -618,7 +618,7 @@ def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
 def scene_from_mesh(path_or_mesh: str | os.PathLike | Any, *, bodies: Sequence[str] | None = None,
                     dirichlet: str | Sequence[str] = "boundary", contact: str | None = None, parts: int = 4,
                     refine: int = 0, rho: float | np.ndarray = 1.0, f: RightHandSide | np.ndarray = 1.0,
-                    seed: int = 0) -> Scene:
+                    seed: int = 0, one_body: bool = False) -> Scene:
     """P1 scene of a user's netgen mesh: materials are bodies, named boundaries carry the conditions.
 
     Parameters
@@ -640,6 +640,9 @@ def scene_from_mesh(path_or_mesh: str | os.PathLike | Any, *, bodies: Sequence[s
         Uniform refinements before splitting.
     rho, f, seed
         As in :func:`unstructured_scene`.
+    one_body : bool
+        Every material (of ``bodies``) in one body: a problem of one domain (poisson) on a mesh of
+        several materials.
 
     Returns
     -------
@@ -676,6 +679,8 @@ def scene_from_mesh(path_or_mesh: str | os.PathLike | Any, *, bodies: Sequence[s
     if unassigned:
         raise InputError("bodies", f"materials {unassigned} are in the mesh but not listed as bodies")
     body_of_material = np.array([bodies.index(name) if name in bodies else -1 for name in names], dtype=np.int64)
+    if one_body:
+        body_of_material[body_of_material >= 0] = 0
     t1 = time.perf_counter()
     scene = _assemble_scene(data, body_of_material, parts=parts, dirichlet=dirichlet, contact=contact,
                             rho=rho, f=f, seed=seed)

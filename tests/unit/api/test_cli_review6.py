@@ -84,7 +84,7 @@ def test_multibody_mesh_files_refuse_floating_bodies_of_one_part_and_untied_bodi
 def test_a_broken_down_solve_keeps_the_previous_output(tmp_path, caplog):
     out = tmp_path / "keep.vtu"
     out.write_text("previous result")
-    res = solve(ProblemSpec(rho=1e-320, output=str(out)))       # rho underflows: a NaN solution
+    res = solve(ProblemSpec(rho=1e-300, f=1e300, output=str(out)))     # u = f / rho overflows: a NaN solution
     assert not res.converged and not np.all(np.isfinite(res.u))
     assert out.read_text() == "previous result"
     assert "not writing" in caplog.text
@@ -143,3 +143,11 @@ def test_scene_file_paths_are_relative_to_the_scene(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["solve", "scenes/s.yaml"]) == 0            # was 'mesh_file: no such file: sq.vol'
     assert (tmp_path / "scenes" / "u.vtu").is_file() and not (tmp_path / "u.vtu").exists()
+
+
+def test_poisson_on_a_mesh_of_several_materials_is_one_body(tmp_path):
+    """Refused with advice ('list one material in bodies_materials') that the next check refused too."""
+    mesh = _two_bodies(tmp_path / "two.vol", apart=False)
+    res = solve(ProblemSpec(mesh="unstructured", mesh_file=mesh, parts=4, method="fetidp", dirichlet="clampA",
+                            check=True))
+    assert res.converged and res.bodies == 1 and res.error_vs_direct < 1e-6
