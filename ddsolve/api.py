@@ -207,6 +207,12 @@ def _sizes(spec: ProblemSpec) -> dict[str, int]:
     return {"subdomains": spec.subdomains, "elements": spec.elements}
 
 
+def result_bodies(spec: ProblemSpec, scene: Any) -> int:
+    """The ``bodies`` of a result: the spec's (bodies per side of a structured multibody scene), or the
+    mesh file's number of bodies (its materials; one for poisson)."""
+    return int(scene.n_bodies) if spec.mesh_file and scene is not None else int(spec.bodies)
+
+
 def peak_rss_mb() -> float:
     """Peak resident memory of this process so far (MiB; ``ru_maxrss`` is in KiB on Linux)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -247,7 +253,7 @@ def _solve(spec: ProblemSpec) -> SolveResult:
     t1 = time.perf_counter()
     run = SOLVERS[spec.problem][spec.method](prep)
     t_total = time.perf_counter() - t1
-    identity = dict(problem=spec.problem, method=spec.method, bodies=spec.bodies, **_sizes(spec),
+    identity = dict(problem=spec.problem, method=spec.method, bodies=result_bodies(spec, prep.scene), **_sizes(spec),
                     ndof=prep.sub.ndof)
     if spec.problem == "contact":
         from .contact.run import contact_result_fields

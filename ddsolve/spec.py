@@ -383,7 +383,13 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
         if not unstructured:
             raise _inapplicable("mesh_file", mesh_file, "a netgen mesh file needs mesh 'unstructured'")
         if not os.path.isfile(mesh_file):
-            raise InputError("mesh_file", f"no such file: {brief(mesh_file)}")
+            what = ("is a directory" if os.path.isdir(mesh_file) else
+                    "is not a regular file" if os.path.exists(mesh_file) else "")
+            raise InputError("mesh_file", f"{brief(mesh_file)} {what}" if what else f"no such file: {brief(mesh_file)}")
+        contact = _choice("contact", raw["contact"], CONTACTS, what="contact area")
+        if contact != CONTACTS[0]:
+            raise _inapplicable("contact", contact, "a mesh file ties every inter-body interface (its named "
+                                                    "boundaries say where)")
     why_structured = "it applies to mesh 'unstructured' only"
     default_geometry = GEOMETRIES[problem][0]
     geometry = default_geometry if raw["geometry"] is None else _choice(

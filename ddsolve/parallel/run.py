@@ -167,7 +167,8 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
         if why:
             extra["check_reason"] = why
     extra.update(common)
-    return SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
+    bodies = prob.pieces.get("n_bodies_result", spec.bodies)
+    return SolveResult(problem=spec.problem, method=spec.method, bodies=bodies, **sizes,
                        ndof=prob.ndof, **fields, extra=extra)
 
 
@@ -205,7 +206,8 @@ def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: fl
     fields["n_factorizations"] = red["n_fact"]
     common, sizes = _report(spec, prob, comm, red)
     fields["extra"].update(common)
-    result = SolveResult(problem=spec.problem, method=spec.method, bodies=spec.bodies, **sizes,
+    bodies = prob.pieces.get("n_bodies_result", spec.bodies)
+    result = SolveResult(problem=spec.problem, method=spec.method, bodies=bodies, **sizes,
                          ndof=prob.ndof, **fields)
     if spec.output:                # rank 0 alone writes; the gap of the file needs the serial B (as --check)
         from ..api import _write_output
@@ -275,6 +277,9 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
     with threadpool_limits(limits=1, user_api="blas"):
         t0 = time.perf_counter()
         prob = _prepare_agreed(spec, comm, scene)
+        if spec.mesh_file:    # the JSON's bodies: the mesh file's (each rank holds the bodies of its subdomains)
+            owned = prob.sub.scene.subdomain_body
+            prob.pieces["n_bodies_result"] = max(comm.comm.allgather(int(owned.max()) + 1 if owned.size else 0))
         prep_seconds = time.perf_counter() - t0
         fail = os.environ.get(FAIL_ENV)
         if fail is not None and fail == str(comm.rank):
