@@ -27,6 +27,8 @@ from ..dd.common import MethodOutput
 from ..dd.feti import pinned_entries
 from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur
+from .check import distributed_error_estimate, interface_pieces
+from .coarse import DistributedPrimalSolver
 from .comm import NeighbourSum
 from .dual import DistributedProjection, distributed_solve_dual
 from .fetidp import JumpRows, jump_pairs, jump_rows, summed_dual_operators
@@ -52,10 +54,12 @@ def distribute_feti(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> list
     sub_size = np.diff(topo.offsets).astype(float)
     floating = np.asarray(topo.floating_sub)
     out = []
-    for rows in jump_rows(pa, pb, delta[pb], -delta[pa], rank_of_sub[sa], rank_of_sub[sb], size):
+    pieces = interface_pieces(topo, rank_of_sub, size)      # for the final error check
+    for rows, iface in zip(jump_rows(pa, pb, delta[pb], -delta[pa], rank_of_sub[sa], rank_of_sub[sb], size),
+                           pieces):
         r = rows.rows
         out.append({"jump": rows, "sub_a": sa[r], "sub_b": sb[r], "q": None if q is None else q[r],
-                    "floating_sub": floating, "sub_size": sub_size})
+                    "floating_sub": floating, "sub_size": sub_size, **iface})
     return out
 
 
@@ -114,8 +118,13 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     if sol.alpha is not None:
         u_W = u_W + R_loc @ sol.alpha
     u = gather_solution(prob, u_W) if gather else None
+    extra = {"n_floating": k}
+    if kr.converged:        # as serial: the dual rule bounds the jump B u, not the error of u (one more factorization)
+        primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs)
+        extra["error_estimate"] = distributed_error_estimate(sub, u_W, primal_solver, schur, comm, prob.pieces)
+        n_fact += primal_solver.n_factorizations
     out = MethodOutput(u=u, krylov=kr, nlambda=n_lam, n_factorizations=n_fact, setup_seconds=setup,
-                       extra={"n_floating": k})
+                       extra=extra)
     info = {"mpi_at_setup": mpi_at_setup,
             "coarse_seconds": sol.coarse_seconds, "krylov_seconds": sol.krylov_seconds,
             "per_iteration": sol.per_iteration}

@@ -26,6 +26,7 @@ from ..dd.common import MethodOutput
 from ..dd.dual import dual_operators
 from ..dd.fetidp import dual_solve
 from ..dd.operators import DirichletSchur, linear_operator
+from .check import distributed_error_estimate, interface_pieces
 from .coarse import DistributedPrimalSolver
 from .comm import NeighbourSum, SharedIndex, shared_indices
 from .krylov import distributed_pcg
@@ -116,13 +117,16 @@ def jump_pairs(topo, mask_global: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def distribute_fetidp(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> list[dict]:
     """What each rank's FETI-DP needs from the global topology (computed on rank 0 and sent).
 
-    Returns, per rank, ``{"jump": JumpRows}``: its rows of the serial fully redundant B on the
-    dual nodes (``topo.interface & ~topo.vertex``), B_D scaled by delta-dagger.
+    Returns, per rank, ``{"jump": JumpRows, "interface": ..., "interface_dofs": ...}``: its rows of the
+    serial fully redundant B on the dual nodes (``topo.interface & ~topo.vertex``), B_D scaled by
+    delta-dagger, and the sharing of its interface dofs for the final error check
+    (:func:`ddsolve.parallel.check.interface_pieces`).
     """
     pa, pb = jump_pairs(topo, topo.interface & ~topo.vertex)
     delta = topo.delta
     ra, rb = rank_of_sub[topo.sub_of_W[pa]], rank_of_sub[topo.sub_of_W[pb]]
-    return [{"jump": rows} for rows in jump_rows(pa, pb, delta[pb], -delta[pa], ra, rb, size)]
+    rows = jump_rows(pa, pb, delta[pb], -delta[pa], ra, rb, size)
+    return [{"jump": r, **iface} for r, iface in zip(rows, interface_pieces(topo, rank_of_sub, size))]
 
 
 def summed_dual_operators(B, B_D, solve, schur_matvec, exchange: NeighbourSum):
@@ -174,9 +178,12 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     krylov_seconds = time.perf_counter() - t1
     u_W = primal_solver.solve(sub.f_W - B.T @ kr.x)
     u = gather_solution(prob, u_W) if gather else None
+    extra = {"n_primal": primal_solver.n_primal}
+    if kr.converged:        # as serial: the dual rule bounds the jump B u, not the error of u
+        extra["error_estimate"] = distributed_error_estimate(sub, u_W, primal_solver, schur, comm, prob.pieces)
     out = MethodOutput(u=u, krylov=kr, nlambda=n_lam,
                        n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
-                       setup_seconds=setup, extra={"n_primal": primal_solver.n_primal})
+                       setup_seconds=setup, extra=extra)
     info = {"mpi_at_setup": mpi_at_setup,
             "coarse_seconds": primal_solver.coarse_seconds, "krylov_seconds": krylov_seconds,
             "per_iteration": per_iteration}

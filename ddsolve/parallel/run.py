@@ -138,6 +138,12 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
         return None
     kr = out.krylov
     converged, reason = attained(kr, spec.rtol)
+    estimate = out.extra.get("error_estimate")
+    if converged and estimate is not None:      # FETI, FETI-DP: the error of u itself, as serial (ddsolve.dd.check)
+        from ..dd.check import error_check
+        ok, why = error_check(estimate, spec.rtol, spec.method)
+        if not ok:
+            converged, reason = False, f"{why} ({reason})"
     extra: dict[str, Any] = _scalar_extras(out.extra)
     extra["restarts"] = int(getattr(kr, "restarts", 0))
     extra["preset"] = spec.preset
