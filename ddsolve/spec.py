@@ -189,7 +189,11 @@ def parse_rho(value: Any) -> tuple[str, float]:
             kind = match["kind"].lower()
             if not (match["value"] or "").strip():
                 raise InputError("rho", f"{kind} needs a value, e.g. '{kind}:100', got {brief(value)}")
-            return kind, _as_positive_float("rho", match["value"])
+            try:
+                return kind, _as_positive_float("rho", match["value"])
+            except InputError as err:       # name the whole value, not only V
+                raise InputError("rho", f"{kind}:V needs a positive finite V, got {brief(value)}"
+                                        f"{' (subnormal)' if 'smallest normal' in err.message else ''}") from None
         if text[:1].isalpha():
             raise InputError("rho", f"must be a positive number, 'checkerboard:V' or 'body-checkerboard:V', "
                                     f"got {brief(value)}")

@@ -311,9 +311,9 @@ def check_cases(cases: Iterable[tuple[str, Mapping[str, Any]]], max_memory: floa
             raise ConfigError(f"invalid config: case {label}: {err}") from None
         size = estimate(spec)
         if size.memory_bytes > limit:
+            where = f"max_memory ({_human(limit)})" if max_memory else f"the {_human(limit)} of this machine"
             raise ConfigError(f"invalid config: case {label}: needs about {_human(size.memory_bytes)} of memory, "
-                              f"more than the {_human(limit)} of this machine (reduce subdomains/elements, or "
-                              f"set max_memory)")
+                              f"more than {where} (reduce subdomains/elements, or set max_memory)")
         out[label] = size
     return out
 

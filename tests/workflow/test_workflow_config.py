@@ -259,7 +259,7 @@ def test_a_bad_study_entry_is_named_and_max_memory_reaches_the_studies(workdir):
     (workdir / "tight.yaml").write_text(
         "max_memory: 1M\nstudies:\n  - {name: p, configfile: config/poisson.yaml, set: {study: my_p}}\n")
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "tight.yaml", check=False)
-    assert proc.returncode != 0 and "more than the 1 MiB" in proc.stdout + proc.stderr    # was 'unexpected key'
+    assert proc.returncode != 0 and "more than max_memory (1 MiB)" in proc.stdout + proc.stderr    # was 'unexpected key'
 
 
 @pytest.mark.parametrize("config, message", [
