@@ -103,8 +103,10 @@ class ContactProblem:
         return self.sub.ndof
 
     def energy(self, u: np.ndarray) -> float:
-        """J(u) = 1/2 u^T K u - f^T u, the objective of (3.1)."""
-        return float(0.5 * u @ (self.K @ u) - self.f @ u)
+        """J(u) = 1/2 u^T K u - f^T u, the objective of (3.1) (inf or nan beyond the double range: a load
+        of 1e300 gives J ~ 1e600; no RuntimeWarning is printed for it)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            return float(0.5 * u @ (self.K @ u) - self.f @ u)
 
     def gap(self, u: np.ndarray) -> np.ndarray:
         """B u = u^1 - u^2 on Gamma_c, shape (n_c,); feasible where <= 0."""

@@ -4,6 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+import math
+
 import numpy as np
 
 from ..errors import InputError
@@ -159,6 +161,18 @@ def contact_fields(spec: ProblemSpec, sol: ContactSolution, measures: ContactMea
         setup_seconds=setup, solve_seconds=max(sol.seconds - setup, 0.0), extra=extra)
 
 
+def _relative_error(x: np.ndarray, ref: np.ndarray) -> float | None:
+    """||x - ref|| / ||ref||, on both divided by max |ref| (a load of 1e-300 underflowed the norms to 0 and
+    read 0.0; one of 1e300 overflowed them); 0 for ref = x = 0, None if either is not finite."""
+    x, ref = np.asarray(x, dtype=float), np.asarray(ref, dtype=float)
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(ref))):
+        return None
+    scale = float(np.max(np.abs(ref), initial=0.0))
+    if scale == 0.0:
+        return 0.0 if not np.any(x) else math.inf
+    return float(np.linalg.norm(x / scale - ref / scale) / np.linalg.norm(ref / scale))
+
+
 def check_fields(spec: ProblemSpec, problem: ContactProblem, sol: ContactSolution, fields: dict[str, Any]) -> None:
     """Add the ``check`` fields to ``fields`` (in place): errors against the direct reference.
 
@@ -171,9 +185,7 @@ def check_fields(spec: ProblemSpec, problem: ContactProblem, sol: ContactSolutio
     """
     extra = fields["extra"]
     ref = sol if spec.method == "direct" else solve_contact_direct(problem)
-    fields["error_vs_direct"] = float(np.linalg.norm(sol.u - ref.u) / max(np.linalg.norm(ref.u), 1e-300))
-    lam_scale = max(np.linalg.norm(ref.lam), 1e-300)
-    extra["lambda_error_vs_direct"] = float(np.linalg.norm(sol.lam - ref.lam) / lam_scale)
+    fields["error_vs_direct"] = _relative_error(sol.u, ref.u)
+    extra["lambda_error_vs_direct"] = _relative_error(sol.lam, ref.lam)
     if "lambda_unpolished" in sol.extra:
-        extra["lambda_error_unpolished"] = float(np.linalg.norm(sol.extra["lambda_unpolished"] - ref.lam)
-                                                 / lam_scale)
+        extra["lambda_error_unpolished"] = _relative_error(sol.extra["lambda_unpolished"], ref.lam)

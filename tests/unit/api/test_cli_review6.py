@@ -151,3 +151,12 @@ def test_poisson_on_a_mesh_of_several_materials_is_one_body(tmp_path):
     res = solve(ProblemSpec(mesh="unstructured", mesh_file=mesh, parts=4, method="fetidp", dirichlet="clampA",
                             check=True))
     assert res.converged and res.bodies == 1 and res.error_vs_direct < 1e-6
+
+
+@pytest.mark.parametrize("load", [-1e-300, -1e300])
+def test_contact_check_is_scale_free(load):
+    """error_vs_direct read 0.0 at f = -1e-300 (the norms underflowed) and null at -1e300."""
+    ref = solve(ProblemSpec(problem="contact", subdomains=2, elements=4, f=-1.0, check=True))
+    res = solve(ProblemSpec(problem="contact", subdomains=2, elements=4, f=load, check=True))
+    assert res.error_vs_direct == pytest.approx(ref.error_vs_direct, rel=1e-6)
+    assert res.extra["lambda_error_vs_direct"] == pytest.approx(ref.extra["lambda_error_vs_direct"], rel=1e-6)
