@@ -46,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
                             description="Solve one scene and report iterations, condition estimate, timings.",
                             epilog=_EPILOG)
     s.add_argument("scene", nargs="?", help="YAML scene file (flags override its fields)")
+    # -v after the command too (ddsolve solve -v); SUPPRESS keeps a -v given before it
+    s.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help="log progress to stderr")
     s.add_argument("--problem", help="poisson (default), multibody or contact")
     s.add_argument("--method", help="poisson: fetidp (default), feti, bddc, direct; "
                                     "multibody: feti-feti, hybrid, direct; contact: active-set, smalbe, direct")

@@ -418,7 +418,10 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
         if mesh_file and _as_int("bodies", raw["bodies"], 1) not in (1, 2 if problem == "contact" else 1):
             raise _inapplicable("bodies", raw["bodies"], "the bodies of a mesh_file are its materials "
                                                          "(see bodies_materials)")
-    dirichlet = _names_text("dirichlet", raw["dirichlet"], "boundary") or "boundary"
+    dirichlet = _names_text("dirichlet", raw["dirichlet"], "boundary")
+    if not dirichlet:        # an empty --dirichlet "" meant the whole boundary, silently
+        raise InputError("dirichlet", "is empty: name the boundaries with u = 0, or 'boundary' for the whole "
+                                      "outer boundary")
     bodies_materials = _names_text("bodies_materials", raw["bodies_materials"], "")
     contact_boundary = _names_text("contact_boundary", raw["contact_boundary"], "contact") or "contact"
     if "," in contact_boundary:
