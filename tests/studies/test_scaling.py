@@ -84,6 +84,15 @@ def test_summary_targets_and_plot(tmp_path):
     assert [met for _, _, met in bad["targets"]] == [False, False, False]
     plot_scaling(_synthetic(1.2, 0.8), tmp_path / "scaling.png")
     assert (tmp_path / "scaling.png").stat().st_size > 0
+    # no direct runs: "n/a", not "nan"; a time falling with the size is not a growth law that meets a target
+    alone = _synthetic(1.2, 0.8)
+    alone = alone[alone["method"] == "active-set"].copy()
+    alone["wall_seconds"] = alone["wall_seconds"].to_numpy()[::-1]
+    lonely = scaling_summary(alone)
+    text = summary_markdown(lonely)
+    assert "nan" not in text and "n/a (no direct run" in text
+    assert [met for _, _, met in lonely["targets"]] == [None, None, None]
+    assert "(not a growth law: sizes too small)" in text
 
 
 @pytest.mark.parametrize("method", ["active-set", "pdas"])

@@ -279,7 +279,8 @@ def scaling_summary(df: pd.DataFrame, targets: Mapping[str, float] | None = None
     large = table[table["ndof"] >= t["large_ndof"]]
     checks: list[tuple[str, str, bool | None]] = []
     checks.append((f"{DDSOLVE_METHOD} time at {int(t['ratio_at_ndof'])} dofs <= {t['max_ratio']:g} x direct",
-                   f"{ratio_at:.2f} x", bool(ratio_at <= t["max_ratio"]) if math.isfinite(ratio_at) else None))
+                   f"{ratio_at:.2f} x" if math.isfinite(ratio_at) else "n/a (no direct run at that size)",
+                   bool(ratio_at <= t["max_ratio"]) if math.isfinite(ratio_at) else None))
     if len(large) and "ratio" in large:
         faster = bool((large["ratio"] < 1.0).all())
         measured = ", ".join(f"{r:.2f} x at {n}" for n, r in zip(large["ndof"], large["ratio"]))
@@ -287,9 +288,11 @@ def scaling_summary(df: pd.DataFrame, targets: Mapping[str, float] | None = None
         faster, measured = None, "no case with that many dofs"
     checks.append((f"{DDSOLVE_METHOD} faster than direct at >= {int(t['large_ndof'])} dofs", measured, faster))
     fit = fits.get(DDSOLVE_METHOD)
+    meaningful = fit is not None and fit.exponent > 0      # a time falling with the size: noise of tiny cases
     checks.append((f"{DDSOLVE_METHOD} time grows no faster than dofs^{t['max_exponent']:g}",
-                   f"dofs^{fit.exponent:.3f}" if fit else "no fit",
-                   bool(fit.exponent <= t["max_exponent"]) if fit else None))
+                   (f"dofs^{fit.exponent:.3f}" + ("" if meaningful else " (not a growth law: sizes too small)"))
+                   if fit else "no fit",
+                   bool(fit.exponent <= t["max_exponent"]) if meaningful else None))
     return {"fits": fits, "table": table, "ratio_at": ratio_at, "largest_ndof": largest,
             "ratio_largest": ratio_largest, "targets": checks, "target_values": t}
 
@@ -308,14 +311,17 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Scaling of the
         cells += [f"{row[f'{m}_seconds']:.3f}" for m in methods]
         cells += [f"{_int(row[f'{m}_iterations'])} ({_int(row[f'{m}_outer'])})" for m in methods]
         if "ratio" in table:
-            cells.append(f"{row['ratio']:.2f}")
+            cells.append(f"{row['ratio']:.2f}" if pd.notna(row["ratio"]) else "n/a")
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "Least-squares fit of log(time) against log(dofs):", ""]
     lines += [f"- {m}: time ~ {fit.prefactor:.3g} s x dofs^{fit.exponent:.3f} (R^2 = {fit.r2:.4f}, "
               f"{fit.n_points} sizes)" for m, fit in summary["fits"].items()]
+    def ratio(value: float) -> str:
+        return f"{value:.2f}" if math.isfinite(value) else "n/a (no direct run)"
+
     lines += ["", f"ddsolve / direct at {int(summary['target_values']['ratio_at_ndof'])} dofs: "
-              f"{summary['ratio_at']:.2f}; at the largest size ({summary['largest_ndof']:,} dofs): "
-              f"{summary['ratio_largest']:.2f}", "", "| target | measured | met |", "|---|---|---|"]
+              f"{ratio(summary['ratio_at'])}; at the largest size ({summary['largest_ndof']:,} dofs): "
+              f"{ratio(summary['ratio_largest'])}", "", "| target | measured | met |", "|---|---|---|"]
     for name, measured, met in summary["targets"]:
         lines.append(f"| {name} | {measured} | {'n/a' if met is None else ('yes' if met else 'no')} |")
     return "\n".join(lines) + "\n"
