@@ -18,7 +18,7 @@ rule bench_reference:
     wildcard_constraints:
         kind=BENCH_PROBLEMS,
     params:
-        spec=bench_spec,
+        spec=bench_reference_spec,
         load_cells=lambda wc: config["problems"][wc.kind].get("load_cells"),
     log:
         f"logs/{STUDY}/{{kind}}/reference.log",

@@ -265,6 +265,12 @@ def bench_spec(wildcards):
     return {**prob["spec"], "problem": wildcards.kind, "maxiter": config["maxiter"]}
 
 
+def bench_reference_spec(wildcards):
+    """:func:`bench_spec` without maxiter: the direct reference does not iterate, so a new maxiter must not
+    rerun it (Snakemake's params rerun-trigger)."""
+    return {key: value for key, value in bench_spec(wildcards).items() if key != "maxiter"}
+
+
 def bench_options(wildcards=None):
     return {key: config[key] for key in ("maxiter", "threads", "direct", "repeats")}
 
