@@ -17,7 +17,15 @@ from ..dd.operators import DirichletSchur
 from .coarse import DistributedPrimalSolver
 from .comm import CountingComm, NeighbourSum, SharedIndex
 
-__all__ = ["distributed_error_estimate", "interface_pieces"]
+__all__ = ["distributed_error_estimate", "distributed_needs_check", "interface_pieces"]
+
+
+def distributed_needs_check(sub, comm: CountingComm) -> bool:
+    """:func:`ddsolve.dd.check.needs_check` over the subdomains of all ranks (two Allreduces)."""
+    rho = np.asarray(sub.rho, dtype=float)
+    high = comm.allreduce_scalar(float(rho.max()) if rho.size else -math.inf, op="max")
+    low = -comm.allreduce_scalar(-float(rho.min()) if rho.size else -math.inf, op="max")
+    return high > low
 
 
 def interface_pieces(topo, rank_of_sub: np.ndarray, size: int) -> list[dict]:

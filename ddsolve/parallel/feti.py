@@ -27,7 +27,7 @@ from ..dd.common import MethodOutput
 from ..dd.feti import pinned_entries
 from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur
-from .check import distributed_error_estimate, interface_pieces
+from .check import distributed_error_estimate, distributed_needs_check, interface_pieces
 from .coarse import DistributedPrimalSolver
 from .comm import NeighbourSum
 from .dual import DistributedProjection, distributed_solve_dual
@@ -119,7 +119,8 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
         u_W = u_W + R_loc @ sol.alpha
     u = gather_solution(prob, u_W) if gather else None
     extra = {"n_floating": k}
-    if kr.converged:        # as serial: the dual rule bounds the jump B u, not the error of u (one more factorization)
+    # as serial: the dual rule bounds the jump B u, not the error of u (FETI: one more factorization)
+    if kr.converged and distributed_needs_check(sub, comm):
         primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs)
         extra["error_estimate"] = distributed_error_estimate(sub, u_W, primal_solver, schur, comm, prob.pieces)
         n_fact += primal_solver.n_factorizations

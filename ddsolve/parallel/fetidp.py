@@ -26,7 +26,7 @@ from ..dd.common import MethodOutput
 from ..dd.dual import dual_operators
 from ..dd.fetidp import dual_solve
 from ..dd.operators import DirichletSchur, linear_operator
-from .check import distributed_error_estimate, interface_pieces
+from .check import distributed_error_estimate, distributed_needs_check, interface_pieces
 from .coarse import DistributedPrimalSolver
 from .comm import NeighbourSum, SharedIndex, shared_indices
 from .krylov import distributed_pcg
@@ -179,7 +179,8 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     u_W = primal_solver.solve(sub.f_W - B.T @ kr.x)
     u = gather_solution(prob, u_W) if gather else None
     extra = {"n_primal": primal_solver.n_primal}
-    if kr.converged:        # as serial: the dual rule bounds the jump B u, not the error of u
+    # as serial: the dual rule bounds the jump B u, not the error of u (ddsolve.dd.check)
+    if kr.converged and distributed_needs_check(sub, comm):
         extra["error_estimate"] = distributed_error_estimate(sub, u_W, primal_solver, schur, comm, prob.pieces)
     out = MethodOutput(u=u, krylov=kr, nlambda=n_lam,
                        n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
