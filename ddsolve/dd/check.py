@@ -30,7 +30,8 @@ def needs_check(rho: np.ndarray) -> bool:
 
 
 def energy_error_estimate(sub: Substructures, u: np.ndarray, primal_solver: PrimalConstrainedSolver,
-                          schur: DirichletSchur, space=None) -> float:
+                          schur: DirichletSchur, space=None, *, f: np.ndarray | None = None,
+                          weights: np.ndarray | None = None) -> float:
     """sqrt(r^T M^{-1} r / f^T u): an upper bound of ||u - u*||_A / ||u||_A.
 
     r = A u - f is assembled from the subdomain matrices (A u = R^T K_W R u, no global matrix).
@@ -49,6 +50,10 @@ def energy_error_estimate(sub: Substructures, u: np.ndarray, primal_solver: Prim
         A~^{-1} and the local Dirichlet problems on the interface of ``space.sub``.
     space : PrimalSpace, optional
         ``sub.primal_space()`` when the primal space has edge averages (the solvers' basis).
+    f : ndarray, shape (ndof,), optional
+        The load; default the assembled ``sub.f_W`` (``DDInverse`` passes each solve's).
+    weights : ndarray, shape (n_W,), optional
+        The partition of unity of M^{-1} (any gives an upper bound); default rho-scaling weights.
 
     Returns
     -------
@@ -58,7 +63,7 @@ def energy_error_estimate(sub: Substructures, u: np.ndarray, primal_solver: Prim
     """
     if not np.all(np.isfinite(u)):
         return math.inf
-    f = sub.assemble_vector(sub.f_W)
+    f = sub.assemble_vector(sub.f_W) if f is None else np.asarray(f, dtype=float)
     # the ratio is scale-free: divide f and u by a power of two near max |f| (exact), so that the products
     # neither underflow (a load of 1e-300: f^T u = 1e-600) nor overflow
     exponent = int(np.frexp(np.max(np.abs(f), initial=0.0))[1])
@@ -72,7 +77,8 @@ def energy_error_estimate(sub: Substructures, u: np.ndarray, primal_solver: Prim
     hat = sub if space is None else space.sub
     to_primal = (lambda w: w) if space is None else space.to_primal
     from_primal = (lambda w: w) if space is None else space.from_primal
-    weights = sub.delta if (sub.scaling == "rho" and sub.gamma == 1.0) else sub.scaling_weights("rho", 1.0)
+    if weights is None:
+        weights = sub.delta if (sub.scaling == "rho" and sub.gamma == 1.0) else sub.scaling_weights("rho", 1.0)
     iface = InterfaceMap(hat, hat.interface)
     w_g = weights[iface.entries]
     r_W = to_primal(weights * r[sub.l2g])

@@ -13,6 +13,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..dd import Substructures
+from ..dd.check import energy_error_estimate
 from ..dd.edges import subdomain_edges_3d
 from ..errors import ConvergenceWarning, InputError
 from ..krylov.convergence import ERROR_CAP, ERROR_FACTOR, error_limit
@@ -442,8 +443,8 @@ class DDInverse(ngsolve.BaseMatrix):
         f, fb = self._condensed(f)
         return self._primal_load(f), fb
 
-    def _residuals(self, u: np.ndarray, f_condensed: np.ndarray) -> tuple[float, float, np.ndarray]:
-        """||f - A u|| / ||f||, ||D^{-1/2} (f - A u)|| / ||D^{-1/2} f|| and r = A u - f of the condensed problem.
+    def _residuals(self, u: np.ndarray, f_condensed: np.ndarray) -> tuple[float, float]:
+        """||f - A u|| / ||f|| and ||D^{-1/2} (f - A u)|| / ||D^{-1/2} f|| of the condensed problem.
 
         The condensed problem: the free non-bubble dofs (the bubbles are exact). A u is assembled
         from the subdomain matrices, sum_i R_i^T K_i R_i u: one product with the block-diagonal K_W,
@@ -455,7 +456,7 @@ class DDInverse(ngsolve.BaseMatrix):
         coefficient rho leaves a residual of size rho e there, so with a coefficient jump of 1e6 a
         solution with an energy error of 2e-7 read ||f - A u|| / ||f|| = 1.2e-4 (order 2, rtol
         1e-8; docs/ngsolve.md). D^{-1/2} divides that factor out; where the diagonal is uniform the
-        two agree. r is in the numbering of the free non-bubble dofs (``h1_of_gdof``).
+        two agree.
         """
         sub = self.sub
         f_g, u_g = f_condensed[self.h1_of_gdof], u[self.h1_of_gdof]
@@ -465,28 +466,14 @@ class DDInverse(ngsolve.BaseMatrix):
         for res, rhs in ((r, f_g), (r * w, f_g * w)):
             norm_f = float(np.linalg.norm(rhs))
             out.append(float(np.linalg.norm(res)) / (norm_f if norm_f > 0 else 1.0))
-        return out[0], out[1], r
+        return out[0], out[1]
 
-    def _error_estimate(self, r: np.ndarray, u: np.ndarray, f_condensed: np.ndarray) -> float:
-        """Estimated relative energy error sqrt(r^T M^{-1} r / f^T u) of a solve (one BDDC application).
-
-        r = A u - f of the condensed problem (:meth:`_residuals`), M^{-1} the BDDC preconditioner of
-        the full space with exact interior solves (:meth:`_BDDC.precondition`), whose eigenvalues on A
-        lie in [1, kappa]: with e = u - u*, e^T A e <= r^T M^{-1} r <= kappa e^T A e, so the estimate
-        bounds ||e||_A / ||u||_A (f^T u = u^T A u up to the error) from above, and overestimates it by
-        at most sqrt(kappa). 0 for f = 0 (then u = 0); inf if f^T u <= 0 with r != 0 (an SPD form has
-        f^T u* > 0). Bubbles are condensed exactly and carry no error.
-        """
-        sub = self.sub
-        f_g, u_g = f_condensed[self.h1_of_gdof], u[self.h1_of_gdof]
-        if not np.any(r):
-            return 0.0
-        energy = float(f_g @ u_g)
-        if not energy > 0:
-            return math.inf
-        z_W = self._bddc.precondition(self.space.to_primal(sub.delta * r[sub.l2g]))
-        z = sub.average(self.space.from_primal(z_W))
-        return math.sqrt(abs(float(r @ z)) / energy)
+    def _error_estimate(self, u: np.ndarray, f_condensed: np.ndarray) -> float:
+        """Estimated relative energy error of a solve, :func:`ddsolve.dd.check.energy_error_estimate` on the
+        condensed problem (its free non-bubble dofs; the bubbles are condensed exactly and carry no error),
+        with this inverse's BDDC operators and weights."""
+        return energy_error_estimate(self.sub, u[self.h1_of_gdof], self._bddc.primal, self._bddc.schur,
+                                     self.space, f=f_condensed[self.h1_of_gdof], weights=self.sub.delta)
 
     def _expand(self, u_W: np.ndarray, fb: np.ndarray | None) -> np.ndarray:
         u = np.zeros(self.ndof)
@@ -521,8 +508,8 @@ class DDInverse(ngsolve.BaseMatrix):
         # never call a wrong answer converged: the Krylov rule measures the interface or dual problem,
         # so the error of the assembled equations is estimated too (a singular or inconsistent problem,
         # or a dual rule that does not bound the error, fails here)
-        self.relative_residual, self.scaled_residual, r = self._residuals(u, f_condensed)
-        self.error_estimate = self._error_estimate(r, u, f_condensed)
+        self.relative_residual, self.scaled_residual = self._residuals(u, f_condensed)
+        self.error_estimate = self._error_estimate(u, f_condensed)
         limit = self.error_limit
         if self.converged and not self.error_estimate <= limit:
             self.converged = False
