@@ -15,7 +15,7 @@ from ..dd import Substructures
 from ..dd.check import energy_error_estimate
 from ..dd.edges import subdomain_edges_3d
 from ..errors import ConvergenceWarning, InputError
-from ..krylov.convergence import ERROR_CAP, ERROR_FACTOR, error_limit
+from ..krylov.convergence import ERROR_CAP, ERROR_FACTOR, ERROR_FLOOR, error_limit
 from ..options import PRIMAL_METHODS, PRIMALS
 from .dofs import (
     add_boundary_matrices,
@@ -210,7 +210,7 @@ class DDInverse(ngsolve.BaseMatrix):
         The solve is reported not converged when it exceeds :attr:`error_limit`, whatever the
         Krylov rule said.
     error_limit : float
-        min(max(1000 rtol, sqrt(rtol)), 0.1).
+        max(min(100 rtol, 0.1), 1e-9).
     ndof : int
         The space's number of dofs when the inverse was built (see :meth:`Update`).
     timings : dict
@@ -472,7 +472,8 @@ class DDInverse(ngsolve.BaseMatrix):
         condensed problem (its free non-bubble dofs; the bubbles are condensed exactly and carry no error),
         with this inverse's BDDC operators and weights."""
         return energy_error_estimate(self.sub, u[self.h1_of_gdof], self._bddc.primal, self._bddc.schur,
-                                     self.space, f=f_condensed[self.h1_of_gdof], weights=self.sub.delta)
+                                     self.space, f=f_condensed[self.h1_of_gdof], weights=self.sub.delta,
+                                     precondition=self._bddc.precondition)
 
     def _expand(self, u_W: np.ndarray, fb: np.ndarray | None) -> np.ndarray:
         u = np.zeros(self.ndof)
@@ -514,7 +515,7 @@ class DDInverse(ngsolve.BaseMatrix):
             self.converged = False
             self.reason = (f"the solution does not satisfy A u = f to the tolerance: estimated relative energy "
                            f"error sqrt(r^T M^-1 r / f^T u) = {self.error_estimate:.1e} > {limit:.1e} "
-                           f"(min(max({ERROR_FACTOR:g} rtol, sqrt(rtol)), {ERROR_CAP:g})) although the {self.method} "
+                           f"(min({ERROR_FACTOR:g} rtol, {ERROR_CAP:g}), at least {ERROR_FLOOR:g}) although the {self.method} "
                            f"iteration met its rule "
                            f"({kr.reason}); the problem is singular or too ill-conditioned, or this method's rule "
                            f"does not bound the error here (use method='bddc', or a lower rtol)")
@@ -527,8 +528,7 @@ class DDInverse(ngsolve.BaseMatrix):
 
     @property
     def error_limit(self) -> float:
-        """The largest :attr:`error_estimate` a converged solve may have: min(max(ERROR_FACTOR rtol, sqrt(rtol)),
-        ERROR_CAP)."""
+        """The largest :attr:`error_estimate` a converged solve may have (:func:`~ddsolve.krylov.convergence.error_limit`)."""
         return error_limit(self.rtol)
 
     @property
