@@ -56,7 +56,7 @@ def test_dry_run_with_the_slurm_profile(workdir):
     text = proc.stdout + proc.stderr
     assert proc.returncode == 0, text
     counts = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)\s*$", text, flags=re.MULTILINE)}
-    assert counts == {"solve_case": 1, "aggregate": 1, "table": 1, "plot_cond": 1, "all": 1, "total": 5}
+    assert counts == {"solve_case": 1, "aggregate": 1, "table": 1, "all": 1, "total": 4}    # cond: false: no plot
     solve = text[text.index("rule solve_case:"):]
     resources = re.search(r"resources: (.*)", solve).group(1)
     assert "mem_mb=500" in resources and "runtime=15" in resources and "tasks=1" in resources
