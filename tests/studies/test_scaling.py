@@ -90,7 +90,7 @@ def test_summary_targets_and_plot(tmp_path):
     alone["wall_seconds"] = alone["wall_seconds"].to_numpy()[::-1]
     lonely = scaling_summary(alone)
     text = summary_markdown(lonely)
-    assert "nan" not in text and "n/a (no direct run" in text
+    assert "nan" not in text and "n/a (no direct run at that size)" in text and "n/a (no runs of both" in text
     assert [met for _, _, met in lonely["targets"]] == [None, None, None]
     assert "(not a growth law: sizes too small)" in text
 

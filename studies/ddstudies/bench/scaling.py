@@ -317,7 +317,7 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Scaling of the
     lines += [f"- {m}: time ~ {fit.prefactor:.3g} s x dofs^{fit.exponent:.3f} (R^2 = {fit.r2:.4f}, "
               f"{fit.n_points} sizes)" for m, fit in summary["fits"].items()]
     def ratio(value: float) -> str:
-        return f"{value:.2f}" if math.isfinite(value) else "n/a (no direct run)"
+        return f"{value:.2f}" if math.isfinite(value) else "n/a (no runs of both methods at that size)"
 
     lines += ["", f"ddsolve / direct at {int(summary['target_values']['ratio_at_ndof'])} dofs: "
               f"{ratio(summary['ratio_at'])}; at the largest size ({summary['largest_ndof']:,} dofs): "
