@@ -15,8 +15,14 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
 
     sm = snakemake  # noqa: F821
     theses = {"active-set": pd.read_csv(sm.input.table_5_1), "smalbe": pd.read_csv(sm.input.table_6_1)}
-    md, tex, table, caption = render_comparison(pd.read_csv(sm.input.summary), theses)
+    from ddstudies.report.rule_sets import DEFAULT, chosen_rule_set, rule_sets
+
+    summary = pd.read_csv(sm.input.summary)
+    md, tex, table, caption = render_comparison(summary, theses)
     Path(sm.output.md).write_text(md)
     Path(sm.output.tex).write_text(tex)
-    plot_method_comparison(table, sm.output.png, caption=caption)
+    shown = chosen_rule_set(summary) if "preset" in summary.columns else DEFAULT
+    several = "preset" in summary.columns and len(rule_sets(summary)) > 1
+    plot_method_comparison(table, sm.output.png, caption=caption,     # name the rule set where it is not obvious
+                           rule_set=shown if several or shown != DEFAULT else None)
     print(md)

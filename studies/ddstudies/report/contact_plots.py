@@ -257,7 +257,7 @@ def plot_contact_line(line: pd.DataFrame, path: str | os.PathLike, *, title: str
 
 
 def plot_method_comparison(comparison: pd.DataFrame, path: str | os.PathLike, *,
-                           caption: str | None = None,
+                           caption: str | None = None, rule_set: str | None = None,
                            methods: Sequence[str] = ("active set", "SMALBE"),
                            colors: Mapping[str, str] | None = None) -> Path:
     """Total iterations and wall time per grid, both methods side by side (grouped bars).
@@ -272,6 +272,8 @@ def plot_method_comparison(comparison: pd.DataFrame, path: str | os.PathLike, *,
         Output PNG.
     caption : str, optional
         Text under the figure (e.g. :func:`~ddstudies.report.contact_tables.comparison_caption`).
+    rule_set : str, optional
+        The rule set of the runs, named in the title (where a study ran several, or another than the default).
     methods : sequence of str
         Method labels (second level of the columns).
     colors : mapping, optional
@@ -308,7 +310,8 @@ def plot_method_comparison(comparison: pd.DataFrame, path: str | os.PathLike, *,
     ax2.set_xticks(x)
     ax2.set_xticklabels(labels, fontsize=7)
     ax2.set_xlabel(r"grid: $N_{sub}(1/H)$ / $H/h$")
-    ax1.set_title("Contact problem (3.1): active set + hybrid vs SMALBE, per grid")
+    ax1.set_title("Contact problem (3.1): active set + hybrid vs SMALBE, per grid"
+                  + (f" (rule set {rule_set})" if rule_set else ""))
     if caption:
         fig.text(0.01, 0.005, caption, fontsize=7, wrap=True, va="bottom")
         fig.tight_layout(rect=(0, 0.035, 1, 1))
