@@ -19,7 +19,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
-from .dd.check import error_check
+from .dd.check import judged
 from .krylov import TRUE_RESIDUAL_FACTOR, attained  # noqa: F401  (TRUE_RESIDUAL_FACTOR re-exported)
 from .limits import check_resources
 from .options import METHODS
@@ -253,8 +253,8 @@ def _solve(spec: ProblemSpec) -> SolveResult:
     t1 = time.perf_counter()
     run = SOLVERS[spec.problem][spec.method](prep)
     t_total = time.perf_counter() - t1
-    identity = dict(problem=spec.problem, method=spec.method, bodies=result_bodies(spec, prep.scene), **_sizes(spec),
-                    ndof=prep.sub.ndof)
+    identity = dict(problem=spec.problem, method=spec.method, bodies=result_bodies(spec, prep.scene),
+                    **_sizes(spec), ndof=prep.sub.ndof)
     if spec.problem == "contact":
         from .contact.run import contact_result_fields
         fields = contact_result_fields(spec, prep.contact, run)
@@ -277,12 +277,8 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         fields.update(converged=bool(out.krylov.converged), reason=out.krylov.reason, iterations=0)
     else:
         kr = out.krylov
-        converged, reason = attained(kr, spec.rtol)
-        estimate = out.extra.get("error_estimate")
-        if converged and estimate is not None:      # FETI, FETI-DP: the error of u itself (ddsolve.dd.check)
-            ok, why = error_check(estimate, spec.rtol, spec.method)
-            if not ok:
-                converged, reason = False, f"{why} ({reason})"
+        # FETI, FETI-DP: the error of u itself (ddsolve.dd.check)
+        converged, reason = judged(*attained(kr, spec.rtol), out.extra, spec.rtol, spec.method)
         fields.update(converged=converged, reason=reason, iterations=kr.iterations,
                       residuals=np.asarray(kr.residuals, dtype=float), true_residual=kr.true_residual)
         extra["restarts"] = int(getattr(kr, "restarts", 0))

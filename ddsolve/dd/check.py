@@ -18,7 +18,7 @@ from .bddc import InterfaceMap
 from .operators import DirichletSchur, PrimalConstrainedSolver
 from .substructure import Substructures
 
-__all__ = ["energy_error_estimate", "error_check", "needs_check"]
+__all__ = ["energy_error_estimate", "error_check", "judged", "needs_check"]
 
 
 def needs_check(rho: np.ndarray) -> bool:
@@ -106,3 +106,14 @@ def error_check(estimate: float, rtol: float, method: str) -> tuple[bool, str]:
                    f"{ERROR_FLOOR:g}) "
                    f"although the {method} iteration met its rule; its rule does not bound the error here "
                    f"(multiplicity scaling with coefficient jumps?)")
+
+
+def judged(converged: bool, reason: str, extra: dict, rtol: float, method: str) -> tuple[bool, str]:
+    """(converged, reason) of a Krylov verdict after the error check of ``extra["error_estimate"]``, if any
+    (serial :func:`ddsolve.api.solve` and the distributed results alike)."""
+    estimate = extra.get("error_estimate")
+    if converged and estimate is not None:
+        ok, why = error_check(estimate, rtol, method)
+        if not ok:
+            return False, f"{why} ({reason})"
+    return converged, reason

@@ -137,13 +137,8 @@ def _result(spec: ProblemSpec, prob, out, info: dict, setup_seconds: float, solv
     if comm.rank != 0:
         return None
     kr = out.krylov
-    converged, reason = attained(kr, spec.rtol)
-    estimate = out.extra.get("error_estimate")
-    if converged and estimate is not None:      # FETI, FETI-DP: the error of u itself, as serial (ddsolve.dd.check)
-        from ..dd.check import error_check
-        ok, why = error_check(estimate, spec.rtol, spec.method)
-        if not ok:
-            converged, reason = False, f"{why} ({reason})"
+    from ..dd.check import judged
+    converged, reason = judged(*attained(kr, spec.rtol), out.extra, spec.rtol, spec.method)   # as serial
     extra: dict[str, Any] = _scalar_extras(out.extra)
     extra["restarts"] = int(getattr(kr, "restarts", 0))
     extra["preset"] = spec.preset
@@ -358,7 +353,7 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int | None:
     None on one rank without a working mpi4py (the caller then runs the serial solver: the same answer)."""
     comm, problem = _world()
     if problem is not None:
-        if mpi_world_size() in (None, 1) and "needs mpi4py" in problem:
+        if mpi_world_size() in (None, 1):      # one process: MPI cannot mismatch, so mpi4py is what is missing
             log.info("mpiexec -n 1 without a working mpi4py: the serial solver runs (%s)", problem)
             return None
         sys.stderr.write(f"ddsolve: error: {problem}\n")
