@@ -19,7 +19,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
-from .dd.check import judged
+from .dd.check import judged, needs_check
 from .krylov import TRUE_RESIDUAL_FACTOR, attained  # noqa: F401  (TRUE_RESIDUAL_FACTOR re-exported)
 from .limits import check_resources
 from .options import METHODS
@@ -142,6 +142,10 @@ def _multibody_runner(method: str) -> Runner:
             from .multibody.hybrid import HybridSolver
             out = HybridSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
                                               norm=spec.norm, projection=spec.projection, **options)
+        if out.krylov.converged and needs_check(sub.rho):    # the rules bound a residual, not the error of u
+            from .multibody.check import multibody_error_estimate
+            out.extra["error_estimate"], n_fact = multibody_error_estimate(sub, gi, active, out.u)
+            out.n_factorizations += n_fact
         return MethodRun(out, reference=reference, extra=extra)
     return run
 
@@ -277,7 +281,7 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         fields.update(converged=bool(out.krylov.converged), reason=out.krylov.reason, iterations=0)
     else:
         kr = out.krylov
-        # FETI, FETI-DP: the error of u itself (ddsolve.dd.check)
+        # FETI, FETI-DP, FETI-FETI, hybrid: the error of u itself (ddsolve.dd.check, ddsolve.multibody.check)
         converged, reason = judged(*attained(kr, spec.rtol), out.extra, spec.rtol, spec.method)
         fields.update(converged=converged, reason=reason, iterations=kr.iterations,
                       residuals=np.asarray(kr.residuals, dtype=float), true_residual=kr.true_residual)

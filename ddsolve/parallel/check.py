@@ -1,4 +1,5 @@
-"""The final error check of FETI and FETI-DP (:mod:`ddsolve.dd.check`), distributed.
+"""The final error checks of FETI and FETI-DP (:mod:`ddsolve.dd.check`) and of FETI-FETI and the hybrid
+method (:mod:`ddsolve.multibody.check`), distributed.
 
 The serial estimate sqrt(r^T M^{-1} r / f^T u), with M^{-1} a BDDC preconditioner of the same
 subdomains and rho-scaling weights, computed from each rank's subdomains: the interface values
@@ -8,16 +9,19 @@ entries and the owned interface dofs. It equals the serial estimate up to the su
 """
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
 
 from ..dd.bddc import InterfaceMap
 from ..dd.operators import DirichletSchur
+from ..multibody.check import floating_shifts, tied_nodes, tied_scene
 from .coarse import DistributedPrimalSolver
 from .comm import CountingComm, NeighbourSum, SharedIndex
 
-__all__ = ["distributed_error_estimate", "distributed_needs_check", "interface_pieces"]
+__all__ = ["distributed_error_estimate", "distributed_needs_check", "interface_pieces", "tied_pieces",
+           "distributed_multibody_estimate"]
 
 
 def distributed_needs_check(sub, comm: CountingComm) -> bool:
@@ -98,3 +102,116 @@ def distributed_error_estimate(sub, u_W: np.ndarray, primal_solver: DistributedP
     z_W = schur.interior_solution(r_W, iface.scatter(z_g))
     rz = total(rK[interior] @ z_W[interior] + r_g[owned] @ z_g[owned])
     return math.sqrt(abs(rz) / energy)
+
+
+def tied_pieces(topo, gi, active: np.ndarray, rank_of_sub: np.ndarray, size: int) -> list[dict]:
+    """Rank 0: per rank, what :func:`distributed_multibody_estimate` needs (computed from the global topology).
+
+    ``gi`` is the :class:`~ddsolve.multibody.GlobalInterface` of ``topo`` and ``active`` its active pairs.
+    The tied problem's topology (:func:`ddsolve.multibody.check.tied_scene`, no matrices) has the W layout
+    of ``topo``; each rank gets its :class:`~ddsolve.parallel.distribute.TopologySlice` (``"slice"``), the
+    tied primal dofs (``"primal_dofs"``, coarse-sized), its W entries on the body interfaces (``"gi_mask"``),
+    the floating bodies (``"floating"``) and ``"n_bodies"``, and the sharing of its interface dofs in the
+    bodies (``"body"``) and in the tied problem (``"tied"``), as :func:`interface_pieces`.
+    """
+    from .distribute import TopologySlice, owned_range, topology
+
+    n_tied, label = tied_nodes(topo, gi, active)
+    tied = topology(tied_scene(topo.scene, n_tied, label), "rho", 1.0)
+    if not (np.array_equal(tied.sub_of_W, topo.sub_of_W) and np.array_equal(tied.local_index, topo.local_index)):
+        raise RuntimeError("the tied topology does not keep the W layout of the bodies")
+    primal_dofs = np.unique(tied.l2g[tied.vertex])
+    floating = np.asarray(gi.floating_bodies(), dtype=np.int64)
+    body, tied_iface = interface_pieces(topo, rank_of_sub, size), interface_pieces(tied, rank_of_sub, size)
+    out = []
+    for r in range(size):
+        lo, hi = owned_range(topo.n_sub, size, r)
+        out.append({"slice": TopologySlice.of(tied, lo, hi, primal_dofs.size), "primal_dofs": primal_dofs,
+                    "gi_mask": np.array(gi.mask[topo.offsets[lo]:topo.offsets[hi]]), "floating": floating,
+                    "n_bodies": int(topo.scene.n_bodies),
+                    "body": {key: body[r][key] for key in ("interface", "interface_dofs")},
+                    "tied": {key: tied_iface[r][key] for key in ("interface", "interface_dofs")}})
+    return out
+
+
+def _tied_rank_substructures(sub, sl):
+    """This rank's subdomains (``sub``: same matrices and loads) on the tied layout of the slice ``sl``."""
+    from .distribute import W_FIELDS
+
+    tied = copy.copy(sub)
+    for name in W_FIELDS:
+        setattr(tied, name, getattr(sl, name))
+    tied.sub_of_W = sl.sub_of_W - sl.lo
+    tied.ndof, tied.body_of_sub, tied.floating_sub = sl.ndof, sl.body_of_sub, sl.floating_sub
+    tied.scaling, tied.gamma, tied.primal = sl.scaling, sl.gamma, sl.primal
+    tied._edges = tied._primal_space = None
+    return tied
+
+
+def _interface_exchange(sub, comm: CountingComm, piece: dict) -> tuple[InterfaceMap, NeighbourSum]:
+    iface = InterfaceMap(sub, sub.interface)
+    if not np.array_equal(piece["interface_dofs"], iface.dofs):
+        raise RuntimeError("the interface dofs sent by rank 0 are not this rank's")
+    return iface, NeighbourSum(comm, piece["interface"])
+
+
+def distributed_multibody_estimate(sub, u_W: np.ndarray, comm: CountingComm, piece: dict) -> tuple[float, int]:
+    """The rank's share of :func:`ddsolve.multibody.check.multibody_error_estimate`, the same value on every rank.
+
+    Parameters
+    ----------
+    sub : RankSubstructures
+        This rank's subdomains of the bodies.
+    u_W : ndarray, shape (sub.n_W,)
+        The solve's W values (copies not yet averaged).
+    comm : CountingComm
+    piece : dict
+        This rank's :func:`tied_pieces`.
+
+    Returns
+    -------
+    estimate : float
+    n_factorizations : int
+        This rank's (its tied primal-constrained and Dirichlet problems).
+    """
+    def total(local: float) -> float:
+        return comm.allreduce_scalar(float(local))
+
+    if total(0.0 if np.all(np.isfinite(u_W)) else 1.0) > 0:
+        return math.inf, 0
+    tied = _tied_rank_substructures(sub, piece["slice"])
+    iface, body_exchange = _interface_exchange(sub, comm, piece["body"])
+    u_body = u_W.copy()                     # the bodies' u: R_D^T u_W in each body (the serial sub.average)
+    u_body[iface.entries] = body_exchange.sum(iface.gather(u_W, iface.delta))[iface.position]
+    diagonal = sub.K_W.diagonal()           # the copies of a tied node weighted by their diagonals
+    # the floating bodies' constants (ddsolve.multibody.check.floating_shifts) from the body-interface
+    # entries of all ranks, gathered in rank order (the serial W order): the same k x k solve on every rank
+    on = np.flatnonzero(piece["gi_mask"])
+    body = sub.body_of_sub[sub.sub_of_W]
+    rows = comm.allgather((tied.l2g[on], body[on], diagonal[on], diagonal[on] * u_body[on]))
+    shift = floating_shifts(*(np.concatenate([r[k] for r in rows]) for k in range(4)), piece["floating"],
+                            piece["n_bodies"])
+    u_body = u_body + shift[body]
+    tiface, tied_exchange = _interface_exchange(tied, comm, piece["tied"])
+    u_g = tied_exchange.sum(tiface.gather(diagonal * u_body)) / tied_exchange.sum(tiface.gather(diagonal))
+    u_t = u_body.copy()
+    u_t[tiface.entries] = u_g[tiface.position]
+    cache: dict = {}
+    primal_solver = DistributedPrimalSolver(tied, tied.vertex, cache, comm, piece["primal_dofs"])
+    schur = DirichletSchur(tied, tied.interface, cache)
+    n_fact = primal_solver.n_factorizations + schur.II.n_new_factorizations
+    estimate = distributed_error_estimate(tied, u_t, primal_solver, schur, comm, piece["tied"])
+    moved = u_body - u_t
+    if total(float(np.any(moved))) == 0 or not math.isfinite(estimate):
+        return estimate, n_fact
+    interior = np.ones(tied.n_W, dtype=bool)
+    interior[tiface.entries] = False
+    f_g = tied_exchange.sum(tiface.gather(sub.f_W))
+    local_max = max(float(np.max(np.abs(sub.f_W[interior]), initial=0.0)), float(np.max(np.abs(f_g), initial=0.0)))
+    exponent = int(np.frexp(comm.allreduce_scalar(local_max, op="max"))[1])      # scale-free, as serial
+    f_W, u_t, u_g, f_g, moved = (np.ldexp(v, -exponent) for v in (sub.f_W, u_t, u_g, f_g, moved))
+    owned = piece["tied"]["interface"].owned
+    energy = total(f_W[interior] @ u_t[interior] + f_g[owned] @ u_g[owned])
+    if not energy > 0:
+        return math.inf, n_fact
+    return estimate + math.sqrt(abs(total(moved @ (sub.K_W @ moved))) / energy), n_fact

@@ -45,9 +45,11 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from ..dd.check import needs_check
 from ..dd.common import MethodOutput
 from ..dd.dual import DUAL_PROJECTIONS
 from ..dd.operators import DirichletSchur
+from .check import distributed_multibody_estimate, tied_pieces
 from .coarse import DistributedPrimalSolver, pinned_vertices
 from .comm import NeighbourSum, shared_indices
 from .distribute import owned_range
@@ -139,7 +141,8 @@ def distribute_fetifeti(topo, rank_of_sub: np.ndarray, size: int, spec) -> list[
     of Q; None under multiplicity scaling), ``"n_inside"`` (rows inside the bodies, first),
     ``"gi_mask"`` (its W entries on the global interface), ``"tilde"`` (:func:`tilde_pieces`),
     ``"pinned"`` (the pinned coarse dofs, :func:`~ddsolve.parallel.coarse.pinned_vertices`),
-    ``"body_col"`` (kernel column of every body, shape (n_bodies,)) and ``"n_active"``.
+    ``"body_col"`` (kernel column of every body, shape (n_bodies,)), ``"n_active"`` and ``"tied"``
+    (:func:`~ddsolve.parallel.check.tied_pieces` where rho varies between subdomains, else None).
     """
     from ..multibody import GlobalInterface
 
@@ -159,13 +162,16 @@ def distribute_fetifeti(topo, rank_of_sub: np.ndarray, size: int, spec) -> list[
     body_col[floating] = np.arange(floating.size)
     col_a, col_b = body_col[topo.body_of_sub[sa]], body_col[topo.body_of_sub[sb]]
     tilde = tilde_pieces(topo, topo.vertex & gi.mask, rank_of_sub, size)
+    # the final error check (ddsolve.multibody.check) where the coefficient varies between subdomains
+    tied = tied_pieces(topo, gi, active, rank_of_sub, size) if needs_check(topo.rho) else [None] * size
     out = []
     for r, rows in enumerate(jump_rows(pa, pb, coef_a, coef_b, rank_of_sub[sa], rank_of_sub[sb], size)):
         lo, hi = owned_range(topo.n_sub, size, r)
         k = rows.rows
         out.append({"jump": rows, "col_a": col_a[k], "col_b": col_b[k], "q": None if q is None else q[k],
                     "n_inside": int(la.size), "gi_mask": np.array(gi.mask[topo.offsets[lo]:topo.offsets[hi]]),
-                    "tilde": tilde[r], "pinned": pinned, "body_col": body_col, "n_active": int(active.sum())})
+                    "tilde": tilde[r], "pinned": pinned, "body_col": body_col, "n_active": int(active.sum()),
+                    "tied": tied[r]})
     return out
 
 
@@ -219,10 +225,13 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
     if sol.alpha is not None:
         u_W = u_W + R_loc @ sol.alpha
     u = gather_solution(prob, u_W) if gather else None
-    out = MethodOutput(u=u, krylov=sol.krylov, nlambda=jump.n_lambda,
-                       n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
-                       setup_seconds=setup,
-                       extra={"n_floating_bodies": k, "n_active": piece["n_active"]})
+    extra = {"n_floating_bodies": k, "n_active": piece["n_active"]}
+    n_fact = primal_solver.n_factorizations + schur.II.n_new_factorizations
+    if sol.krylov.converged and piece["tied"] is not None:     # as serial: the error of u itself
+        extra["error_estimate"], n_check = distributed_multibody_estimate(sub, u_W, comm, piece["tied"])
+        n_fact += n_check
+    out = MethodOutput(u=u, krylov=sol.krylov, nlambda=jump.n_lambda, n_factorizations=n_fact,
+                       setup_seconds=setup, extra=extra)
     info = {"mpi_at_setup": mpi_at_setup,
             "coarse_seconds": primal_solver.coarse_seconds + sol.coarse_seconds,
             "krylov_seconds": sol.krylov_seconds, "per_iteration": sol.per_iteration}

@@ -35,11 +35,13 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from ..dd.check import needs_check
 from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, linear_operator
 from ..krylov.result import KrylovResult
 from ..multibody.hybrid import S_OL_FORMS, InterfaceSpace
 from ..multibody.kernel import FloatingSums
+from .check import distributed_multibody_estimate, tied_pieces
 from .coarse import DistributedPrimalSolver, pinned_vertices
 from .comm import NeighbourSum, SharedIndex, shared_indices
 from .distribute import owned_range
@@ -106,7 +108,9 @@ def distribute_hybrid(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> li
       ``"floating"``, ``"n_bodies"``, ``"pair_dofs"``, ``"pair_weight"``, ``"pair_body"`` (n_gl, 2),
       ``"inc_dof"``, ``"inc_rank"`` (the (dof, rank) incidences of its dofs, sorted),
       ``"contact_mask"`` (multibody: the active pairs of ``spec.contact``; contact: None) and
-      ``"gamma_dofs"`` (the global u_Gamma numbering of the replicated active set loop).
+      ``"gamma_dofs"`` (the global u_Gamma numbering of the replicated active set loop);
+    * ``"tied"``: :func:`~ddsolve.parallel.check.tied_pieces` for the final error check of a multibody
+      solve where rho varies between subdomains, else None.
     """
     from ..multibody import GlobalInterface
 
@@ -133,11 +137,14 @@ def distribute_hybrid(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> li
               else None,
               "gamma_dofs": np.unique(topo.l2g[gamma_mask]) if spec is not None and spec.problem == "contact"
               else None}
+    tied = [None] * size              # the final error check of a multibody solve (ddsolve.multibody.check)
+    if common["contact_mask"] is not None and needs_check(topo.rho):
+        tied = tied_pieces(topo, gi, common["contact_mask"], rank_of_sub, size)
     out = []
     for r in range(size):
         lo, hi = owned_range(topo.n_sub, size, r)
         out.append({**common, "gi_mask": np.array(gi.mask[topo.offsets[lo]:topo.offsets[hi]]),
-                    "spaces": {name: spaces[name][r] for name in spaces}})
+                    "spaces": {name: spaces[name][r] for name in spaces}, "tied": tied[r]})
     return out
 
 
@@ -493,5 +500,12 @@ def solve_hybrid_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     if projection != "orthogonal":
         raise ValueError(f"projection {projection!r} is not distributed (only 'orthogonal')")
     hyb = DistributedHybrid(prob)
-    return hyb.solve(hyb.contact_mask, rtol=rtol, maxiter=maxiter, restart=restart,
-                     norm=norm, rtol_rule=rtol_rule, gather=gather)
+    out, info = hyb.solve(hyb.contact_mask, rtol=rtol, maxiter=maxiter, restart=restart,
+                          norm=norm, rtol_rule=rtol_rule, gather=gather)
+    tied = prob.pieces["tied"]
+    if out.krylov.converged and tied is not None:      # as serial: the error of u itself
+        sub = prob.sub
+        u_W = hyb.schur.interior_solution(sub.f_W, hyb.gamma.space.scatter(out.extra["u_gamma"]))
+        out.extra["error_estimate"], n_check = distributed_multibody_estimate(sub, u_W, prob.comm, tied)
+        out.n_factorizations += n_check
+    return out, info

@@ -54,4 +54,5 @@ if __name__ == "__main__":
                  n_active=e["n_active"], kkt=e["kkt_residual"], converged=result.converged)
     elif result is not None:
         np.savez(out, u=result.u, iterations=result.iterations, cond=np.nan if result.cond is None else result.cond,
-                 n_ranks=result.extra["n_ranks"], messages=result.extra["comm"]["messages_per_iteration"])
+                 n_ranks=result.extra["n_ranks"], messages=result.extra["comm"]["messages_per_iteration"],
+                 error_estimate=result.extra.get("error_estimate", np.nan))

@@ -1,8 +1,9 @@
-"""The final error check of FETI and FETI-DP under mpiexec: the serial estimate, distributed.
+"""The final error checks of FETI, FETI-DP, FETI-FETI and the hybrid method under mpiexec: the serial
+estimates, distributed.
 
 Serial and distributed runs report the same ``error_estimate`` (to the summation order) and the same
 verdict; with multiplicity scaling and a 1e12 checkerboard both report not converged (the answer is
-48%-107% off: ddsolve.dd.check).
+48%-107% off: ddsolve.dd.check; FETI-FETI 230% off: ddsolve.multibody.check).
 """
 from __future__ import annotations
 
@@ -49,4 +50,29 @@ def test_a_wrong_answer_is_not_converged_under_mpiexec_either(method):
     out = _distributed(2, args)
     assert not out["converged"] and out["reason"].startswith("the solution does not satisfy A u = f")
     # the estimate bounds the error of the distributed run's own u (its rounding differs from serial here)
+    assert out["error_vs_direct"] <= out["error_estimate"] * (1 + 1e-6) <= 1.5 * out["error_vs_direct"]
+
+
+MULTIBODY = ["--problem", "multibody", "--bodies", "3", "--subdomains", "2", "--elements", "6"]
+
+
+@pytest.mark.parametrize("contact", ["full", "middle"])
+def test_the_feti_feti_estimate_is_the_serial_one(contact):
+    """(The hybrid method's PCR amplifies rounding, so that its estimate moves with its u between serial and
+    distributed runs; tests/unit/parallel/test_mpi.py compares it against the distance of the two u.)"""
+    args = [*MULTIBODY, "--method", "feti-feti", "--contact", contact, "--rho", "checkerboard:1e4", "--f", "random:2"]
+    ref = _serial(args)
+    assert ref["converged"] and 0 < ref["error_estimate"] < 1e-4
+    for n in (2, 4):
+        out = _distributed(n, args)
+        assert out["converged"] and out["iterations"] == ref["iterations"]
+        assert out["n_factorizations"] > ref["n_factorizations"] / 2       # the check's, on every rank
+        assert out["error_estimate"] == pytest.approx(ref["error_estimate"], rel=1e-8)
+
+
+def test_a_wrong_feti_feti_answer_is_not_converged_under_mpiexec_either():
+    args = [*MULTIBODY, "--method", "feti-feti", "--rho", "checkerboard:1e12", "--scaling", "multiplicity", "--check"]
+    out = _distributed(2, args)
+    assert not out["converged"] and out["reason"].startswith("the solution does not satisfy A u = f")
+    assert out["error_vs_direct"] > 0.5
     assert out["error_vs_direct"] <= out["error_estimate"] * (1 + 1e-6) <= 1.5 * out["error_vs_direct"]
