@@ -8,6 +8,7 @@ scikit-fem.
 """
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -182,6 +183,14 @@ def check_decomposition(spec: ProblemSpec) -> None:
                                 f"body has none); use method 'direct'")
 
 
+def check_finite_matrices(sub: Substructures) -> None:
+    """Refuse subdomain matrices whose entries overflow: rho times an element matrix entry above the
+    largest double (``--rho 1e308`` on Q1: a breakdown at iteration 0 and an overflow warning before)."""
+    if not np.all(np.isfinite(sub.K_W.data)):
+        raise InputError("rho", f"the largest rho, {float(np.max(sub.rho)):.3g}, times the element matrices overflows "
+                                f"the largest double ({sys.float_info.max:.3g}): rescale the problem")
+
+
 def check_scene_decomposition(spec: ProblemSpec, scene: "Scene") -> None:
     """What :func:`check_decomposition` cannot see before a mesh file is read, checked on its scene.
 
@@ -304,6 +313,7 @@ def prepare(spec: ProblemSpec | dict[str, Any], scene: "Scene | None" = None) ->
     t2 = time.perf_counter()
     sub = Substructures(local, scaling=spec.scaling, gamma=spec.gamma, templates=spec.mesh != "unstructured",
                         primal=spec.primal)
+    check_finite_matrices(sub)
     t3 = time.perf_counter()
     timings.update(scene=t1 - t0, assembly=t2 - t1, substructures=t3 - t2)
     contact = None

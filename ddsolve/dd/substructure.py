@@ -307,7 +307,8 @@ class Substructures:
             w_index = (np.cumsum(free, axis=1, dtype=index_type) - 1
                        + self.offsets[members][:, None].astype(index_type))         # W index of local node
             cols.append(w_index[:, K.indices][kept])
-            vals.append((K.data[None, :] * self.rho[members][:, None])[kept])
+            with np.errstate(over="ignore"):           # rho near the largest double: refused by the caller
+                vals.append((K.data[None, :] * self.rho[members][:, None])[kept])
             if np.all(np.diff(K.indptr) > 0):                                       # entries of each row
                 counts = np.add.reduceat(kept, K.indptr[:-1], axis=1, dtype=np.int64)
             else:

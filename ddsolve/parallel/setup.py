@@ -20,6 +20,7 @@ import numpy as np
 
 from ..dd.substructure import Substructures
 from ..errors import InputError
+from ..prepared import check_finite_matrices
 from ..spec import ProblemSpec
 from .comm import CountingComm
 from .distribute import (
@@ -184,6 +185,7 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     local = assemble(local_scene)
     t5 = time.perf_counter()
     sub = RankSubstructures.build(sl, local, node_gid, templates=spec.mesh != "unstructured")
+    check_finite_matrices(sub)
     t6 = time.perf_counter()
     timings.update(distribute=t4 - t3, assembly=t5 - t4, substructures=t6 - t5)
     return RankProblem(spec=spec, comm=comm, topo=topo, sub=sub,

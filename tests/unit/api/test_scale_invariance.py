@@ -223,6 +223,23 @@ def test_cli_rho_1e170_is_not_converged_at_zero_iterations() -> None:
     assert res.error_vs_direct < 1e-6
 
 
+@pytest.mark.parametrize("rho", [1e308, "checkerboard:1e308", "body-checkerboard:1.7e308"])
+def test_a_coefficient_that_overflows_the_matrices_is_an_input_error(rho) -> None:
+    """rho times the Q1 entries above the largest double: was a breakdown at iteration 0 after an overflow
+    RuntimeWarning; 1e307 still solves (the products and norms are scaled)."""
+    import ddsolve
+    from ddsolve.errors import InputError
+
+    problem = {"problem": "multibody", "bodies": 2} if str(rho).startswith("body") else {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(InputError, match="the element matrices overflows the largest double") as err:
+            ddsolve.solve(ProblemSpec.from_mapping({**problem, "subdomains": 2, "elements": 2, "rho": rho}))
+        assert err.value.field == "rho"
+        res = ddsolve.solve(ProblemSpec.from_mapping({"subdomains": 2, "elements": 2, "rho": 1e307, "check": True}))
+    assert res.converged and res.error_vs_direct < 1e-12
+
+
 def test_multibody_direct_with_body_jump_1e12_solves() -> None:
     """The singularity test of the direct solvers is relative: a 1e12 jump between bodies is not 'floating'."""
     import ddsolve

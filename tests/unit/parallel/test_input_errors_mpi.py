@@ -157,3 +157,10 @@ def test_one_rank_without_mpi4py_runs_the_serial_solver(tmp_path):
                    PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT), str(ROOT / "studies")]))
     assert proc.returncode == 0, proc.stderr
     assert '"converged": true' in proc.stdout and '"n_ranks"' not in proc.stdout
+
+
+def test_a_coefficient_that_overflows_the_matrices_exits_2():
+    """rho = 1e308 times the Q1 entries is inf: a breakdown at iteration 0 after an overflow warning, before."""
+    proc = mpiexec(2, ["-m", "ddsolve", "solve", "--rho", "checkerboard:1e308", "--subdomains", "2",
+                       "--elements", "2"])
+    _one_error_per_rank(proc, 2, "rho: the largest rho, 1e+308, times the element matrices overflows")
