@@ -19,10 +19,12 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     problem, solution = solve_contact_case(spec)
     print("spec:", spec, "\n", solution.reason, flush=True)
     n, m = spec["subdomains"], spec["elements"]
+    rules = f"{spec.get('preset', 'default')} rules"          # the rule set (ddsolve.presets) named, as the tables
     plot_membranes(membrane_surfaces(problem, solution.u), sm.output.surface,
-                   title=f"Figure 5.2: solution of (3.1), $N_{{sub}} = {n * n}$, $H/h = {m}$ ({spec['method']})")
+                   title=f"Figure 5.2: solution of (3.1), $N_{{sub}} = {n * n}$, $H/h = {m}$ "
+                         f"({spec['method']}, {rules})")
     line = contact_line(problem, solution)
     line.to_csv(sm.output.csv, index=False)
     plot_contact_line(line, sm.output.contact,
-                      title=f"$\\Gamma_c$: $N_{{sub}} = {n * n}$, $H/h = {m}$, "
+                      title=f"$\\Gamma_c$: $N_{{sub}} = {n * n}$, $H/h = {m}$, {rules}, "
                             f"{int(line['active'].sum())} of {len(line)} pairs active")
