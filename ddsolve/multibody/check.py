@@ -33,7 +33,6 @@ from .interface import GlobalInterface
 __all__ = ["tied_nodes", "tied_scene", "tied_substructures", "floating_shifts", "multibody_error_estimate"]
 
 
-
 def tied_nodes(sub: Substructures, gi: GlobalInterface, active: np.ndarray) -> tuple[int, np.ndarray]:
     """The node numbering of the tied mesh: nodes joined by active pairs share one number.
 
@@ -92,8 +91,9 @@ def tied_substructures(sub: Substructures, gi: GlobalInterface, active: np.ndarr
     """
     n_tied, label = tied_nodes(sub, gi, active)
     local = sub.local
-    tied_local = LocalProblems(scene=tied_scene(sub.scene, n_tied, label), nodes=[label[nodes] for nodes in local.nodes],
-                               template=local.template, stiffness=local.stiffness, loads=local.loads)
+    tied_local = LocalProblems(scene=tied_scene(sub.scene, n_tied, label),
+                               nodes=[label[nodes] for nodes in local.nodes], template=local.template,
+                               stiffness=local.stiffness, loads=local.loads)
     tied = Substructures(tied_local, scaling="rho", gamma=1.0, templates=sub.templates)
     free = np.flatnonzero(sub.dof_of_node >= 0)
     dof_map = np.empty(sub.ndof, dtype=np.int64)
@@ -169,16 +169,19 @@ def multibody_error_estimate(sub: Substructures, gi: GlobalInterface, active: np
     if not np.all(np.isfinite(u)):
         return math.inf, 0
     tied, dof_map = tied_substructures(sub, gi, active)
-    # the copies of a tied node averaged with the weights of their stiffness (the stiff side's value wins,
-    # as rho-scaling would), and the part of u that this moves bounded on its own: with u_t the average,
-    # ||u - u*||_A <= ||u_t - u*||_A + ||u - u_t||_A (A: the bodies' block-diagonal matrix)
     diagonal = sub.K_W.diagonal()
     body = sub.body_of_sub[sub.sub_of_W]
-    on = np.flatnonzero(gi.mask)             # a floating body's constant is free in ||.||_A: align its copies
+    body_of_dof = np.empty(sub.ndof, dtype=np.int64)
+    body_of_dof[sub.l2g] = body
+    # a floating body's constant is free in ||.||_A: shift it to align its copies with the other bodies'
+    on = np.flatnonzero(gi.mask)
     u_W = u[sub.l2g]
     shift = floating_shifts(dof_map[sub.l2g[on]], body[on], diagonal[on], diagonal[on] * u_W[on],
                             gi.floating_bodies(), sub.scene.n_bodies)
-    u = u + np.bincount(sub.l2g, weights=shift[body], minlength=sub.ndof) / np.bincount(sub.l2g, minlength=sub.ndof)
+    u = u + shift[body_of_dof]
+    # the copies of a tied node averaged with the weights of their stiffness (the stiff side's value wins,
+    # as rho-scaling would), and the part of u that this moves bounded on its own: with u_t the average,
+    # ||u - u*||_A <= ||u_t - u*||_A + ||u - u_t||_A (A: the bodies' block-diagonal matrix)
     weight = sub.assemble_vector(diagonal)
     u_tied = (np.bincount(dof_map, weights=weight * u, minlength=tied.ndof)
               / np.bincount(dof_map, weights=weight, minlength=tied.ndof))
