@@ -28,6 +28,7 @@ from .dofs import (
     split_integrators,
     vertex_table,
 )
+from .consistency import check_boundary_terms, check_linear
 from .facets import facet_adjacency
 from .local import (
     condense,
@@ -233,9 +234,11 @@ class DDInverse(ngsolve.BaseMatrix):
             raise InputError("method", f"expected one of {METHODS}, got {method!r}")
         if scaling not in SCALINGS:
             raise InputError("scaling", f"expected one of {SCALINGS}, got {scaling!r}")
-        if primal not in PRIMALS or (primal != "vertices" and method not in PRIMAL_METHODS):
-            raise InputError("primal", f"expected one of {PRIMALS} ('vertices' only for method 'feti'), "
-                                       f"got {primal!r}")
+        if primal not in PRIMALS:
+            raise InputError("primal", f"expected one of {PRIMALS}, got {primal!r}")
+        if primal != "vertices" and method not in PRIMAL_METHODS:
+            raise InputError("primal", f"{primal!r} needs method 'bddc' or 'fetidp'; method {method!r} has "
+                                       "'vertices' only")
         if isinstance(rtol, bool) or not isinstance(rtol, (int, float, np.integer, np.floating)):
             raise InputError("rtol", f"must be a number in (0, 1), got {type(rtol).__name__}")
         if not 0 < float(rtol) < 1:
@@ -299,9 +302,11 @@ class DDInverse(ngsolve.BaseMatrix):
         self.timings["dof_table"] = time.perf_counter() - t
         t = time.perf_counter()
         volume, boundary = split_integrators(a, fes)
+        check_linear(a, fes, boundary)
         Ke = element_matrices(a, fes, T.shape[1], volume)
         bnd = boundary_element_matrices(fes, boundary)   # ds terms (Robin): added to the element they bound
         if bnd is not None:
+            check_boundary_terms(fes, boundary, *bnd[:2])
             add_boundary_matrices(Ke, T, V, *bnd, dim=dim)
         self.timings["assembly"] = time.perf_counter() - t
         if not is_symmetric(Ke):
@@ -358,6 +363,9 @@ class DDInverse(ngsolve.BaseMatrix):
             # dense Cholesky (LinAlgError) or PARDISO (RuntimeError, error -4) of a subdomain matrix
             if isinstance(exc, RuntimeError) and "not positive definite" not in str(exc):
                 raise
+            if method == "feti":       # FETI factors the floating parts' matrices without constraints
+                raise InputError("a", "a subdomain matrix is not positive definite: FETI needs SPD floating parts "
+                                      "(negative reaction?); bddc and fetidp constrain their vertices") from None
             raise InputError("a", "a subdomain matrix is not positive definite; DDInverse needs a symmetric "
                                   "positive definite form (no negative reaction term, no Helmholtz form)") from None
         self.timings["setup"] = time.perf_counter() - t

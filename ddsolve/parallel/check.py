@@ -1,11 +1,12 @@
 """The final error checks of FETI and FETI-DP (:mod:`ddsolve.dd.check`) and of FETI-FETI and the hybrid
 method (:mod:`ddsolve.multibody.check`), distributed.
 
-The serial estimate sqrt(r^T M^{-1} r / f^T u), with M^{-1} a BDDC preconditioner of the same
-subdomains and rho-scaling weights, computed from each rank's subdomains: the interface values
-(the averaged u, the assembled residual and load, the weights) are completed by neighbour sums
-over the interface dofs, and the inner products and norms by scalar Allreduces (five), over the interior
-entries and the owned interface dofs. It equals the serial estimate up to the summation order.
+The serial estimate sqrt(r^T M^{-1} r / f^T u) plus its rounding floor, with M^{-1} a BDDC
+preconditioner of the same subdomains and rho-scaling weights, computed from each rank's subdomains:
+the interface values (the averaged u, the assembled residual and load, the weights) are completed by
+neighbour sums over the interface dofs, and the inner products and norms by scalar Allreduces (seven),
+over the interior entries and the owned interface dofs. It equals the serial estimate up to the
+summation order.
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import math
 import numpy as np
 
 from ..dd.bddc import InterfaceMap
+from ..dd.check import EPS, absolute_product
 from ..dd.operators import DirichletSchur
 from ..multibody.check import floating_shifts, tied_nodes, tied_scene
 from .coarse import DistributedPrimalSolver
@@ -84,8 +86,9 @@ def distributed_error_estimate(sub, u_W: np.ndarray, primal_solver: DistributedP
     Ku = sub.K_W @ u_c
     rK = Ku - f_W
     r_g = assembled(Ku) - f_g
+    u_norm = total(np.sum(np.abs(u_c[interior])) + np.sum(np.abs(u_g[owned])))
     r_norm = total(np.sum(np.abs(rK[interior])) + np.sum(np.abs(r_g[owned])))
-    if r_norm == 0:
+    if r_norm == 0 and u_norm == 0:
         return 0.0
     energy = total(f_W[interior] @ u_c[interior] + f_g[owned] @ u_g[owned])
     if not energy > 0:
@@ -94,14 +97,21 @@ def distributed_error_estimate(sub, u_W: np.ndarray, primal_solver: DistributedP
     weights = np.ones(sub.n_W)
     weights[iface.entries] = rho_W[iface.entries] / assembled(rho_W)[iface.position]
     w_g = weights[iface.entries]
-    r_W = rK.copy()
-    r_W[iface.entries] = r_g[iface.position]
-    r_W *= weights
-    g = assembled(schur.harmonic_extension_rhs(r_W))
-    z_g = exchange.sum(iface.gather(primal_solver.solve(iface.scatter(g, w_g)), w_g))
-    z_W = schur.interior_solution(r_W, iface.scatter(z_g))
-    rz = total(rK[interior] @ z_W[interior] + r_g[owned] @ z_g[owned])
-    return math.sqrt(abs(rz) / energy)
+
+    def eta(res_W: np.ndarray, res_g: np.ndarray) -> float:     # res: interior entries and interface dofs
+        r_W = res_W.copy()
+        r_W[iface.entries] = res_g[iface.position]
+        r_W *= weights
+        g = assembled(schur.harmonic_extension_rhs(r_W))
+        z_g = exchange.sum(iface.gather(primal_solver.solve(iface.scatter(g, w_g)), w_g))
+        z_W = schur.interior_solution(r_W, iface.scatter(z_g))
+        rz = total(res_W[interior] @ z_W[interior] + res_g[owned] @ z_g[owned])
+        return math.sqrt(abs(rz) / energy)
+
+    # the rounding floor of the computed residual, eps (|A| |u| + |f|), as serial
+    Ku_abs = absolute_product(sub.K_W, u_c)
+    noise_W, noise_g = EPS * (Ku_abs + np.abs(f_W)), EPS * (assembled(Ku_abs) + np.abs(f_g))
+    return eta(rK, r_g) + eta(noise_W, noise_g)
 
 
 def tied_pieces(topo, gi, active: np.ndarray, rank_of_sub: np.ndarray, size: int) -> list[dict]:
