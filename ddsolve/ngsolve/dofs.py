@@ -385,6 +385,15 @@ def split_integrators(a: Any, fes: Any) -> tuple[list, list]:
     return volume, boundary
 
 
+def defined_on(regions: np.ndarray, index: int) -> bool:
+    """Whether an integrator whose ``GetDefinedOn()`` is ``regions`` acts on region ``index``.
+
+    An empty array means everywhere; NGSolve's array is only as long as the largest region listed
+    (``BFI("robin", definedon=[2])`` on four boundaries: length 2), and a region beyond it is not listed.
+    """
+    return regions.size == 0 or (index < regions.size and bool(regions[index]))
+
+
 def boundary_element_matrices(fes: Any, integrators: list) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Element matrices of boundary (``ds``) integrators, or None if there are none.
 
@@ -410,7 +419,7 @@ def boundary_element_matrices(fes: Any, integrators: list) -> tuple[np.ndarray, 
     regions = [(integ, np.array(integ.GetDefinedOn(), dtype=bool)) for integ in integrators]
     mats, dofs, verts = [], [], []
     for el in mesh.Elements(ngsolve.BND):
-        active = [integ for integ, on in regions if on.size == 0 or on[el.index]]
+        active = [integ for integ, on in regions if defined_on(on, el.index)]
         if not active:
             continue
         ei = ngsolve.ElementId(el)

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from ..dd.bddc import InterfaceMap
-from ..dd.check import EPS, absolute_product
+from ..dd.check import EPS, absolute_product, rounding_signs
 from ..dd.operators import DirichletSchur
 from ..multibody.check import floating_shifts, tied_nodes, tied_scene
 from .coarse import DistributedPrimalSolver
@@ -108,9 +108,10 @@ def distributed_error_estimate(sub, u_W: np.ndarray, primal_solver: DistributedP
         rz = total(res_W[interior] @ z_W[interior] + res_g[owned] @ z_g[owned])
         return math.sqrt(abs(rz) / energy)
 
-    # the rounding floor of the computed residual, eps (|A| |u| + |f|), as serial
+    # the model of the computed residual's rounding, eps (|A| |u| + |f|) with signs by global dof, as serial
     Ku_abs = absolute_product(sub.K_W, u_c)
-    noise_W, noise_g = EPS * (Ku_abs + np.abs(f_W)), EPS * (assembled(Ku_abs) + np.abs(f_g))
+    noise_W = EPS * (Ku_abs + np.abs(f_W)) * rounding_signs(sub.l2g)
+    noise_g = EPS * (assembled(Ku_abs) + np.abs(f_g)) * rounding_signs(iface.dofs)
     return eta(rK, r_g) + eta(noise_W, noise_g)
 
 

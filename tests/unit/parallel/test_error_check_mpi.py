@@ -81,12 +81,13 @@ def test_a_wrong_feti_feti_answer_is_not_converged_under_mpiexec_either():
 def test_the_rounding_floor_gives_the_serial_verdict():
     """A jump of 1e11 between bodies: the estimate from the computed residual alone read 3.2e-10 serially,
     1.1e-5 on two ranks and 6.9e-5 on three (converged serially only) for an error of 2e-5; with the
-    rounding floor every run reads about 1e-3 and reports not converged."""
+    model of the residual's rounding every run reads 4e-5 to 1.1e-4 (the residual itself is rounding, so
+    the runs differ) and reports not converged."""
     args = [*MULTIBODY[:-2], "--elements", "4", "--method", "feti-feti", "--rho", "body-checkerboard:1e-11",
             "--contact", "middle", "--f", "random:0", "--rtol", "1e-10"]
     ref = _serial(args)
-    assert not ref["converged"] and 1e-4 < ref["error_estimate"] < 1e-2
+    assert not ref["converged"] and 1e-5 < ref["error_estimate"] < 1e-3
     for n in (2, 3):
         out = _distributed(n, args)
         assert not out["converged"] and out["iterations"] == ref["iterations"]
-        assert out["error_estimate"] == pytest.approx(ref["error_estimate"], rel=0.2)
+        assert 1e-5 < out["error_estimate"] < 1e-3           # limit 1e-8
