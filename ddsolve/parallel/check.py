@@ -121,9 +121,10 @@ def tied_pieces(topo, gi, active: np.ndarray, rank_of_sub: np.ndarray, size: int
     ``gi`` is the :class:`~ddsolve.multibody.GlobalInterface` of ``topo`` and ``active`` its active pairs.
     The tied problem's topology (:func:`ddsolve.multibody.check.tied_scene`, no matrices) has the W layout
     of ``topo``; each rank gets its :class:`~ddsolve.parallel.distribute.TopologySlice` (``"slice"``), the
-    tied primal dofs (``"primal_dofs"``, coarse-sized), its W entries on the body interfaces (``"gi_mask"``),
-    the floating bodies (``"floating"``) and ``"n_bodies"``, and the sharing of its interface dofs in the
-    bodies (``"body"``) and in the tied problem (``"tied"``), as :func:`interface_pieces`.
+    tied primal dofs (``"primal_dofs"``, coarse-sized), the floating bodies (``"floating"``) and
+    ``"n_bodies"``, and the sharing of its interface dofs in the bodies (``"body"``) and in the tied
+    problem (``"tied"``), as :func:`interface_pieces`. (Its W entries on the body interfaces are the
+    method's own ``"gi_mask"``.)
     """
     from .distribute import TopologySlice, owned_range, topology
 
@@ -138,8 +139,7 @@ def tied_pieces(topo, gi, active: np.ndarray, rank_of_sub: np.ndarray, size: int
     for r in range(size):
         lo, hi = owned_range(topo.n_sub, size, r)
         out.append({"slice": TopologySlice.of(tied, lo, hi, primal_dofs.size), "primal_dofs": primal_dofs,
-                    "gi_mask": np.array(gi.mask[topo.offsets[lo]:topo.offsets[hi]]), "floating": floating,
-                    "n_bodies": int(topo.scene.n_bodies),
+                    "floating": floating, "n_bodies": int(topo.scene.n_bodies),
                     "body": {key: body[r][key] for key in ("interface", "interface_dofs")},
                     "tied": {key: tied_iface[r][key] for key in ("interface", "interface_dofs")}})
     return out
@@ -166,7 +166,8 @@ def _interface_exchange(sub, comm: CountingComm, piece: dict) -> tuple[Interface
     return iface, NeighbourSum(comm, piece["interface"])
 
 
-def distributed_multibody_estimate(sub, u_W: np.ndarray, comm: CountingComm, piece: dict) -> tuple[float, int]:
+def distributed_multibody_estimate(sub, u_W: np.ndarray, comm: CountingComm, piece: dict,
+                                   gi_mask: np.ndarray) -> tuple[float, int]:
     """The rank's share of :func:`ddsolve.multibody.check.multibody_error_estimate`, the same value on every rank.
 
     Parameters
@@ -178,6 +179,8 @@ def distributed_multibody_estimate(sub, u_W: np.ndarray, comm: CountingComm, pie
     comm : CountingComm
     piece : dict
         This rank's :func:`tied_pieces`.
+    gi_mask : ndarray of bool, shape (sub.n_W,)
+        This rank's W entries on the body interfaces (the method's piece).
 
     Returns
     -------
@@ -197,7 +200,7 @@ def distributed_multibody_estimate(sub, u_W: np.ndarray, comm: CountingComm, pie
     diagonal = sub.K_W.diagonal()           # the copies of a tied node weighted by their diagonals
     # the floating bodies' constants (ddsolve.multibody.check.floating_shifts) from the body-interface
     # entries of all ranks, gathered in rank order (the serial W order): the same k x k solve on every rank
-    on = np.flatnonzero(piece["gi_mask"])
+    on = np.flatnonzero(gi_mask)
     body = sub.body_of_sub[sub.sub_of_W]
     rows = comm.allgather((tied.l2g[on], body[on], diagonal[on], diagonal[on] * u_body[on]))
     shift = floating_shifts(*(np.concatenate([r[k] for r in rows]) for k in range(4)), piece["floating"],

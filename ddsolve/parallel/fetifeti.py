@@ -228,7 +228,8 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
     extra = {"n_floating_bodies": k, "n_active": piece["n_active"]}
     n_fact = primal_solver.n_factorizations + schur.II.n_new_factorizations
     if sol.krylov.converged and piece["tied"] is not None:     # as serial: the error of u itself
-        extra["error_estimate"], n_check = distributed_multibody_estimate(sub, u_W, comm, piece["tied"])
+        extra["error_estimate"], n_check = distributed_multibody_estimate(
+            sub, u_W, comm, piece["tied"], piece["gi_mask"])
         n_fact += n_check
     out = MethodOutput(u=u, krylov=sol.krylov, nlambda=jump.n_lambda, n_factorizations=n_fact,
                        setup_seconds=setup, extra=extra)

@@ -506,6 +506,7 @@ def solve_hybrid_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     if out.krylov.converged and tied is not None:      # as serial: the error of u itself
         sub = prob.sub
         u_W = hyb.schur.interior_solution(sub.f_W, hyb.gamma.space.scatter(out.extra["u_gamma"]))
-        out.extra["error_estimate"], n_check = distributed_multibody_estimate(sub, u_W, prob.comm, tied)
+        out.extra["error_estimate"], n_check = distributed_multibody_estimate(
+            sub, u_W, prob.comm, tied, prob.pieces["gi_mask"])
         out.n_factorizations += n_check
     return out, info
