@@ -356,18 +356,21 @@ def split_integrators(a: Any, fes: Any) -> tuple[list, list]:
     mesh = fes.mesh
     order = int(fes.globalorder)
 
-    def nonzero_on(space: Any, integ: Any) -> bool:
+    def nonzero_on(space: Any, integ: Any, k: int) -> bool:
         ab = ngsolve.BilinearForm(space, check_unused=False)
         with _expected_proxy_notice():
             ab += integ
         ab.Assemble()
         values = np.asarray(ab.mat.COO()[2])
+        if not np.isfinite(values).all():       # NaN > 0 is False: a NaN ds term would pass for a dx term, dropped
+            raise InputError("a", f"integrator {k} has NaN or Inf entries (a coefficient that is NaN or Inf "
+                                  "somewhere, or overflows)")
         return bool(values.size and np.abs(values).max() > 0)
 
     fb = ngsolve.H1(mesh, order=order, definedon=mesh.Boundaries(".*"))
     volume, boundary, numbers = [], [], []
     for k, integ in enumerate(a.integrators):
-        if nonzero_on(fb, integ):
+        if nonzero_on(fb, integ, k):
             boundary.append(integ)
             numbers.append(k)
         else:
@@ -379,7 +382,7 @@ def split_integrators(a: Any, fes: Any) -> tuple[list, list]:
         regions = [mesh.BBoundaries] + ([mesh.BBBoundaries] if mesh.dim == 3 else [])
         for space in (ngsolve.H1(mesh, order=order, definedon=region(".*")) for region in regions):
             for k, integ in zip(numbers, boundary):
-                if nonzero_on(space, integ):
+                if nonzero_on(space, integ, k):
                     raise InputError("a", f"integrator {k} lives on points or edges of the mesh "
                                           "(DifferentialSymbol(BBND) or BBBND); only dx and ds terms are supported")
     return volume, boundary

@@ -28,7 +28,7 @@ from .dofs import (
     split_integrators,
     vertex_table,
 )
-from .consistency import check_boundary_terms, check_linear
+from .consistency import check_boundary_terms, check_finite, check_linear
 from .facets import facet_adjacency
 from .local import (
     condense,
@@ -304,8 +304,10 @@ class DDInverse(ngsolve.BaseMatrix):
         volume, boundary = split_integrators(a, fes)
         check_linear(a, fes, boundary)
         Ke = element_matrices(a, fes, T.shape[1], volume)
+        check_finite(Ke, "dx")
         bnd = boundary_element_matrices(fes, boundary)   # ds terms (Robin): added to the element they bound
         if bnd is not None:
+            check_finite(bnd[0], "ds")
             check_boundary_terms(fes, boundary, *bnd[:2])
             add_boundary_matrices(Ke, T, V, *bnd, dim=dim)
         self.timings["assembly"] = time.perf_counter() - t
@@ -339,7 +341,8 @@ class DDInverse(ngsolve.BaseMatrix):
         if scaling in ("diagonal", "deluxe"):      # deluxe: the diagonal weights off the faces
             d = sub.K_W.diagonal()
             total = np.bincount(sub.node_of_W, weights=d, minlength=sub.scene.n_nodes)
-            sub.delta = d / total[sub.node_of_W]
+            with np.errstate(divide="ignore", invalid="ignore"):   # a zero diagonal: refused below, not warned
+                sub.delta = d / total[sub.node_of_W]
         if primal == "vertices+edges" and dim == 3:
             # the thesis's 3D primal space (Section 2.6, (2.22)): vertex values and edge averages
             sub.vertex, sub.edge_candidates = subdomain_edges_3d(sub)
@@ -366,8 +369,9 @@ class DDInverse(ngsolve.BaseMatrix):
             if method == "feti":       # FETI factors the floating parts' matrices without constraints
                 raise InputError("a", "a subdomain matrix is not positive definite: FETI needs SPD floating parts "
                                       "(negative reaction?); bddc and fetidp constrain their vertices") from None
-            raise InputError("a", "a subdomain matrix is not positive definite; DDInverse needs a symmetric "
-                                  "positive definite form (no negative reaction term, no Helmholtz form)") from None
+            raise InputError("a", "a subdomain matrix is not positive definite; DDInverse needs element matrices "
+                                  "that sum to SPD subdomain matrices (no negative reaction term, no Helmholtz form, "
+                                  "no first-order term even where the global matrix is SPD)") from None
         self.timings["setup"] = time.perf_counter() - t
         log.info("DDInverse: %d parts, %d dofs, %d primal, timings %s", self.n_parts, ndof, sub.n_primal,
                  self.timings)
@@ -427,6 +431,15 @@ class DDInverse(ngsolve.BaseMatrix):
     def MultTrans(self, x: Any, y: Any) -> None:
         """The inverse of a symmetric form is symmetric."""
         self.Mult(x, y)
+
+    @property
+    def H(self) -> DDInverse:
+        """The conjugate transpose: this inverse itself (real and symmetric).
+
+        NGSolve's own ``.H`` (``ConjTrans``) calls ``MultConjTransAdd``, which a Python matrix cannot
+        override and which reads a real vector as complex numbers: garbage, not an error (a review).
+        """
+        return self
 
     # ------------------------------------------------------------- solves
     def _condensed(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -580,3 +593,8 @@ class DDPreconditioner(ngsolve.BaseMatrix):
     def MultTrans(self, x: Any, y: Any) -> None:
         """P is symmetric."""
         self.Mult(x, y)
+
+    @property
+    def H(self) -> DDPreconditioner:
+        """The conjugate transpose: P itself (real and symmetric; see :attr:`DDInverse.H`)."""
+        return self

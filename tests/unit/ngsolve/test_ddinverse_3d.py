@@ -133,7 +133,7 @@ def test_deluxe_in_3d():
 
 def test_bad_input_in_3d(cube):
     _, a, _ = forms3d(cube, 1, 1.0)
-    with pytest.raises(InputError, match="primal: .vertices\+edges. needs method .bddc. or .fetidp."):
+    with pytest.raises(InputError, match=r"primal: .vertices\+edges. needs method .bddc. or .fetidp."):
         DDInverse(a, primal="vertices+edges", method="feti")
     with pytest.raises(InputError, match=f"parts: {cube.ne + 1} parts requested"):
         DDInverse(a, parts=cube.ne + 1)
