@@ -199,7 +199,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         error = exc
     if size is not None and size > 1:
         from .parallel.run import agree_on_input
-        error, status = agree_on_input(error)
+        error, status = agree_on_input(error, None if error is not None else spec)
         if status is not None:            # no working mpi4py, or one that does not match the launcher
             return status
     try:

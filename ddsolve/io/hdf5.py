@@ -48,6 +48,7 @@ import h5py
 import numpy as np
 
 from .check import quick_check
+from .cleanup import removed_on_termination
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "ResultFileError", "NoSpaceError", "write_result", "atomic_target",
            "read_params", "read_result", "read_residuals", "read_solution", "validate_result", "quick_check",
@@ -314,8 +315,9 @@ def atomic_target(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success, delete it on error.
 
     An interrupted writer therefore never leaves a partial file under the final
-    name, and a failed one no temporary file (a killed one may: the workflow
-    removes those when it starts, ``ddstudies.workflow.remove_stale_tmp``).
+    name, and a failed or terminated (SIGTERM, SIGHUP) one no temporary file
+    (:func:`~ddsolve.io.cleanup.removed_on_termination`; a SIGKILLed one may: the
+    workflow removes those when it starts, ``ddstudies.workflow.remove_stale_tmp``).
 
     Raises
     ------
@@ -333,9 +335,10 @@ def atomic_target(path: str | os.PathLike) -> Iterator[Path]:
     # a name of up to 255 bytes is legal; the temporary one adds about 30 characters, so keep its stem short
     tmp = path.with_name(f".{path.name[:200]}.{os.getpid()}.{uuid.uuid4().hex[:8]}{TMP_SUFFIX}")
     try:
-        yield tmp
-        _inject_enospc(path)
-        os.replace(tmp, path)
+        with removed_on_termination(tmp):      # SIGTERM/SIGHUP: no temporary file left either
+            yield tmp
+            _inject_enospc(path)
+            os.replace(tmp, path)
     except BaseException as exc:
         if isinstance(exc, Exception) and not isinstance(exc, NoSpaceError) and _no_space(exc):
             raise NoSpaceError(path) from exc

@@ -30,6 +30,8 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
+from .cleanup import removed_on_termination
+
 if TYPE_CHECKING:  # pragma: no cover
     from ..scene import Scene
 
@@ -111,13 +113,14 @@ def write_vtu(path: str | os.PathLike, scene: "Scene", nodal: Mapping[str, np.nd
     base = path.with_name(f".{path.stem[:200]}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")   # a legal name + 30 fits
     written = Path(str(base) + ".vtu")       # VTKOutput appends ".vtu" to its filename argument
     try:
-        ngs.VTKOutput(ma=mesh, coefs=coefs, names=names, filename=str(base), subdivision=0).Do()
-        data = _inline_base64(written.read_bytes())
-        with open(written, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(written, path)
+        with removed_on_termination(written, base):      # SIGTERM/SIGHUP: no temporary file left either
+            ngs.VTKOutput(ma=mesh, coefs=coefs, names=names, filename=str(base), subdivision=0).Do()
+            data = _inline_base64(written.read_bytes())
+            with open(written, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(written, path)
     except BaseException:
         for leftover in (written, base):
             try:

@@ -327,11 +327,27 @@ def _world():
     return comm, None
 
 
-def agree_on_input(error: InputError | None) -> tuple[InputError | None, int | None]:
+def _compared(spec: ProblemSpec) -> dict[str, Any]:
+    """The fields of ``spec`` that every rank must agree on: all of them, the files of rank 0 alone (the mesh
+    file it reads, the output it writes) only as given or not (their paths may differ on node-local disks;
+    whether an output is written decides whether the solution is gathered, which is collective)."""
+    from ..scene_file import PATH_FIELDS
+
+    fields = spec.to_dict()
+    for name in PATH_FIELDS:
+        fields[name] = "<given>" if fields.get(name) else None
+    return fields
+
+
+def agree_on_input(error: InputError | None, spec: ProblemSpec | None = None) -> tuple[InputError | None, int | None]:
     """Agree on the command line's input checks over all ranks (P > 1), before any other MPI call.
 
     Every rank checked the input on its own; one allgather gives every rank the lowest failing
     rank's :class:`InputError` (or None), so that all ranks exit 2 together or go on together.
+    The same allgather compares the ranks' specs (``spec``, parsed by each rank from its own
+    arguments and scene file): ranks given different input (an MPMD launch, or a scene file of one
+    name with other contents on node-local disks) ran different algorithms and waited for each
+    other forever (a review). They now exit 2 together, naming the first field that differs.
 
     Returns
     -------
@@ -344,8 +360,19 @@ def agree_on_input(error: InputError | None) -> tuple[InputError | None, int | N
         sys.stderr.write(f"ddsolve: error: {problem}\n")
         return None, 2
     mine = None if error is None else (error.field, error.message)
-    errors = [e for e in comm.allgather(mine) if e is not None]
-    return (InputError(*errors[0]) if errors else None), None
+    gathered = comm.allgather((mine, None if spec is None else _compared(spec)))
+    errors = [e for e, _ in gathered if e is not None]
+    if errors:
+        return InputError(*errors[0]), None
+    first = gathered[0][1]
+    for rank, (_, other) in enumerate(gathered):
+        differ = sorted(k for k in first.keys() | other.keys() if repr(first.get(k)) != repr(other.get(k)))
+        if differ:
+            k = differ[0]
+            return InputError("input", f"rank {rank} was given other input than rank 0 ({k}: {other.get(k)!r}, "
+                                       f"rank 0: {first.get(k)!r}); every rank needs the same arguments and scene "
+                                       "file"), None
+    return None, None
 
 
 def main(spec: ProblemSpec, as_json: bool, human) -> int | None:

@@ -164,3 +164,46 @@ def test_a_coefficient_that_overflows_the_matrices_exits_2():
     proc = mpiexec(2, ["-m", "ddsolve", "solve", "--rho", "checkerboard:1e308", "--subdomains", "2",
                        "--elements", "2"])
     _one_error_per_rank(proc, 2, "rho: the largest rho, 1e+308, times the element matrices overflows")
+
+
+def _same_line_on_both_ranks(proc, line: str) -> None:
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("ddsolve: error: ") == 2 and proc.stderr.count(f"ddsolve: error: {line}") == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and "Abort" not in proc.stderr and proc.stdout == "", proc.stderr
+
+
+def _mpmd(first: list[str], second: list[str], cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """``mpiexec -n 1 python FIRST : -n 1 python SECOND``: two ranks given different arguments."""
+    from launch import MPIEXEC
+
+    return subprocess.run([MPIEXEC, "-n", "1", sys.executable, *first, ":", "-n", "1", sys.executable, *second],
+                          capture_output=True, text=True, timeout=TIMEOUT, env=mpi_env(), cwd=cwd)
+
+
+@pytest.mark.parametrize("first, second, line", [
+    (["--rtol", "1e-3"], ["--rtol", "1e-10"], "input: rank 1 was given other input than rank 0 (rtol: 1e-10, rank 0: 0.001)"),
+    (["--subdomains", "4"], ["--subdomains", "6", "--method", "bddc"], "input: rank 1 was given other input than rank 0 (method: 'bddc'"),
+    (["--subdomains", "4"], ["--subdomains", "6"], "input: rank 1 was given other input than rank 0 (subdomains: 6"),
+    (["--output", "a.vtu"], [], "input: rank 1 was given other input than rank 0 (output: None, rank 0: '<given>')"),
+])
+def test_ranks_given_different_input_exit_2_instead_of_hanging(tmp_path, first, second, line):
+    """A review: different rtol or method hung until killed; different subdomains solved rank 0's scene."""
+    solve = ["-m", "ddsolve", "solve", "--json"]
+    proc = _mpmd(solve + first, solve + second, cwd=tmp_path)
+    _same_line_on_both_ranks(proc, line)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_scene_files_of_one_name_must_agree_but_not_their_paths(tmp_path):
+    """Node-local disks: each rank reads s.yaml in its own directory. Other contents exit 2 on every rank;
+    the same contents solve, though the output path (relative to each scene file) differs."""
+    for rank, rtol in ((0, "1e-6"), (1, "1e-8")):
+        (tmp_path / f"n{rank}").mkdir()
+        (tmp_path / f"n{rank}" / "s.yaml").write_text(f"subdomains: 3\nelements: 4\nrtol: {rtol}\noutput: u.vtu\n")
+    scene = ["-m", "ddsolve", "solve", "--json"]
+    proc = _mpmd(scene + [str(tmp_path / "n0" / "s.yaml")], scene + [str(tmp_path / "n1" / "s.yaml")])
+    _same_line_on_both_ranks(proc, "input: rank 1 was given other input than rank 0 (rtol: 1e-08, rank 0: 1e-06)")
+    (tmp_path / "n1" / "s.yaml").write_text((tmp_path / "n0" / "s.yaml").read_text())
+    proc = _mpmd(scene + [str(tmp_path / "n0" / "s.yaml")], scene + [str(tmp_path / "n1" / "s.yaml")])
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "n0" / "u.vtu").is_file() and not (tmp_path / "n1" / "u.vtu").exists()
