@@ -19,6 +19,9 @@ pytest.importorskip("snakemake")
 
 TINY = "study: slurm_tiny\nsubdomains: [2]\nelements: [2]\nmethods: [bddc]\ncond: false\ncheck: false\n"
 ARGS = ("--profile", "profiles/slurm", "--configfile", "config/poisson.yaml", "tiny.yaml")
+# the plugin first asks after init seconds, then 10 s later each time a job has not finished: with the
+# profile's 5 s a job of about 6 s took 20 s (a 70 s test, nearly all waiting); 1 s makes it 11 s
+FAST_STATUS = ("--slurm-init-seconds-before-status-checks", "1")
 
 
 def _env() -> dict[str, str]:
@@ -93,7 +96,7 @@ def cluster():
 def test_tiny_study_on_a_local_slurm_cluster(workdir, cluster):
     import pandas as pd
 
-    proc = snakemake(workdir, *ARGS, timeout=400)
+    proc = snakemake(workdir, *ARGS, *FAST_STATUS, timeout=400)
     text = proc.stdout + proc.stderr
     assert proc.returncode == 0, text
     assert "Submitted" in text or "sbatch" in text.lower() or "SLURM" in text
