@@ -52,9 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", help="poisson: fetidp (default), feti, bddc, direct; "
                                     "multibody: feti-feti, hybrid, direct; contact: active-set, smalbe, direct")
     s.add_argument("--contact", help="multibody active area: full (case I, default) or middle (case II)")
-    s.add_argument("--bodies", help="bodies per side, 1/H_b")
-    s.add_argument("--subdomains", help="subdomains per body side, H_b/H_s")
-    s.add_argument("--elements", help="Q1 elements per subdomain side, H_s/h")
+    s.add_argument("--bodies", help="bodies per side, 1/H_b (default 1; contact: 2)")
+    s.add_argument("--subdomains", help="subdomains per body side, H_b/H_s (default 2)")
+    s.add_argument("--elements", help="Q1 elements per subdomain side, H_s/h (default 4)")
     s.add_argument("--rho", help="coefficient: a positive number, checkerboard:V (across subdomains) "
                                  "or body-checkerboard:V (across bodies)")
     s.add_argument("--f", help="right-hand side: a constant or random:SEED (default: 1 for poisson, random:0 for "

@@ -18,8 +18,9 @@ from typing import Any
 MAX_VALUE = 80
 #: Longest field name printed (characters).
 MAX_FIELD = 32
-#: Longest message printed after the field (characters).
-MAX_MESSAGE = 150
+#: Longest message printed after the field (characters): room for the longest message ddsolve writes (with
+#: its values, each at most MAX_VALUE); it bounds hostile input, it must not cut ddsolve's own sentences.
+MAX_MESSAGE = 300
 
 _repr = reprlib.Repr()
 _repr.maxstring = MAX_VALUE

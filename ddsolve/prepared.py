@@ -174,7 +174,7 @@ def check_decomposition(spec: ProblemSpec) -> None:
         field, count, what = "subdomains", spec.subdomains, "subdomains per body side"
     if count != 1:
         return
-    if spec.problem == "poisson":
+    if spec.problem == "poisson" or (spec.problem == "multibody" and spec.bodies == 1):   # one subdomain in all
         raise InputError(field, f"method {spec.method!r} needs at least 2 {what.split(' per')[0]} "
                                 f"(one subdomain has no interface); use method 'direct'")
     if spec.problem == "contact" or (spec.problem == "multibody" and spec.bodies >= 3):

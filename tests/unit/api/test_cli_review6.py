@@ -56,6 +56,14 @@ def test_one_part_of_a_mesh_file_is_refused_naming_parts(tmp_path, capsys):
                                        "subdomain has no interface); use method 'direct'\n")      # was 'A: operator has size 0'
 
 
+@pytest.mark.parametrize("method", ["feti-feti", "hybrid"])
+def test_one_multibody_subdomain_is_refused_naming_subdomains(capsys, method):
+    """One body of one subdomain: nothing to iterate on (a docs audit: 'A: operator has size 0')."""
+    assert main(["solve", "--problem", "multibody", "--subdomains", "1", "--method", method]) == 2
+    assert capsys.readouterr().err == (f"ddsolve: error: subdomains: method '{method}' needs at least 2 subdomains "
+                                       "(one subdomain has no interface); use method 'direct'\n")
+
+
 def test_fetidp_without_dual_interface_solves_directly(tmp_path):
     """Two triangles in two parts: every interface node is primal, no multiplier (was 'A: operator has size 0')."""
     g = SplineGeometry()

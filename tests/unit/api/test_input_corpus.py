@@ -30,7 +30,7 @@ from ddsolve.errors import InputError
 from ddsolve.limits import check_resources, estimate, parse_size
 from ddsolve.spec import ProblemSpec, parse_f, parse_rho, read_scene
 
-MAX_LINE = 200
+MAX_LINE = 350       # "ddsolve: error: " + field (32) + ": " + message (300)
 MAX_SECONDS = 5.0
 PREFIX = "ddsolve: error: "
 
