@@ -325,7 +325,14 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
     if (polish is True and converged or rescue or refine) and active.any():
         kkt_smalbe = problem.kkt(u, lam_c).max
         out = _polish(problem, solver, active, rec.lambda_balanced, n_local, eps, net, extra)
-        if out is None:
+        if out is None and converged and extra.get("polish_wrong_set"):
+            # the equality solve on SMALBE's active set needs a pulling multiplier: that set is not the
+            # solution's, so neither is SMALBE's lambda (a review: checkerboard 1e-6, lambda 57% off, KKT
+            # stationarity 18 eps, reported converged)
+            converged = False
+            reason = (f"not accepted: {reason.removeprefix('converged: ')}, but SMALBE's active set is not the "
+                      f"solution's: the equality solve on it has a {extra['polish_reason']} (its lambda would pull)")
+        elif out is None:
             reason = f"{reason}; polish on the active set rejected ({extra['polish_reason']})"
         elif polish == "auto" and not problem.kkt(*out).max < kkt_smalbe:
             extra["polish"] = "rejected"
@@ -433,6 +440,7 @@ def _polish(problem: ContactProblem, solver: FetiFetiSolver, active: np.ndarray,
         why = f"PCG: {out.krylov.reason}"
     elif not lam_p[active].min() >= -tol * max(float(np.abs(lam_p).max()), 1e-300):
         why = f"negative multiplier {lam_p[active].min():.2e}"
+        extra["polish_wrong_set"] = True
     elif not gap[~active].max(initial=-np.inf) <= tol * max(float(np.abs(out.u).max()), 1e-300):
         why = f"penetration {gap[~active].max(initial=-np.inf):.2e} off the active set"
     else:

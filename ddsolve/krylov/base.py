@@ -440,9 +440,20 @@ class KrylovSolver:
             return cycles[0]
         last = cycles[-1]
         ok = last.true_residual is not None and last.true_residual <= factor * threshold
+        # the cycles' own reasons are relative to their own r_0 and budget (a review read "maxiter 100
+        # reached: ... > 2.9e-14" for --maxiter 1000 and rtol 1e-6): restate the last one for the whole solve
+        rnorm0, rnorm = float(cycles[0].residuals[0]), float(last.residuals[-1])
+        done = f"after {len(cycles) - 1} restart(s) of at most {max(int(restart), 1)} iterations"
+        if solver.outcome in (CONVERGED, MAXITER) and rnorm0 > 0 and last.reason.startswith(("converged", "maxiter")):
+            head = "converged" if solver.outcome == CONVERGED else f"maxiter {maxiter} reached"
+            relation = "<=" if solver.outcome == CONVERGED else ">"
+            reason = solver.label(f"{head}: ||r||/||r0|| = {rnorm / rnorm0:.1e} {relation} {threshold / rnorm0:.1e} "
+                                  f"{done}")
+        else:
+            reason = f"{last.reason} {done}"
         return KrylovResult(
             x=last.x, converged=last.converged and ok,
-            reason=f"{last.reason} after {len(cycles) - 1} restart(s)",
+            reason=reason,
             iterations=sum(c.iterations for c in cycles),
             residuals=np.concatenate([cycles[0].residuals] + [c.residuals[1:] for c in cycles[1:]]),
             matvecs=sum(c.matvecs for c in cycles), seconds=sum(c.seconds for c in cycles),

@@ -583,3 +583,23 @@ def test_restarted_counts_restarts_and_matches_one_cycle():
     single = PCR.restarted(a, f, rtol=1e-10, maxiter=2000, restart=2000)
     assert single.restarts == 0 and single.iterations == one.iterations
     np.testing.assert_array_equal(single.x, one.x)
+
+
+def test_a_restarted_solve_states_its_reason_for_the_whole_solve():
+    """The last cycle's reason was relative to its own r_0 and budget ('maxiter 100 reached: ... > 2.9e-14'
+    for maxiter 1000 and rtol 1e-6, a review); the reason now names the solve's maxiter and rtol."""
+    from ddsolve.krylov.pcg import PCG
+
+    n = 60
+    A = np.diag(np.geomspace(1.0, 1e6, n))
+    b = np.random.default_rng(0).standard_normal(n)
+    res = PCG.restarted(A, b, rtol=1e-12, maxiter=12, restart=5)
+    assert not res.converged and res.iterations == 12 and res.restarts == 2
+    ratio = np.linalg.norm(b - A @ res.x) / np.linalg.norm(b)
+    head, rest = res.reason.split(": ||r||/||r0|| = ")
+    assert head == "maxiter 12 reached"
+    assert rest.endswith("> 1.0e-12 after 2 restart(s) of at most 5 iterations")
+    assert float(rest.split()[0]) == pytest.approx(ratio, rel=0.05)
+    done = PCG.restarted(np.diag(np.geomspace(1.0, 100.0, n)), b, rtol=1e-6, maxiter=200, restart=5)
+    assert done.converged and done.restarts >= 1
+    assert done.reason.startswith("converged: ||r||/||r0|| = ") and "<= 1.0e-06 after" in done.reason
