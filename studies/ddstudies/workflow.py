@@ -97,10 +97,16 @@ def _coerce_strings(data: dict[str, Any], errors) -> bool:
 
     Snakemake's ``--config key=[2,3]`` reads the items of a list as strings
     (YAML's base loader); a string is replaced only where the schema's type
-    lacks "string" and the YAML value has one of the wanted types.
+    lacks "string" and the YAML value has one of the wanted types, also inside the
+    branches of ``oneOf``/``anyOf`` (``bodies=[2,3]`` was refused: a review).
     """
+    def leaves(errs):                  # the branches of oneOf/anyOf ($defs "counts": an integer or a list of them)
+        for err in errs:
+            yield err
+            yield from leaves(err.context or ())
+
     changed = False
-    for err in errors:
+    for err in leaves(errors):
         wanted = err.validator_value if err.validator == "type" else None
         wanted = [wanted] if isinstance(wanted, str) else list(wanted or [])
         if not isinstance(err.instance, str) or "string" in wanted or not err.absolute_path:
@@ -226,6 +232,20 @@ def canonical_numbers(data: Any) -> Any:
     return data
 
 
+def sorted_keys(data: Any) -> Any:
+    """A copy of ``data`` with every mapping's keys in sorted order (lists keep theirs): a params value.
+
+    Snakemake's params rerun-trigger compares their ``repr``, so the same mapping written with its keys
+    in another order reran every finished case (a review: a bench config saved with sorted keys reran
+    all 15 jobs, "Params have changed").
+    """
+    if isinstance(data, Mapping):
+        return {key: sorted_keys(data[key]) for key in sorted(data, key=str)}
+    if isinstance(data, list):
+        return [sorted_keys(item) for item in data]
+    return data
+
+
 def machine_memory() -> int:
     """Physical memory of this machine (bytes; ``MemTotal``, capped by a cgroup v2 limit)."""
     total = None
@@ -339,6 +359,75 @@ def quarantine(path: str | os.PathLike, why: str) -> str:
     target = f"{os.fspath(path)}.corrupt"
     os.replace(path, target)
     return target
+
+
+def read_job_results(paths: Iterable[str | os.PathLike]) -> list[Any]:
+    """The JSON (``.json``) or CSV (``.csv``, as a DataFrame) results of a study's jobs, each checked.
+
+    The HDF5 results are validated by :func:`ddstudies.aggregate.collect`; the JSON and CSV ones of the
+    mpi, stress and unstructured studies were read as they were: a truncated JSON gave a
+    ``JSONDecodeError`` traceback on every rerun, and a CSV cut to its header dropped its rows from the
+    report without a word (a review). A file that does not parse, is empty, or (CSV) has no row is moved
+    aside to ``<file>.corrupt`` and the error names it; the next run recomputes it.
+
+    Raises
+    ------
+    ddstudies.aggregate.CorruptResultsError
+        ``<path>: corrupt result file: ...; moved aside to <file>.corrupt, the next run recomputes them``.
+    """
+    import json
+    from pathlib import Path
+
+    import pandas as pd
+
+    from ddsolve.io.hdf5 import ResultFileError
+
+    from .aggregate import CorruptResultsError
+
+    out, errors = [], []
+    for path in paths:
+        try:
+            if os.fspath(path).endswith(".csv"):
+                value = pd.read_csv(path)
+                empty = value.empty
+            else:
+                value = json.loads(Path(path).read_text())
+                empty = not value
+        except (OSError, UnicodeDecodeError, ValueError, pd.errors.ParserError) as exc:
+            errors.append(ResultFileError(path, f"{type(exc).__name__}: {exc}"[:200]))
+            continue
+        if empty:
+            errors.append(ResultFileError(path, "no result in it"))
+            continue
+        out.append(value)
+    if errors:
+        for err in errors:
+            if os.path.exists(err.path):
+                quarantine(err.path, err.what)
+        raise CorruptResultsError(errors, moved=True)
+    return out
+
+
+def rebuild_below_missing(paths: Iterable[str | os.PathLike], outputs: Iterable[str | os.PathLike],
+                          log=None) -> list[str]:
+    """Remove ``outputs`` when one of the job results ``paths`` they are made from is missing; the removed.
+
+    Snakemake does not recreate a missing intermediate file whose consumers are up to date: a deleted
+    ``P2.json`` (mpi), ``cases/<series>.json`` (stress) or ``r1.csv`` (unstructured) stayed missing
+    ("Nothing to be done", a review). With the outputs gone, the run recomputes the result and them
+    (the HDF5 studies do the same through :func:`check_results`).
+    """
+    missing = [os.fspath(p) for p in paths if not os.path.exists(p)]
+    removed = []
+    if missing:
+        for out in outputs:
+            if os.path.exists(out):
+                os.remove(out)
+                removed.append(os.fspath(out))
+    if removed and log is not None:
+        log(f"{missing[0]} is missing{f' (and {len(missing) - 1} more)' if len(missing) > 1 else ''}: removed "
+            f"{', '.join(removed)} to rebuild them")
+    return removed
 
 
 def sha256(path: str | os.PathLike) -> str:

@@ -51,7 +51,10 @@ def test_profiles_declare_the_defaults():
         profile = yaml.safe_load((ROOT / "profiles" / name / "config.yaml").read_text())
         assert profile["rerun-incomplete"] is True
         assert {"mem_mb", "runtime", "tasks"} <= set(profile["default-resources"])
-    assert yaml.safe_load((ROOT / "profiles" / "slurm" / "config.yaml").read_text())["executor"] == "slurm"
+    slurm = yaml.safe_load((ROOT / "profiles" / "slurm" / "config.yaml").read_text())
+    assert slurm["executor"] == "slurm"
+    # the plugin reads cpus_per_task before threads: a default would cap every rule's threads (a review)
+    assert "cpus_per_task" not in slurm["default-resources"]
 
 
 def test_dry_run_with_the_slurm_profile(workdir):

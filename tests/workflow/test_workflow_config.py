@@ -110,6 +110,27 @@ def test_list_items_from_the_command_line_are_read_as_numbers():
     assert data["subdomains"] == [2, 3] and data["study"] == "2024"      # a string stays where one is wanted
 
 
+def test_list_items_inside_one_of_are_read_as_numbers():
+    """bodies and subdomains of a sweep are an integer or a list of them (oneOf): --config 'bodies=[2,3]'
+    was refused ("'2' is not of type 'integer'", a review)."""
+    import yaml
+
+    data = yaml.safe_load((ROOT / "config" / "table_4.yaml").read_text())
+    data["sweeps"] = [{"bodies": ["2", "3"], "subdomains": "2", "elements": "2"}]
+    validate(data, SCHEMA_DIR / "config.schema.yaml")
+    assert data["sweeps"] == [{"bodies": [2, 3], "subdomains": 2, "elements": 2}]
+
+
+def test_params_do_not_depend_on_the_order_of_keys():
+    """Snakemake's params rerun-trigger compares reprs: a config saved with sorted keys reran every case."""
+    from ddstudies.workflow import sorted_keys
+
+    a = {"subdomains": 2, "elements": 4, "f": {"b": 1, "a": [{"y": 1, "x": 2}]}}
+    b = {"f": {"a": [{"x": 2, "y": 1}], "b": 1}, "elements": 4, "subdomains": 2}
+    assert repr(sorted_keys(a)) == repr(sorted_keys(b)) and sorted_keys(a) == a
+    assert sorted_keys([3, 1]) == [3, 1]                      # lists keep their order
+
+
 def test_workflow_needs_an_explicit_kind(workdir):
     # a study named stress* is not a stress study: only `kind` says what a study is
     (workdir / "nokind.yaml").write_text("study: stress_like\nmethods: [bddc]\nsubdomains: [2]\nelements: [2]\n")
@@ -275,3 +296,43 @@ def test_unstructured_and_mpi_cases_are_sized_while_planning(workdir, config, me
     (workdir / "sized.yaml").write_text(config)
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "sized.yaml", check=False)
     assert proc.returncode != 0 and message in proc.stdout + proc.stderr
+
+
+def test_json_and_csv_job_results_are_checked_and_moved_aside(tmp_path):
+    """A truncated JSON gave a JSONDecodeError traceback on every rerun, a CSV cut to its header dropped
+    its rows from the report without a word (a review); both are named and moved aside now."""
+    from ddstudies.aggregate import CorruptResultsError
+    from ddstudies.workflow import read_job_results
+
+    good_json, good_csv = tmp_path / "P1.json", tmp_path / "r0.csv"
+    good_json.write_text('{"problem": "poisson", "iterations": 13}')
+    good_csv.write_text("ndof,iterations\n81,7\n")
+    json_value, csv_value = read_job_results([good_json, good_csv])
+    assert json_value == {"problem": "poisson", "iterations": 13} and csv_value["iterations"].tolist() == [7]
+    cut_json, header_csv, empty = tmp_path / "P2.json", tmp_path / "r1.csv", tmp_path / "jumps.json"
+    cut_json.write_text('{"problem": "poi')
+    header_csv.write_text("ndof,iterations\n")
+    empty.write_text("[]")
+    with pytest.raises(CorruptResultsError, match=r"P2.json: corrupt result file: JSONDecodeError.*\(and 2 more: "
+                                                  r".*r1.csv, .*jumps.json\); moved aside") as err:
+        read_job_results([good_json, cut_json, header_csv, empty])
+    assert len(err.value.paths) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["P1.json", "P2.json.corrupt", "jumps.json.corrupt",
+                                                          "r0.csv", "r1.csv.corrupt"]
+
+
+def test_a_deleted_json_or_csv_result_removes_what_was_made_from_it(tmp_path):
+    """Snakemake does not recreate a missing intermediate file under up-to-date reports (a review: a deleted
+    P2.json or r1.csv stayed missing); the reports are removed, so the run rebuilds the result and them."""
+    from ddstudies.workflow import rebuild_below_missing
+
+    results = [tmp_path / "P1.json", tmp_path / "P2.json"]
+    reports = [tmp_path / "mpi.md", tmp_path / "mpi.csv"]
+    for path in results + reports:
+        path.write_text("{}")
+    lines = []
+    assert rebuild_below_missing(results, reports, log=lines.append) == []       # all there: nothing removed
+    results[1].unlink()
+    assert rebuild_below_missing(results, reports, log=lines.append) == [str(p) for p in reports]
+    assert not any(p.exists() for p in reports) and results[0].exists()
+    assert lines == [f"{results[1]} is missing: removed {reports[0]}, {reports[1]} to rebuild them"]

@@ -160,7 +160,7 @@ def figure_5_2_spec():
     """The ProblemSpec mapping of Figure 5.2: the study's shared keys, the case of `figure_5_2`."""
     spec = shared_spec(config["figure_5_2"]["method"])
     spec.update(problem="contact", bodies=2, **config["figure_5_2"])
-    return spec
+    return studies_workflow.sorted_keys(spec)
 
 
 def thesis_coefficients():
@@ -262,7 +262,7 @@ def _bench_cases():
 def bench_spec(wildcards):
     """ProblemSpec mapping of a problem kind (plain dict: a params value)."""
     prob = config["problems"][wildcards.kind]
-    return {**prob["spec"], "problem": wildcards.kind, "maxiter": config["maxiter"]}
+    return studies_workflow.sorted_keys({**prob["spec"], "problem": wildcards.kind, "maxiter": config["maxiter"]})
 
 
 def bench_reference_spec(wildcards):
@@ -494,8 +494,9 @@ def mpi_spec(wildcards):
     """The ddsolve solve flags of the case (a plain dict: a params value)."""
     common = {key: config[key] for key in ("rtol", "maxiter")}
     if wildcards.method == MPI_CONTACT_METHOD:
-        return {"problem": "contact", "method": MPI_CONTACT_METHOD, **config["contact"], **common}
-    return {key: config[key] for key in ("method", "subdomains", "elements")} | common
+        return studies_workflow.sorted_keys({"problem": "contact", "method": MPI_CONTACT_METHOD, **config["contact"],
+                                             **common})
+    return studies_workflow.sorted_keys({key: config[key] for key in ("method", "subdomains", "elements")} | common)
 
 
 def mpi_case_files(wildcards=None):
@@ -559,3 +560,11 @@ elif KIND == "unstructured" and COND_SPECS:
     check_result_files(unstructured_cond_files(), f"results/{STUDY}/cond/summary.csv",
                        [f"reports/{STUDY}/cond_law.{ext}" for ext in ("md", "csv", "png")],
                        manifest=f"results/{STUDY}/cond/summary.sha256")
+# the JSON / CSV job results of the mpi, stress and unstructured studies: one deleted is recomputed with
+# everything made from it (their contents are checked when read: ddstudies.workflow.read_job_results)
+if MAIN_PROCESS and KIND in ("mpi", "stress", "unstructured"):
+    _job_results = {"mpi": mpi_case_files, "unstructured": unstructured_case_files,
+                    "stress": lambda: expand(f"results/{STUDY}/cases/{{series}}.json", series=STRESS_SERIES)}[KIND]()
+    studies_workflow.rebuild_below_missing(_job_results, targets() + ([f"results/{STUDY}/summary.csv"]
+                                           if KIND == "unstructured" else []),
+                                           log=lambda line: print(line, file=sys.stderr))

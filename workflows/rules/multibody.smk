@@ -15,7 +15,7 @@ rule table_4:
     wildcard_constraints:
         table="|".join(config["tables"]),
     params:
-        table=lambda wc: config["tables"][wc.table],
+        table=lambda wc: studies_workflow.sorted_keys(config["tables"][wc.table]),
         contacts=CONTACTS,
         cases=[list(case) for case in CASES],
         base=list(CASES[0]),
@@ -40,7 +40,7 @@ rule figure_4:
     wildcard_constraints:
         figure="|".join(config["figures"]),
     params:
-        figure=lambda wc: config["figures"][wc.figure],
+        figure=lambda wc: studies_workflow.sorted_keys(config["figures"][wc.figure]),
         contacts=CONTACTS,
         base=list(CASES[0]),
     log:

@@ -18,7 +18,7 @@ rule ngsolve_bench:
         markdown=f"reports/{STUDY}/ngsolve.md",
         plot=f"reports/{STUDY}/ngsolve.png",
     params:
-        config=lambda wc: json.dumps({key: config[key] for key in NGSOLVE_KEYS if key in config}),
+        config=lambda wc: json.dumps({key: config[key] for key in NGSOLVE_KEYS if key in config}, sort_keys=True),
     log:
         f"logs/{STUDY}/ngsolve.log",
     threads: scaling_threads

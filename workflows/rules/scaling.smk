@@ -45,7 +45,7 @@ rule scaling_summary:
         markdown=report(f"reports/{STUDY}/scaling.md", caption="../report/scaling_table.rst",
                         category="Contact scaling"),
     params:
-        targets=config.get("targets", {}),
+        targets=studies_workflow.sorted_keys(config.get("targets", {})),
     log:
         f"logs/{STUDY}/summary.log",
     resources:

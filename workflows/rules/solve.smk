@@ -5,7 +5,7 @@ rule solve_case:
     output:
         f"results/{CASE}.h5",
     params:
-        spec=case_spec,
+        spec=lambda wc: studies_workflow.sorted_keys(case_spec(wc)),
     log:
         f"logs/{CASE}.log",
     threads: 1

@@ -15,7 +15,7 @@ rule stress_series:
     output:
         f"results/{STUDY}/cases/{{series}}.json",
     params:
-        cases=stress_series_cases,
+        cases=lambda wc: studies_workflow.sorted_keys(stress_series_cases(wc)),
         timeout=config["case_timeout"],
     wildcard_constraints:
         series="|".join(re.escape(s) for s in STRESS_SERIES),

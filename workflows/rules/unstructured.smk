@@ -25,7 +25,7 @@ rule unstructured_case:
         problem="poisson|contact",
         refine=r"\d+",
     params:
-        case=unstructured_case,
+        case=lambda wc: studies_workflow.sorted_keys(unstructured_case(wc)),
     log:
         f"logs/{STUDY}/{{problem}}/r{{refine}}.log",
     threads: scaling_threads
@@ -48,7 +48,7 @@ rule unstructured_summary:
                      category="Unstructured meshes"),
         markdown=f"reports/{STUDY}/unstructured.md",
     params:
-        targets=config.get("targets", {}),
+        targets=studies_workflow.sorted_keys(config.get("targets", {})),
     resources:
         tasks=1,
         mem_mb=2000,
@@ -86,7 +86,7 @@ rule unstructured_cond_case:
         method="fetidp|bddc",
         stem=r"h[0-9.e+-]+_r\d+_P\d+(_[a-z-]+)?",
     params:
-        spec=unstructured_cond_spec,
+        spec=lambda wc: studies_workflow.sorted_keys(unstructured_cond_spec(wc)),
     log:
         f"logs/{STUDY}/cond/{{method}}/{{stem}}.log",
     threads: 1
@@ -128,7 +128,7 @@ rule unstructured_cond_law:
         plot=report(f"reports/{STUDY}/cond_law.png", caption="../report/unstructured_cond_plot.rst",
                     category="Unstructured meshes"),
     params:
-        cond_law=config.get("cond_law", {}),
+        cond_law=studies_workflow.sorted_keys(config.get("cond_law", {})),
     log:
         f"logs/{STUDY}/cond/law.log",
     resources:
@@ -146,7 +146,7 @@ rule unstructured_contact_figure:
         report(f"reports/{STUDY}/contact_solution.png", caption="../report/unstructured_contact.rst",
                category="Unstructured meshes"),
     params:
-        spec=unstructured_figure_spec,
+        spec=lambda wc: studies_workflow.sorted_keys(unstructured_figure_spec(wc)),
     log:
         f"logs/{STUDY}/contact_figure.log",
     threads: 1

@@ -6,13 +6,14 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import csv
-    import json
     from pathlib import Path
 
     from ddsolve.parallel.model import measured_report, mpi_report
 
     sm = snakemake  # noqa: F821
-    runs = [json.loads(Path(path).read_text()) for path in sm.input]
+    from ddstudies.workflow import read_job_results
+
+    runs = read_job_results(sm.input)        # checked: a corrupt one is moved aside, one line names it
     poisson = [run for run in runs if run["problem"] == "poisson"]
     contact = [run for run in runs if run["problem"] == "contact"]
     rows, text = mpi_report(poisson)

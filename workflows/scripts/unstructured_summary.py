@@ -13,7 +13,9 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     from ddstudies.bench.unstructured import summary_markdown, unstructured_summary
 
     sm = snakemake  # noqa: F821
-    df = pd.concat([pd.read_csv(path) for path in sm.input], ignore_index=True)
+    from ddstudies.workflow import read_job_results
+
+    df = pd.concat(read_job_results(sm.input), ignore_index=True)     # checked, as the HDF5 results
     write_table(df, sm.output.summary)
     summary = unstructured_summary(df, dict(sm.params.targets))
     write_table(summary["table"], sm.output.table)

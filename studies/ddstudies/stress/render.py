@@ -82,7 +82,9 @@ def write_records(path: str | os.PathLike, records: Sequence[Mapping[str, Any]])
 
 def read_records(paths: Sequence[str | os.PathLike]) -> list[dict[str, Any]]:
     """Concatenate the record lists of several files, in order."""
+    from ..workflow import read_job_results
+
     out: list[dict[str, Any]] = []
-    for p in paths:
-        out += json.loads(Path(p).read_text())
+    for records in read_job_results(paths):      # checked: a corrupt file is moved aside and named
+        out += records
     return out
