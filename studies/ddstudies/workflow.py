@@ -289,6 +289,9 @@ def _contact_load(spec) -> None:
     if any(v > 0 for v in loads):
         raise InputError("f", f"contact loads must be <= 0 (a positive load pulls the floating membrane "
                               f"off the contact zone: no solution), got {f!r}")
+    if not loads[-1] < 0:      # the load on Omega^2 (a constant, or dostal's F2): none presses it (a review)
+        raise InputError("f", f"the floating membrane Omega^2 needs a negative load (none presses it onto "
+                              f"Omega^1: no unique solution), got {f!r}")
 
 
 def check_cases(cases: Iterable[tuple[str, Mapping[str, Any]]], max_memory: float | None = None) -> dict:
