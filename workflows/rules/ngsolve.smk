@@ -15,8 +15,8 @@ rule ngsolve:
 rule ngsolve_bench:
     output:
         csv=f"results/{STUDY}/ngsolve.csv",
-        markdown=f"reports/{STUDY}/ngsolve.md",
-        plot=f"reports/{STUDY}/ngsolve.png",
+        markdown=report(f"reports/{STUDY}/ngsolve.md", caption="../report/ngsolve_table.rst", category="NGSolve"),
+        plot=report(f"reports/{STUDY}/ngsolve.png", caption="../report/ngsolve_plot.rst", category="NGSolve"),
     params:
         config=lambda wc: json.dumps({key: config[key] for key in NGSOLVE_KEYS if key in config}, sort_keys=True),
     log:

@@ -46,7 +46,8 @@ rule unstructured_summary:
         summary=f"results/{STUDY}/summary.csv",
         table=report(f"reports/{STUDY}/unstructured.csv", caption="../report/unstructured_table.rst",
                      category="Unstructured meshes"),
-        markdown=f"reports/{STUDY}/unstructured.md",
+        markdown=report(f"reports/{STUDY}/unstructured.md", caption="../report/unstructured_summary.rst",
+                        category="Unstructured meshes"),
     params:
         targets=studies_workflow.sorted_keys(config.get("targets", {})),
     resources:

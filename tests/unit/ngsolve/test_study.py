@@ -71,6 +71,10 @@ def test_workflow_runs_the_study(tmp_path):
     report = (tmp_path / "reports" / "ngs_tiny" / "ngsolve.md").read_text()
     assert "## Scaling where METIS parts cut coefficient jumps" in report and "| 1 | 0.1 |" in report
     assert "## 3D: the same problem on the unit cube" in report and "| ddinverse-fetidp | 1 |" in report
+    # the HTML report holds the table and the plot (it had none of the study's items: a review)
+    run_snakemake(tmp_path, "--cores", "1", "--configfile", "tiny.yaml", "--report", "report.html", timeout=600)
+    html = (tmp_path / "report.html").read_text(errors="replace")
+    assert "one panel per polynomial order" in html and "all timed in one job" in html    # the captions
 
 
 def test_cube_study_agrees_with_the_direct_solution():
