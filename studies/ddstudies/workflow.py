@@ -154,9 +154,30 @@ def validate(data: dict[str, Any], schema: str | os.PathLike | Mapping[str, Any]
     if errors:
         best = jsonschema.exceptions.best_match(errors)  # the most specific error of anyOf / if-then
         where = "/".join(str(part) for part in best.absolute_path) or "(top level)"
-        message = best.message if len(best.message) <= 300 else best.message[:300] + " ..."
+        message = _describe(best)
+        message = message if len(message) <= 300 else message[:300] + " ..."
         raise ConfigError(f"invalid {key} ({name}): {where}: {message}")
     return data
+
+
+def _describe(err) -> str:
+    """What is wrong, in words that name the key: jsonschema's messages of ``anyOf``/``oneOf``, ``not`` and
+    ``minItems`` quote the whole instance instead (a grid config without ``subdomains`` printed the merged
+    config, cut off; a review)."""
+    if err.validator in ("anyOf", "oneOf") and err.context:
+        required = sorted({repr(e.validator_value[0]) if len(e.validator_value) == 1 else
+                           " and ".join(map(repr, e.validator_value)) for e in err.context
+                           if e.validator == "required" and not e.relative_path})
+        if required and isinstance(err.instance, dict):
+            return f"needs {' or '.join(required)}"
+    if err.validator == "not":
+        why = err.schema.get("description") if isinstance(err.schema, dict) else None
+        return f"not allowed here{f' ({why})' if why else ''}"
+    if err.validator == "minItems":
+        if not err.instance:
+            return "must not be empty"
+        return f"needs at least {err.validator_value} items, got {len(err.instance)}"
+    return err.message
 
 
 def unique_labels(labels: Iterable[tuple[str, Any]], what: str) -> dict[str, Any]:

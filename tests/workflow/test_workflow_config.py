@@ -245,7 +245,7 @@ def test_missing_thesis_transcriptions_are_config_errors(workdir, change, messag
     ({"heat": {"spec": {"subdomains": 2, "elements": 4}, "methods": ["fetidp"]}},
      r"problems: 'heat' is not one of \['poisson', 'multibody', 'contact'\]"),
     ({"poisson": {"spec": {"subdomains": 2, "elements": 4}, "methods": [], "peers": []}},
-     r"problems/poisson/methods: \[\] should be non-empty"),
+     r"problems/poisson/methods: must not be empty"),
 ])
 def test_bench_problems_are_checked(problems, message):
     """An unknown problem was a KeyError in the planning (no key path); no methods and no peers an empty report."""
@@ -336,3 +336,25 @@ def test_a_deleted_json_or_csv_result_removes_what_was_made_from_it(tmp_path):
     assert rebuild_below_missing(results, reports, log=lines.append) == [str(p) for p in reports]
     assert not any(p.exists() for p in reports) and results[0].exists()
     assert lines == [f"{results[1]} is missing: removed {reports[0]}, {reports[1]} to rebuild them"]
+
+
+@pytest.mark.parametrize("change, expected", [
+    ({"subdomains": None}, r"\(top level\): needs 'subdomains' and 'elements' or 'sweeps'$"),
+    ({"contacts": ["full"]}, r"contacts: not allowed here \(only for the multibody problem\)$"),
+    ({"methods": []}, r"methods: must not be empty$"),
+])
+def test_schema_errors_name_the_key(change, expected):
+    """jsonschema's messages of anyOf, not and minItems quoted the whole config, cut off, and never named the
+    missing key (a review)."""
+    import yaml
+
+    data = {**yaml.safe_load((ROOT / "config" / "default.yaml").read_text()),
+            **yaml.safe_load((ROOT / "config" / "poisson.yaml").read_text())}
+    data.pop("studies")                           # the reproduction's list: one study here
+    for key, value in change.items():
+        if value is None:
+            data.pop(key)
+        else:
+            data[key] = value
+    with pytest.raises(ConfigError, match=expected):
+        validate(data, SCHEMA_DIR / "config.schema.yaml")
