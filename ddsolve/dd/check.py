@@ -25,12 +25,18 @@ __all__ = ["absolute_product", "energy_error_estimate", "error_check", "judged",
 EPS = float(np.finfo(float).eps)
 
 
-def needs_check(rho: np.ndarray) -> bool:
-    """Whether the coefficient varies between subdomains: only then does the scaling decide whether the
-    dual rule bounds the error (with one coefficient cond <= C (1 + log H/h)^2, and the estimate stays
-    orders of magnitude below its limit of 100 rtol), so only then is the check run."""
+def needs_check(rho: np.ndarray, structured: bool = True) -> bool:
+    """Whether the final error check runs: where the coefficient varies between subdomains, or the mesh
+    is not the thesis's uniform structured grid (``structured=False``: a METIS partition of a netgen mesh
+    or a mesh file).
+
+    On the structured grids with one coefficient cond <= C (1 + log H/h)^2 and the dual rule bounds the
+    error (the estimate stays orders of magnitude below its limit of 100 rtol), so the check is skipped
+    there. A general mesh can hide what a coefficient jump does: stretched elements (a mesh scaled by 1e-3
+    in y) made FETI stop with errors of 0.57 to 3e5 and FETI-DP with 7.7e-3 at rtol 1e-6, reported
+    converged (a review of 2026-11-27)."""
     rho = np.asarray(rho, dtype=float)
-    return bool(rho.size and np.ptp(rho) > 0)
+    return not structured or bool(rho.size and np.ptp(rho) > 0)
 
 
 def rounding_signs(dofs: np.ndarray) -> np.ndarray:

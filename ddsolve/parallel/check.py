@@ -27,7 +27,10 @@ __all__ = ["distributed_error_estimate", "distributed_needs_check", "interface_p
 
 
 def distributed_needs_check(sub, comm: CountingComm) -> bool:
-    """:func:`ddsolve.dd.check.needs_check` over the subdomains of all ranks (two Allreduces)."""
+    """:func:`ddsolve.dd.check.needs_check` over the subdomains of all ranks (two Allreduces; none for a
+    general mesh, ``sub.templates`` False on every rank alike)."""
+    if not sub.templates:
+        return True
     rho = np.asarray(sub.rho, dtype=float)
     high = comm.allreduce_scalar(float(rho.max()) if rho.size else -math.inf, op="max")
     low = -comm.allreduce_scalar(-float(rho.min()) if rho.size else -math.inf, op="max")
