@@ -183,12 +183,24 @@ def check_decomposition(spec: ProblemSpec) -> None:
                                 f"body has none); use method 'direct'")
 
 
-def check_finite_matrices(sub: Substructures) -> None:
+#: Below this largest rho, non-finite subdomain matrices come from the mesh, not from rho.
+RHO_OVERFLOW_SUSPECT = 1e100
+
+
+def check_finite_matrices(sub: Substructures, mesh_file: str | None = None) -> None:
     """Refuse subdomain matrices whose entries overflow: rho times an element matrix entry above the
-    largest double (``--rho 1e308`` on Q1: a breakdown at iteration 0 and an overflow warning before)."""
-    if not np.all(np.isfinite(sub.K_W.data)):
-        raise InputError("rho", f"the largest rho, {float(np.max(sub.rho)):.3g}, times the element matrices overflows "
-                                f"the largest double ({sys.float_info.max:.3g}): rescale the problem")
+    largest double (``--rho 1e308`` on Q1: a breakdown at iteration 0 and an overflow warning before), or a
+    mesh whose coordinates are so small that its element Jacobians underflow (a mesh file scaled by
+    1e-153; a review found the error blaming rho = 1 then: it names ``mesh_file`` now)."""
+    if np.all(np.isfinite(sub.K_W.data)):
+        return
+    largest = float(np.max(sub.rho))
+    if largest < RHO_OVERFLOW_SUSPECT:
+        raise InputError("mesh_file" if mesh_file else "mesh",
+                         f"the element matrices are not finite (rho is at most {largest:.3g}): element sizes near "
+                         f"the limits of double precision (coordinates of 1e-150?); rescale the mesh")
+    raise InputError("rho", f"the largest rho, {largest:.3g}, times the element matrices overflows "
+                            f"the largest double ({sys.float_info.max:.3g}): rescale the problem")
 
 
 def check_scene_decomposition(spec: ProblemSpec, scene: "Scene") -> None:
@@ -313,7 +325,7 @@ def prepare(spec: ProblemSpec | dict[str, Any], scene: "Scene | None" = None) ->
     t2 = time.perf_counter()
     sub = Substructures(local, scaling=spec.scaling, gamma=spec.gamma, templates=spec.mesh != "unstructured",
                         primal=spec.primal)
-    check_finite_matrices(sub)
+    check_finite_matrices(sub, spec.mesh_file)
     t3 = time.perf_counter()
     timings.update(scene=t1 - t0, assembly=t2 - t1, substructures=t3 - t2)
     contact = None

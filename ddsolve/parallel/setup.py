@@ -185,7 +185,7 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     local = assemble(local_scene)
     t5 = time.perf_counter()
     sub = RankSubstructures.build(sl, local, node_gid, templates=spec.mesh != "unstructured")
-    check_finite_matrices(sub)
+    check_finite_matrices(sub, spec.mesh_file)
     t6 = time.perf_counter()
     timings.update(distribute=t4 - t3, assembly=t5 - t4, substructures=t6 - t5)
     return RankProblem(spec=spec, comm=comm, topo=topo, sub=sub,

@@ -51,3 +51,19 @@ def test_a_wrong_answer_on_stretched_elements_is_not_converged(stretched_mesh, m
 def test_bddc_stays_converged_and_accurate(stretched_mesh):
     res = _solve(stretched_mesh, "bddc")
     assert res.converged and res.error_vs_direct < 1e-6           # measured 1.1e-7
+
+
+def test_a_mesh_too_small_for_double_precision_names_the_mesh_file(stretched_mesh, tmp_path):
+    """Coordinates of 1e-153: the element Jacobians underflow. The error blamed rho (= 1) before (a review)."""
+    from ddsolve.errors import InputError
+
+    head, rest = (stretched_mesh.parent / "iso.vol").read_text().split("\npoints\n", 1)
+    count, body = rest.split("\n", 1)
+    lines = body.split("\n")
+    for i in range(int(count)):
+        x, y, z = (float(v) for v in lines[i].split())
+        lines[i] = f"{1e-153 * x:.16e} {1e-153 * y:.16e} {z:.16e}"
+    tiny = tmp_path / "tiny.vol"
+    tiny.write_text(head + "\npoints\n" + count + "\n" + "\n".join(lines))
+    with pytest.raises(InputError, match=r"^mesh_file: the element matrices are not finite \(rho is at most 1\)"):
+        solve(ProblemSpec(mesh="unstructured", mesh_file=str(tiny), parts=4, method="fetidp"))
