@@ -139,9 +139,12 @@ def _multibody_runner(method: str) -> Runner:
             out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
                                                 **options)
         else:  # hybrid: PCR has no Lanczos estimate, so cond stays None
-            from .multibody.hybrid import HybridSolver
-            out = HybridSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
-                                              norm=spec.norm, projection=spec.projection, **options)
+            from .multibody.hybrid import HybridSolver, with_s_ol_fallback
+            solver = HybridSolver(sub, gi)
+            fallback = options.pop("s_ol_fallback", True)
+            out = with_s_ol_fallback(lambda s_ol: solver.solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
+                                                               norm=spec.norm, projection=spec.projection,
+                                                               s_ol=s_ol, **options), fallback)
         if out.krylov.converged and needs_check(sub.rho):    # the rules bound a residual, not the error of u
             from .multibody.check import multibody_error_estimate
             out.extra["error_estimate"], n_fact = multibody_error_estimate(sub, gi, active, out.u)

@@ -31,8 +31,12 @@ method, and :mod:`ddsolve.api`'s runners pass them on.
       reported ``converged=False`` with both facts in the reason, so that no preset calls an
       inaccurate answer converged; its iteration counts are still SMALBE's own.
 
-Methods whose defaults already are the thesis's rules (fetidp, bddc, hybrid, the
-direct solvers) take no option and run identically under both presets.
+    - the multibody hybrid method: no second solve with the energy form of S~_OL after a breakdown
+      on the indefinite one (default: redone, as the active set method's faces, ``s_ol_fallback=False``;
+      a review found 10 of 22 small unstructured scenes breaking down).
+
+Methods whose defaults already are the thesis's rules (fetidp, bddc, the direct solvers) take no option
+and run identically under both presets.
 """
 from __future__ import annotations
 
@@ -47,6 +51,7 @@ THESIS_OPTIONS: dict[tuple[str, str], dict[str, Any]] = {
     ("contact", "active-set"): {"face_rtol_rule": "initial", "initial_active": "positive",
                                 "removal": "blocking", "face_norm": "l2", "s_ol_fallback": False},
     ("contact", "smalbe"): {"equality_rule": "section-6.4", "rho_bar": None, "polish": False},
+    ("multibody", "hybrid"): {"s_ol_fallback": False},
 }
 
 __all__ = ["THESIS_OPTIONS", "solver_options"]

@@ -60,7 +60,7 @@ import numpy as np
 from ..dd.operators import linear_operator, scaled_jump
 from ..krylov import pcg
 from ..krylov.result import KrylovResult
-from ..multibody.hybrid import RTOL_RULES, S_OL_FORMS, HybridSolver
+from ..multibody.hybrid import RTOL_RULES, S_OL_FORMS, HybridSolver, broke_down_on_s_ol
 from ..qp import mprgp
 from ..qp.result import QPResult
 from .direct import ContactSolution
@@ -299,8 +299,7 @@ class ActiveSetHybrid:
             face = {"rtol": face_rtol, "maxiter": maxiter, "x0": {"u_gamma": u_k, "lambda": lam_k},
                     "rtol_rule": face_rtol_rule, **face_norm_options}
             out = h.solve(active, s_ol=s_ol, **face)
-            if (s_ol_fallback and s_ol == "thesis" and not out.krylov.converged
-                    and out.krylov.reason.startswith("breakdown") and "M not positive definite" in out.krylov.reason):
+            if s_ol_fallback and s_ol == "thesis" and broke_down_on_s_ol(out.krylov):
                 # S~_OL of (4.9)-(4.10) indefinite: redo the face with the PSD energy form (docs/methods.md)
                 log.warning("active set: face solve %d broke down (%s); solving it again with s_ol='energy'",
                             len(inner) + 1, out.krylov.reason)

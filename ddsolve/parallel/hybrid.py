@@ -39,7 +39,7 @@ from ..dd.check import needs_check
 from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, linear_operator
 from ..krylov.result import KrylovResult
-from ..multibody.hybrid import S_OL_FORMS, InterfaceSpace
+from ..multibody.hybrid import S_OL_FORMS, InterfaceSpace, with_s_ol_fallback
 from ..multibody.kernel import FloatingSums
 from .check import distributed_multibody_estimate, tied_pieces
 from .coarse import DistributedPrimalSolver, pinned_vertices
@@ -492,16 +492,19 @@ def _rhs_norm(b: np.ndarray, M, norm: str, red: Reductions) -> float:
 
 def solve_hybrid_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
                      gather: bool = True, norm: str = "l2", projection: str = "orthogonal",
-                     restart: int = 100, rtol_rule: str = "max") -> tuple[MethodOutput, dict]:
+                     restart: int = 100, rtol_rule: str = "max", s_ol_fallback: bool = True) -> tuple[MethodOutput, dict]:
     """The hybrid method on the ranks of ``prob.comm`` for the active set of ``prob.spec.contact``.
 
     ``cond`` is ignored (PCR has no Lanczos estimate, as in serial). Only ``projection="orthogonal"``.
+    ``s_ol_fallback``: as serial (:func:`~ddsolve.multibody.hybrid.with_s_ol_fallback`; every rank sees the
+    same breakdown, the reductions being replicated).
     """
     if projection != "orthogonal":
         raise ValueError(f"projection {projection!r} is not distributed (only 'orthogonal')")
     hyb = DistributedHybrid(prob)
-    out, info = hyb.solve(hyb.contact_mask, rtol=rtol, maxiter=maxiter, restart=restart,
-                          norm=norm, rtol_rule=rtol_rule, gather=gather)
+    out, info = with_s_ol_fallback(lambda s_ol: hyb.solve(hyb.contact_mask, rtol=rtol, maxiter=maxiter,
+                                                          restart=restart, norm=norm, rtol_rule=rtol_rule,
+                                                          gather=gather, s_ol=s_ol), s_ol_fallback)
     tied = prob.pieces["tied"]
     if out.krylov.converged and tied is not None:      # as serial: the error of u itself
         sub = prob.sub

