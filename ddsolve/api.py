@@ -145,7 +145,7 @@ def _multibody_runner(method: str) -> Runner:
             out = with_s_ol_fallback(lambda s_ol: solver.solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
                                                                norm=spec.norm, projection=spec.projection,
                                                                s_ol=s_ol, **options), fallback)
-        if out.krylov.converged and needs_check(sub.rho):    # the rules bound a residual, not the error of u
+        if out.krylov.converged and needs_check(sub.rho, sub.templates):    # the rules bound a residual, not u's error
             from .multibody.check import multibody_error_estimate
             out.extra["error_estimate"], n_fact = multibody_error_estimate(sub, gi, active, out.u)
             out.n_factorizations += n_fact

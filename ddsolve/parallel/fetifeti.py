@@ -162,8 +162,10 @@ def distribute_fetifeti(topo, rank_of_sub: np.ndarray, size: int, spec) -> list[
     body_col[floating] = np.arange(floating.size)
     col_a, col_b = body_col[topo.body_of_sub[sa]], body_col[topo.body_of_sub[sb]]
     tilde = tilde_pieces(topo, topo.vertex & gi.mask, rank_of_sub, size)
-    # the final error check (ddsolve.multibody.check) where the coefficient varies between subdomains
-    tied = tied_pieces(topo, gi, active, rank_of_sub, size) if needs_check(topo.rho) else [None] * size
+    # the final error check (ddsolve.multibody.check) where the coefficient varies between subdomains or the mesh
+    # is unstructured (ddsolve.dd.check.needs_check, as serial)
+    tied = (tied_pieces(topo, gi, active, rank_of_sub, size) if needs_check(topo.rho, spec.mesh != "unstructured")
+            else [None] * size)
     out = []
     for r, rows in enumerate(jump_rows(pa, pb, coef_a, coef_b, rank_of_sub[sa], rank_of_sub[sb], size)):
         lo, hi = owned_range(topo.n_sub, size, r)
