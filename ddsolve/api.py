@@ -139,7 +139,8 @@ def _multibody_runner(method: str) -> Runner:
             out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
                                                 **options)
         else:  # hybrid: PCR has no Lanczos estimate, so cond stays None
-            from .multibody.hybrid import HybridSolver, with_s_ol_fallback
+            from .multibody.fallback import with_s_ol_fallback
+            from .multibody.hybrid import HybridSolver
             solver = HybridSolver(sub, gi)
             fallback = options.pop("s_ol_fallback", True)
             out = with_s_ol_fallback(lambda s_ol: solver.solve(active, rtol=spec.rtol, maxiter=spec.maxiter,

@@ -60,7 +60,8 @@ import numpy as np
 from ..dd.operators import linear_operator, scaled_jump
 from ..krylov import pcg
 from ..krylov.result import KrylovResult
-from ..multibody.hybrid import RTOL_RULES, S_OL_FORMS, HybridSolver, broke_down_on_s_ol
+from ..multibody.fallback import broke_down_on_s_ol
+from ..multibody.hybrid import RTOL_RULES, S_OL_FORMS, HybridSolver
 from ..qp import mprgp
 from ..qp.result import QPResult
 from .direct import ContactSolution

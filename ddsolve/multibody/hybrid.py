@@ -58,8 +58,7 @@ from .spaces import ActiveSet, InterfaceSpace
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ActiveSet", "HybridSolver", "InterfaceSpace", "PROJECTIONS", "NORMS", "RTOL_RULES", "S_OL_FORMS",
-           "broke_down_on_s_ol", "with_s_ol_fallback"]
+__all__ = ["ActiveSet", "HybridSolver", "InterfaceSpace", "PROJECTIONS", "NORMS", "RTOL_RULES", "S_OL_FORMS"]
 
 #: Stopping rules of a face solve: ||r_n|| <= rtol max(||r_0||, ||F_k||) (default) or rtol ||r_0|| (Section 4.4).
 RTOL_RULES: tuple[str, ...] = ("max", "initial")
@@ -71,31 +70,6 @@ S_OL_FORMS: tuple[str, ...] = ("thesis", "energy")
 #: ``"dirichlet"`` and ``"lumped"`` are Q-weighted (FETI's P = I - QG(G^T Q G)^{-1} G^T)
 #: with Q = M_D^{-1} of (4.11) or its super-lumped diagonal, see :meth:`HybridSolver.solve`.
 from ..options import PROJECTIONS  # noqa: E402
-
-
-def broke_down_on_s_ol(krylov) -> bool:
-    """Whether a hybrid solve with ``s_ol="thesis"`` ended in PCR's breakdown on an indefinite preconditioner,
-    which the PSD energy form of S~_OL may avoid (docs/methods.md, item 12a)."""
-    return (not krylov.converged and krylov.reason.startswith("breakdown")
-            and "M not positive definite" in krylov.reason)
-
-
-def with_s_ol_fallback(solve, s_ol_fallback: bool = True):
-    """``solve(s_ol)`` with ``s_ol="thesis"``, and once more with ``s_ol="energy"`` if that broke down on
-    S~_OL (``s_ol_fallback``; the thesis preset: no second solve). The second result's reason says so, and
-    its ``extra["s_ol_breakdown"]`` keeps the first one's. Used by the multibody hybrid method (serial and
-    distributed; a review found it breaking down on 10 of 22 small unstructured scenes, errors 0.4-20.8),
-    as the active set method's face solves do."""
-    out = solve("thesis")
-    if not (s_ol_fallback and broke_down_on_s_ol(out[0].krylov if isinstance(out, tuple) else out.krylov)):
-        return out
-    first = out[0].krylov if isinstance(out, tuple) else out.krylov
-    log.warning("hybrid: %s; solving again with s_ol='energy'", first.reason)
-    again = solve("energy")
-    method_out = again[0] if isinstance(again, tuple) else again
-    method_out.extra["s_ol_breakdown"] = first.reason
-    method_out.krylov.reason = f"{method_out.krylov.reason} (with s_ol='energy', after a breakdown with s_ol='thesis')"
-    return again
 
 
 class HybridSolver:

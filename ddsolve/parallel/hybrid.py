@@ -39,7 +39,8 @@ from ..dd.check import needs_check
 from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, linear_operator
 from ..krylov.result import KrylovResult
-from ..multibody.hybrid import S_OL_FORMS, InterfaceSpace, with_s_ol_fallback
+from ..multibody.fallback import with_s_ol_fallback
+from ..multibody.hybrid import S_OL_FORMS, InterfaceSpace
 from ..multibody.kernel import FloatingSums
 from .check import distributed_multibody_estimate, tied_pieces
 from .coarse import DistributedPrimalSolver, pinned_vertices
@@ -496,7 +497,7 @@ def solve_hybrid_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     """The hybrid method on the ranks of ``prob.comm`` for the active set of ``prob.spec.contact``.
 
     ``cond`` is ignored (PCR has no Lanczos estimate, as in serial). Only ``projection="orthogonal"``.
-    ``s_ol_fallback``: as serial (:func:`~ddsolve.multibody.hybrid.with_s_ol_fallback`; every rank sees the
+    ``s_ol_fallback``: as serial (:func:`~ddsolve.multibody.fallback.with_s_ol_fallback`; every rank sees the
     same breakdown, the reductions being replicated).
     """
     if projection != "orthogonal":
