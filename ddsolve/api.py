@@ -19,7 +19,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
-from .dd.check import judged, needs_check
+from .dd.check import judged
 from .krylov import TRUE_RESIDUAL_FACTOR, attained  # noqa: F401  (TRUE_RESIDUAL_FACTOR re-exported)
 from .limits import check_resources
 from .options import METHODS
@@ -146,10 +146,6 @@ def _multibody_runner(method: str) -> Runner:
             out = with_s_ol_fallback(lambda s_ol: solver.solve(active, rtol=spec.rtol, maxiter=spec.maxiter,
                                                                norm=spec.norm, projection=spec.projection,
                                                                s_ol=s_ol, **options), fallback)
-        if out.krylov.converged and needs_check(sub.rho, sub.templates):    # the rules bound a residual, not u's error
-            from .multibody.check import multibody_error_estimate
-            out.extra["error_estimate"], n_fact = multibody_error_estimate(sub, gi, active, out.u)
-            out.n_factorizations += n_fact
         return MethodRun(out, reference=reference, extra=extra)
     return run
 

@@ -78,6 +78,32 @@ class InputError(ValueError):
         super().__init__(f"{self.field}: {self.message}")
 
 
+def check_tolerance(name: str, value: Any) -> float:
+    """``value`` as a float if it is a real number in (0, 1), else :class:`InputError` naming ``name``.
+
+    The relative tolerances of the substructuring methods (``rtol`` of ``solve_fetidp``,
+    ``HybridSolver.solve``, ``solve_contact_active_set``, ``eps`` of ``solve_contact_smalbe``, ...) and
+    of :class:`~ddsolve.spec.ProblemSpec` obey the same rule: a tolerance >= 1 stops before the first
+    step (``solve_fetidp(rtol=1.5)`` returned "converged" with a 200% error), and 0 is never met.
+    """
+    import numbers
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise InputError(name, f"must be a number in (0, 1), got {brief(value)}")
+    out = float(value)
+    if not 0.0 < out < 1.0:            # also NaN
+        raise InputError(name, f"must be in (0, 1), got {out:g}")
+    return out
+
+
+def check_flag(name: str, value: Any) -> bool:
+    """``value`` if it is True or False (numpy's included), else :class:`InputError` naming ``name``
+    (``cond="yes"`` was read as True)."""
+    import numpy as np
+    if not isinstance(value, (bool, np.bool_)):
+        raise InputError(name, f"must be True or False, got {brief(value)}")
+    return bool(value)
+
+
 class ConvergenceWarning(UserWarning):
     """A solve that returns without meeting its tolerance (its result says why: ``converged``, ``reason``).
 
@@ -87,4 +113,5 @@ class ConvergenceWarning(UserWarning):
     """
 
 
-__all__ = ["InputError", "ConvergenceWarning", "brief", "clip", "MAX_VALUE", "MAX_FIELD", "MAX_MESSAGE"]
+__all__ = ["InputError", "ConvergenceWarning", "brief", "check_flag", "check_tolerance", "clip", "MAX_VALUE",
+           "MAX_FIELD", "MAX_MESSAGE"]

@@ -25,6 +25,39 @@ from ..krylov.convergence import norm2
 from ..multibody.interface import GlobalInterface
 
 
+#: An iterative contact result (active set method, SMALBE) is accepted only if its KKT residual (5.5)
+#: is at most min(max(KKT_ACCEPT_FACTOR rtol, KKT_ACCEPT_FLOOR), KKT_ACCEPT_CEILING): the active set
+#: method's stopping rules bound the face-solve residuals, not the KKT conditions, and under extreme
+#: coefficients the l2 rule of the face solves can stop with unresolved displacements. The ceiling:
+#: at rtol 0.1 the sign tests (10 rtol) accepted a KKT residual of 0.48 with 1 of the 24 active pairs
+#: (review of 2026-11-25); a residual above 1% is no solution at any rtol. SMALBE checks its
+#: stationarity against 100 eps itself, without the ceiling: at rtol 0.5 it reported a KKT residual
+#: of 0.74 converged (review of 2026-11-27), so the same rule applies to it.
+KKT_ACCEPT_FACTOR = 100.0
+KKT_ACCEPT_FLOOR = 1e-8
+KKT_ACCEPT_CEILING = 1e-2
+
+
+def kkt_limit(rtol: float) -> float:
+    """min(max(KKT_ACCEPT_FACTOR rtol, KKT_ACCEPT_FLOOR), KKT_ACCEPT_CEILING): the largest KKT residual (5.5)
+    of an accepted iterative contact solution."""
+    return min(max(KKT_ACCEPT_FACTOR * float(rtol), KKT_ACCEPT_FLOOR), KKT_ACCEPT_CEILING)
+
+
+def kkt_verdict(converged: bool, reason: str, kkt_max: float, rtol: float) -> tuple[bool, str]:
+    """(converged, reason) of an iterative contact solve after the KKT acceptance rule (:func:`kkt_limit`):
+    a solve that met its own rules with a larger KKT residual (or NaN) is not converged. Applied by
+    :func:`~ddsolve.contact.active_set.solve_contact_active_set` and
+    :func:`~ddsolve.contact.smalbe_dual.solve_contact_smalbe` themselves and, under mpiexec, to the
+    distributed KKT residuals (:func:`ddsolve.contact.run.contact_fields`)."""
+    limit = kkt_limit(rtol)
+    if not converged or kkt_max <= limit:     # NaN fails the comparison
+        return converged, reason
+    return False, (f"not accepted: {reason.removeprefix('converged: ')}, but the KKT residual "
+                   f"{kkt_max:.1e} > {limit:.1e} = min(max({KKT_ACCEPT_FACTOR:g} rtol, {KKT_ACCEPT_FLOOR:g}), "
+                   f"{KKT_ACCEPT_CEILING:g})")
+
+
 @dataclass
 class KKTResiduals:
     """Relative violations of the KKT conditions (5.5).

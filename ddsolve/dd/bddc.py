@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 
+from ..errors import check_flag, check_tolerance
 from ..krylov import pcg
 from .common import MethodOutput
 from .operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
@@ -74,6 +75,7 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     -------
     MethodOutput
     """
+    rtol, cond = check_tolerance("rtol", rtol), check_flag("cond", cond)
     t0 = time.perf_counter()
     cache: dict = {}
     space = sub.primal_space()

@@ -5,7 +5,8 @@ import time
 
 import numpy as np
 
-from .check import energy_error_estimate, needs_check
+from ..errors import check_flag, check_tolerance
+from .check import energy_error_estimate, judge_output, needs_check
 from .common import MethodOutput
 from .dual import dual_operators, projection_weights, solve_dual
 from .local import BatchedSolver
@@ -62,6 +63,7 @@ def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     -------
     MethodOutput
     """
+    rtol, cond = check_tolerance("rtol", rtol), check_flag("cond", cond)
     t0 = time.perf_counter()
     cache: dict = {}
     B, B_D = sub.jump_operators(np.ones(sub.n_W, dtype=bool))
@@ -93,5 +95,5 @@ def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
         primal_solver = PrimalConstrainedSolver(sub, sub.vertex, cache)     # one more factorization
         extra["error_estimate"] = energy_error_estimate(sub, u, primal_solver, schur)
         n_fact += primal_solver.n_factorizations
-    return MethodOutput(u=u, krylov=kr, nlambda=n_lam, n_factorizations=n_fact,
-                        setup_seconds=setup, extra=extra)
+    return judge_output(MethodOutput(u=u, krylov=kr, nlambda=n_lam, n_factorizations=n_fact,
+                                     setup_seconds=setup, extra=extra), rtol, "feti")

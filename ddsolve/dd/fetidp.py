@@ -8,8 +8,9 @@ import numpy as np
 import scipy.sparse as sp
 
 
+from ..errors import check_flag, check_tolerance
 from ..krylov import KrylovResult, pcg
-from .check import energy_error_estimate, needs_check
+from .check import energy_error_estimate, judge_output, needs_check
 from .common import MethodOutput
 from .dual import dual_operators
 from .operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
@@ -41,6 +42,7 @@ def solve_fetidp(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000,
     -------
     MethodOutput
     """
+    rtol, cond = check_tolerance("rtol", rtol), check_flag("cond", cond)
     t0 = time.perf_counter()
     cache: dict = {}
     space = sub.primal_space()
@@ -68,9 +70,9 @@ def solve_fetidp(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000,
     extra = {"n_primal": primal_solver.n_primal}
     if kr.converged and needs_check(sub.rho, sub.templates):    # the dual rule bounds the jump B u, not the error of u
         extra["error_estimate"] = energy_error_estimate(sub, u, primal_solver, schur, space)
-    return MethodOutput(u=u, krylov=kr, nlambda=n_lam,
-                        n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
-                        setup_seconds=setup, extra=extra)
+    return judge_output(MethodOutput(u=u, krylov=kr, nlambda=n_lam,
+                                     n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,
+                                     setup_seconds=setup, extra=extra), rtol, "fetidp")
 
 
 def dual_solve(primal_solver: PrimalConstrainedSolver, B: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:

@@ -23,14 +23,16 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
 
-from ..dd.check import energy_error_estimate
+from ..dd.check import energy_error_estimate, judge_output, needs_check
+from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver
 from ..dd.substructure import Substructures
 from ..scene.assembly import LocalProblems
 from ..scene.scene import Scene
 from .interface import GlobalInterface
 
-__all__ = ["tied_nodes", "tied_scene", "tied_substructures", "floating_shifts", "multibody_error_estimate"]
+__all__ = ["tied_nodes", "tied_scene", "tied_substructures", "floating_shifts", "multibody_error_estimate",
+           "checked_output"]
 
 
 def tied_nodes(sub: Substructures, gi: GlobalInterface, active: np.ndarray) -> tuple[int, np.ndarray]:
@@ -200,3 +202,24 @@ def multibody_error_estimate(sub: Substructures, gi: GlobalInterface, active: np
     if not energy > 0:
         return math.inf, n_factorizations
     return estimate + math.sqrt(abs(float(moved @ (sub.K_W @ moved))) / energy), n_factorizations
+
+
+def checked_output(out: MethodOutput, gi: GlobalInterface, active: np.ndarray, rtol: float, method: str,
+                   check: bool | None = None) -> MethodOutput:
+    """``out`` of a multibody solve (FETI-FETI, hybrid) after the final error check.
+
+    ``check`` None runs it where :func:`ddsolve.dd.check.needs_check` says (coefficient jumps between
+    subdomains, or an unstructured mesh); True always, False never (the inner solves of the contact
+    methods, whose result is judged by its KKT conditions). A converged ``out`` whose
+    :func:`multibody_error_estimate` exceeds the limit comes back not converged
+    (:func:`ddsolve.dd.check.judge_output`), the estimate in ``extra["error_estimate"]`` and its
+    factorizations counted.
+    """
+    sub = gi.sub
+    if check is None:
+        check = needs_check(sub.rho, sub.templates)
+    if not check or out.krylov is None or not out.krylov.converged:
+        return out
+    out.extra["error_estimate"], n_fact = multibody_error_estimate(sub, gi, active, out.u)
+    out.n_factorizations += n_fact
+    return judge_output(out, rtol, method)

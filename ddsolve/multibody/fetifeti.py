@@ -24,6 +24,8 @@ from ..dd.common import MethodOutput
 from ..dd.dual import dual_operators, projection_weights, solve_dual
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver
 from ..dd.substructure import Substructures
+from ..errors import InputError, check_flag, check_tolerance
+from .check import checked_output
 from .interface import GlobalInterface
 
 
@@ -71,7 +73,8 @@ class FetiFetiSolver:
         return np.bincount(self.representative, weights=y, minlength=self.sub.n_W)
 
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000, cond: bool = False,
-              lam0: np.ndarray | None = None, projection: str = "weighted") -> MethodOutput:
+              lam0: np.ndarray | None = None, projection: str = "weighted",
+              check: bool | None = None) -> MethodOutput:
         """Solve (3.35) on the active set Z^k.
 
         Parameters
@@ -84,12 +87,18 @@ class FetiFetiSolver:
         projection : {"weighted", "orthogonal"}
             Q-weighted projection under rho-scaling (default, as in one-level FETI) or
             the orthogonal P = I - G (G^T G)^{-1} G^T of (2.13) (the thesis preset).
+        check : bool, optional
+            The final error check (:func:`ddsolve.multibody.check.checked_output`): None (default) where
+            rho varies between subdomains or the mesh is unstructured, True always, False never.
 
         Returns
         -------
         MethodOutput
-            ``extra["lambda_gl"]``: multipliers of the active global pairs.
+            ``extra["lambda_gl"]``: multipliers of the active global pairs; ``extra["error_estimate"]``
+            where the check ran (above its limit the result is not converged).
         """
+        rtol, cond = check_tolerance("rtol", rtol), check_flag("cond", cond)
+        active = self.gi.active_mask(active)
         t0 = time.perf_counter()
         sub = self.sub
         B_gl, B_gl_D = self.gi.operators(active)
@@ -105,12 +114,16 @@ class FetiFetiSolver:
             e = self.R.T @ sub.f_W
         q = projection_weights(B_D, sub.rho[sub.sub_of_W], sub.scaling, projection)
         setup = time.perf_counter() - t0
+        if lam0 is not None and np.shape(lam0) != (B.shape[0],):
+            raise InputError("lam0", f"must have shape ({B.shape[0]},) (the local multipliers, then the "
+                                     f"{B_gl.shape[0]} active global ones), got {np.shape(lam0)}")
         sol = solve_dual(F, M, d, G, e, q, rtol=rtol, maxiter=maxiter, cond=cond, lam0=lam0)
         u_W = self.primal_solver.solve(sub.f_W - BT @ sol.lam)
         if sol.alpha is not None:
             u_W = u_W + self.R @ sol.alpha
         n_loc = self.B_loc.shape[0]
-        return MethodOutput(u=sub.average(u_W), krylov=sol.krylov, nlambda=B.shape[0],
-                            n_factorizations=self.n_factorizations, setup_seconds=self.setup_seconds + setup,
-                            extra={"n_floating_bodies": int(self.floating.size),
-                                   "lambda_gl": sol.lam[n_loc:], "lambda": sol.lam})
+        out = MethodOutput(u=sub.average(u_W), krylov=sol.krylov, nlambda=B.shape[0],
+                           n_factorizations=self.n_factorizations, setup_seconds=self.setup_seconds + setup,
+                           extra={"n_floating_bodies": int(self.floating.size),
+                                  "lambda_gl": sol.lam[n_loc:], "lambda": sol.lam})
+        return checked_output(out, self.gi, active, rtol, "feti-feti", check)

@@ -49,9 +49,11 @@ from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, PairJump, PrimalConstrainedSolver, linear_operator, scaled_jump
 from ..dd.projection import Projection
 from ..dd.substructure import Substructures
+from ..errors import InputError, check_tolerance
 from ..krylov import PCR
 from ..krylov.pcr import NORMS
 from ..krylov.result import KrylovResult
+from .check import checked_output
 from .interface import GlobalInterface
 from .kernel import FloatingSums
 from .spaces import ActiveSet, InterfaceSpace
@@ -313,9 +315,7 @@ class HybridSolver:
             floating body, or a group of them, is not tied to a clamped body
             by active multipliers).
         """
-        active = np.asarray(active, dtype=bool)
-        if active.shape != (self.gi.n_gl,):
-            raise ValueError(f"active must have shape ({self.gi.n_gl},), got {active.shape}")
+        active = self.gi.active_mask(active)
         key = np.packbits(active).tobytes()
         hit = self._active_cache.get(key)
         if hit is not None:
@@ -403,7 +403,7 @@ class HybridSolver:
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000,
               x0: Any = None, restart: int = 100, norm: str = "l2",
               projection: str = "orthogonal", rtol_rule: str = "max",
-              multiplier_weight: float = 1.0, s_ol: str = "thesis") -> MethodOutput:
+              multiplier_weight: float = 1.0, s_ol: str = "thesis", check: bool | None = None) -> MethodOutput:
         """Solve the KKT system (4.2) on the active set Z^k: PCR on (4.5) with (4.11).
 
         The iteration runs on range(P_R) x V^k for (u_Gamma, mu) with
@@ -474,6 +474,10 @@ class HybridSolver:
             (default) S_GG - S_G0 M_0 S_0G of (4.9)-(4.10) (:meth:`S_ol`), which can be
             indefinite, so that PCR may break down; ``"energy"`` the positive
             semidefinite E^T S E (:meth:`S_ol_energy`, one more M_0 per application).
+        check : bool, optional
+            The final error check (:func:`ddsolve.multibody.check.checked_output`): None (default) where
+            rho varies between subdomains or the mesh is unstructured, True always, False never (the
+            active set method's face solves, judged by the KKT conditions instead).
 
         Returns
         -------
@@ -482,7 +486,8 @@ class HybridSolver:
             ``krylov`` the PCR result on (4.5), ``nlambda`` = active.sum(),
             ``n_factorizations`` new factorizations (0 after the first solve),
             ``extra = {"lambda": (n_active,), "state": dict, "u_gamma": (n_gamma,),
-            "n_gamma": int, "n_floating": int, "constraint_residual": float, "s_ol": str}``.
+            "n_gamma": int, "n_floating": int, "constraint_residual": float, "s_ol": str}``, and
+            ``"error_estimate"`` where the check ran (above its limit the result is not converged).
 
         Raises
         ------
@@ -498,6 +503,9 @@ class HybridSolver:
             raise ValueError(f"unknown rtol_rule {rtol_rule!r} (choose from {', '.join(RTOL_RULES)})")
         if s_ol not in S_OL_FORMS:
             raise ValueError(f"unknown s_ol {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
+        rtol = check_tolerance("rtol", rtol)
+        if isinstance(restart, bool) or not isinstance(restart, (int, np.integer)) or restart < 1:
+            raise InputError("restart", f"must be an integer >= 1, got {restart!r}")
         t0 = time.perf_counter()
         a = self.active_set(active)
         n_act = a.n_active
@@ -556,12 +564,13 @@ class HybridSolver:
         new_fact = 0 if self._reported else self.n_factorizations
         self._reported = True
         log.info("hybrid solve: %d active multipliers, %s", n_act, kr.reason)
-        return MethodOutput(
+        out = MethodOutput(
             u=u, krylov=kr, nlambda=int(n_act), n_factorizations=new_fact,
             setup_seconds=setup + (self.setup_seconds if new_fact else 0.0),
             extra={"lambda": lam, "u_gamma": u_g, "n_gamma": n_g, "n_floating": int(nf),
                    "constraint_residual": jump, "s_ol": s_ol,
                    "state": {"u_gamma": u_g.copy(), "lambda": lam_full, "active": a.active.copy()}})
+        return checked_output(out, self.gi, active, rtol, "hybrid", check)
 
     def system(self, active: np.ndarray, *, x0: Any = None, projection: str = "orthogonal",
                s_ol: str = "thesis") -> tuple[Any, Any, np.ndarray, np.ndarray | None]:

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd.substructure import Substructures
+from ..errors import InputError
 from ..scene.scene import unique_row_labels
 
 #: Contact areas of problem (4.32).
@@ -114,6 +115,15 @@ class GlobalInterface:
         self.bodies = body_pairs[keep]
         self.n_gl = na.size
         self._coords = scene.coords[na]
+
+    def active_mask(self, active) -> np.ndarray:
+        """``active`` as a bool mask of shape (n_gl,), or :class:`~ddsolve.errors.InputError` naming it
+        (a mask of another length raised a bare IndexError in the solvers)."""
+        mask = np.asarray(active)
+        if mask.shape != (self.n_gl,) or not (mask.dtype == bool or np.issubdtype(mask.dtype, np.integer)):
+            raise InputError("active", f"must be a bool array of shape ({self.n_gl},) (one entry per global "
+                                       f"pair), got {mask.dtype} of shape {mask.shape}")
+        return mask.astype(bool, copy=False)
 
     def contact_mask(self, contact: str) -> np.ndarray:
         """Active multipliers of problem (4.32).

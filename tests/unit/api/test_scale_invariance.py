@@ -169,10 +169,12 @@ def test_active_set_thesis_l2_faces_invariant_under_load_scaling(et: int) -> Non
 
 def test_active_set_thesis_l2_faces_not_invariant_under_rho_scaling() -> None:
     """Why the default weights the gaps: with the plain ||.||_2 rule, rho -> 1e10 rho stops the second face
-    solve at once (forces dominate the residual) and the solution is off by ~1e-3."""
+    solve at once (forces dominate the residual) and the solution is off by ~1e-3, which the KKT acceptance
+    rule of solve_contact_active_set refuses."""
     u0, _, it0, conv0, _ = _reference("contact", "active-set", "M", False, (("face_norm", "l2"),))
-    u, _, it, conv, _ = _solve("contact", "active-set", 1e10, 1.0, face_norm="l2")
-    assert conv0 and conv
+    u, _, it, conv, reason = _solve("contact", "active-set", 1e10, 1.0, face_norm="l2")
+    assert conv0 and not conv
+    assert reason.startswith("not accepted") and "KKT residual" in reason
     assert it0 != it
     assert np.linalg.norm(u * 1e10 - u0) / np.linalg.norm(u0) > 1e-4
 
