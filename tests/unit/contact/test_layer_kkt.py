@@ -1,0 +1,52 @@
+"""The contact solvers' own functions apply the KKT acceptance rule of ddsolve.solve (a review:
+solve_contact_active_set at rtol 0.5 returned a KKT residual of 0.42, lambda 200% off, converged;
+SMALBE at eps 0.5 without polish 0.93), and a tolerance outside (0, 1) is refused."""
+import numpy as np
+import pytest
+
+from ddsolve import ProblemSpec, prepare
+from ddsolve.contact import solve_contact_active_set, solve_contact_direct, solve_contact_smalbe
+from ddsolve.contact.problem import kkt_limit
+from ddsolve.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return prepare(ProblemSpec(problem="contact", subdomains=2, elements=4)).contact
+
+
+@pytest.mark.parametrize("solve", [lambda p: solve_contact_active_set(p, rtol=0.5),
+                                   lambda p: solve_contact_smalbe(p, eps=0.5, polish=False)],
+                         ids=["active-set", "smalbe"])
+def test_loose_tolerance_is_not_accepted(problem, solve):
+    sol = solve(problem)
+    kkt = problem.kkt(sol.u, sol.lam).max
+    assert kkt > kkt_limit(0.5) == 1e-2
+    assert not sol.converged
+    assert sol.reason.startswith("not accepted") and f"{kkt:.1e} > 1.0e-02" in sol.reason
+
+
+def test_default_tolerance_is_accepted(problem):
+    ref = solve_contact_direct(problem)
+    for sol in (solve_contact_active_set(problem), solve_contact_smalbe(problem)):
+        assert sol.converged, sol.reason
+        assert problem.kkt(sol.u, sol.lam).max <= kkt_limit(1e-5)
+        assert np.linalg.norm(sol.lam - ref.lam) <= 1e-4 * np.linalg.norm(ref.lam)
+
+
+@pytest.mark.parametrize("kwargs, field", [({"rtol": 1.5}, "rtol"), ({"rtol": 0.0}, "rtol"),
+                                           ({"pcg_rtol": float("nan")}, "pcg_rtol"))])
+def test_active_set_refuses_tolerances_outside_the_unit_interval(problem, kwargs, field):
+    with pytest.raises(InputError, match=f"^{field}: must be in \\(0, 1\\)"):
+        solve_contact_active_set(problem, **kwargs)
+
+
+def test_active_set_refuses_a_forcing_term_outside_the_unit_interval(problem):
+    from ddsolve.contact import ActiveSetHybrid
+    with pytest.raises(InputError, match="^forcing: must be in"):
+        ActiveSetHybrid(problem).solve(forcing=2.0)
+
+
+def test_smalbe_reports_eps_outside_the_unit_interval(problem):
+    sol = solve_contact_smalbe(problem, eps=1.5)          # its documented contract: reported, not raised
+    assert not sol.converged and "eps must be a number in (0, 1)" in sol.reason
