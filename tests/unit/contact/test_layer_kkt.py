@@ -35,7 +35,7 @@ def test_default_tolerance_is_accepted(problem):
 
 
 @pytest.mark.parametrize("kwargs, field", [({"rtol": 1.5}, "rtol"), ({"rtol": 0.0}, "rtol"),
-                                           ({"pcg_rtol": float("nan")}, "pcg_rtol"))])
+                                           ({"pcg_rtol": float("nan")}, "pcg_rtol")])
 def test_active_set_refuses_tolerances_outside_the_unit_interval(problem, kwargs, field):
     with pytest.raises(InputError, match=f"^{field}: must be in \\(0, 1\\)"):
         solve_contact_active_set(problem, **kwargs)
