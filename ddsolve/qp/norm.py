@@ -11,6 +11,8 @@ import numpy as np
 import scipy.sparse.linalg as spla
 from scipy.sparse.linalg import aslinearoperator
 
+from ..errors import InputError
+
 __all__ = ["DENSE_MAX", "estimate_norm"]
 
 #: Operators of at most this size are estimated exactly from their dense columns.
@@ -55,7 +57,10 @@ def estimate_norm(A: Any, *, seed: int = 0, tol: float = 1e-4) -> tuple[float, i
 
     def mv(v: np.ndarray) -> np.ndarray:
         count[0] += 1
-        return np.asarray(op.matvec(np.ravel(v)), dtype=np.float64).ravel()
+        out = np.asarray(op.matvec(np.ravel(v)), dtype=np.float64).ravel()
+        if not np.all(np.isfinite(out)):     # LAPACK/ARPACK would fail with "did not converge"
+            raise InputError("A", "the operator returned non-finite values (NaN or Inf)")
+        return out
 
     v0 = np.random.default_rng(seed).standard_normal(n)
     if n <= DENSE_MAX:

@@ -170,6 +170,9 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
     max_outer = check_count("max_outer", max_outer, 1)
     maxiter = max(200, 20 * n) if maxiter is None else check_count("maxiter", maxiter)
     norm_b = norm2(b)
+    if eps * norm_b == 0.0 and atol == 0.0:     # b = 0: the rule max(eps ||b||, atol) = 0 is never met (a review)
+        raise InputError("atol", "b = 0 makes the stopping rule max(eps ||b||, atol) zero, which is never met: "
+                                 "give atol > 0")
     if eta is not None:
         eta = check_positive("eta", eta)
     if feas_tol is not None:
@@ -225,6 +228,7 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         return Amul(v) + penalty[0] * BTmul(Bmul(v))
 
     tol_outer = max(eps * norm_b, atol)
+    rule = "eps ||b||" if eps * norm_b >= atol else "atol"
     # ||BE x - c|| <= tol_feas (in the units of x: the user's tol_outer is 2^e tol_outer' = 2^(e-a) tol_feas')
     tol_feas = up(tol_outer, sc.a) if feas_tol is None else up(feas_tol, -sc.x)
 
@@ -299,9 +303,9 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
             converged = True
             if xu(tol_feas) == gu(tol_outer):
                 reason = (f"converged: ||g^P|| = {gu(gp_norm):.3e} and ||BE x - c|| = {xu(feas):.3e} "
-                          f"<= eps ||b|| = {gu(tol_outer):.3e}")
+                          f"<= {rule} = {gu(tol_outer):.3e}")
             else:
-                reason = (f"converged: ||g^P|| = {gu(gp_norm):.3e} <= eps ||b|| = {gu(tol_outer):.3e} and "
+                reason = (f"converged: ||g^P|| = {gu(gp_norm):.3e} <= {rule} = {gu(tol_outer):.3e} and "
                           f"||BE x - c|| = {xu(feas):.3e} <= {xu(tol_feas):.3e}")
             break
         # penalty update (step 4)

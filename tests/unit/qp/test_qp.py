@@ -14,6 +14,7 @@ import scipy.optimize as so
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
 
+from ddsolve.errors import InputError
 from ddsolve.qp import QPResult, estimate_norm, mprgp, smalbe
 
 
@@ -200,7 +201,7 @@ def test_mprgp_unconstrained_is_cg():
     assert res.converged
     np.testing.assert_allclose(res.x, np.linalg.solve(A, b), rtol=1e-9, atol=1e-12)
     assert res.n_expansion == 0 and res.n_proportioning == 0 and res.n_cg == res.iterations
-    assert res.n_hessian == res.iterations + 1            # A x0 plus one per CG step
+    assert res.n_hessian == res.iterations + 2            # A x0, one per CG step, the recomputed gradient at the end
     assert res.iterations <= n + 5
 
 
@@ -245,7 +246,9 @@ def test_mprgp_tol_overrides():
         return "custom" if gp <= 1e-6 else None
 
     res = mprgp(A, b, lb, tol=rule)
-    assert res.converged and res.reason == "custom" and len(calls) == res.iterations + 1
+    # once before every step and at the end, and once more to confirm the stop with the recomputed gradient
+    assert res.converged and res.reason == "custom" and len(calls) == res.iterations + 2
+    assert calls[-1] <= 1e-6                      # the recomputed norm / 10, accepted by the rule
 
 
 def test_mprgp_maxiter_returns_unconverged():
@@ -470,3 +473,73 @@ def test_mprgp_and_smalbe_powers_of_ten_scaling(es: int, et: int) -> None:
     assert abs(res.iterations - ref.iterations) <= 1 and res.outer_iterations == ref.outer_iterations
     assert np.linalg.norm(res.x * (s / t) - ref.x) <= 1e-8 * np.linalg.norm(ref.x)
     assert np.linalg.norm(res.mu / t - ref.mu) <= 1e-6 * np.linalg.norm(ref.mu)
+
+
+@pytest.mark.parametrize("bound", [-np.inf, -0.05])
+def test_mprgp_confirms_convergence_with_the_recomputed_gradient(bound):
+    """cond 1e10, rtol 1e-9: the recursively updated gradient met the rule while ||g^P|| of the returned x,
+    recomputed, was 100-1e6 times the threshold, and MPRGP said converged (a review); PCG says "tolerance
+    not attained" on the same system, and so must MPRGP. At rtol 1e-6 both converge, and then the
+    recomputed gradient meets the rule within the factor."""
+    rng = np.random.default_rng(19)
+    n = 40
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    A = (Q * np.geomspace(1, 1e10, n)) @ Q.T
+    A = (A + A.T) / 2
+    b = rng.standard_normal(n)
+    lb = np.full(n, bound)
+
+    def projected_gradient_norm(x):
+        g = A @ x - b
+        return float(np.linalg.norm(np.where(x > lb, g, np.minimum(g, 0.0))))
+
+    tight = mprgp(A, b, lb, rtol=1e-9, maxiter=20000)
+    assert not tight.converged and tight.reason.startswith("tolerance not attained")
+    assert projected_gradient_norm(tight.x) > 10 * 1e-9 * np.linalg.norm(b)
+    loose = mprgp(A, b, lb, rtol=1e-6, maxiter=20000)
+    assert loose.converged, loose.reason
+    assert projected_gradient_norm(loose.x) <= 10 * 1e-6 * np.linalg.norm(b)
+    assert loose.gradient_norms.size == loose.iterations + 1
+
+
+def test_qp_refuses_non_finite_matrices():
+    """A NaN in A or BE reached LAPACK in the norm estimate: "Eigenvalues did not converge" (a review)."""
+    A, b, lb = np.diag([2.0, 3.0, 4.0]), np.ones(3), np.zeros(3)
+    bad = A.copy()
+    bad[0, 1] = np.nan
+    for call, field in [(lambda: mprgp(bad, b, lb), "A"), (lambda: mprgp(sp.csr_matrix(bad), b, lb), "A"),
+                        (lambda: smalbe(A, b, lb, np.full((1, 3), np.inf), np.ones(1)), "BE")]:
+        with pytest.raises(InputError, match=f"^{field}: has non-finite entries"):
+            call()
+    nan_operator = LinearOperator((3, 3), matvec=lambda v: np.full(3, np.nan), dtype=float)
+    with pytest.raises(InputError, match="^A: the operator returned non-finite values"):
+        mprgp(nan_operator, b, lb)
+
+
+def test_mprgp_operator_turning_non_finite_is_a_breakdown_with_a_finite_x():
+    rng = np.random.default_rng(4)
+    n = 30
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    A = (Q * np.geomspace(1, 1e3, n)) @ Q.T
+    calls = [0]
+
+    def matvec(v):
+        calls[0] += 1
+        return A @ v if calls[0] <= 5 else np.full(n, np.nan)
+
+    lb = np.full(n, -np.inf)
+    lb[:5] = 0.0
+    res = mprgp(LinearOperator((n, n), matvec=matvec, dtype=float), np.ones(n), lb, norm_A=1e3, rtol=1e-12)
+    assert not res.converged and res.reason.startswith("breakdown: A returned non-finite values")
+    assert np.all(np.isfinite(res.x)) and np.all(res.x >= lb)
+
+
+def test_qp_zero_thresholds_are_refused():
+    A, b, lb = np.diag([2.0, 3.0]), np.ones(2), np.zeros(2)
+    with pytest.raises(InputError, match="^rtol: rtol and atol are both 0"):
+        mprgp(A, b, lb, rtol=0.0)
+    with pytest.raises(InputError, match="^atol: b = 0 makes the stopping rule"):
+        smalbe(A, np.zeros(2), lb, np.ones((1, 2)), np.ones(1))
+    res = smalbe(A, np.zeros(2), lb, np.ones((1, 2)), np.ones(1), atol=1e-10)
+    assert res.converged and "<= atol = 1.000e-10" in res.reason
+    np.testing.assert_allclose(res.x, [0.6, 0.4], atol=1e-8)      # min x^T A x / 2 on x1 + x2 = 1
