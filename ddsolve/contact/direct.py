@@ -26,6 +26,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import InputError
 from ..multibody.direct import SingularMatrixError, factorize_spd, merge_matrix
 from .problem import ContactProblem
 
@@ -170,6 +171,8 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
         conditions (5.5) (:meth:`ContactProblem.kkt`) by more than
         :data:`KKT_TOL`.
     """
+    if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
+        raise InputError("maxiter", f"must be an integer >= 1, got {maxiter!r}")   # 0 returned a NaN lambda
     t0 = time.perf_counter()
     c = float(problem.K.diagonal().mean())
     floats = problem.gi.floating_bodies().size > 0

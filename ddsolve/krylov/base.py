@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import aslinearoperator
 
-from ..errors import InputError
+from ..errors import InputError, brief
 from .convergence import (
     RESTART_FACTOR,
     TRUE_RESIDUAL_FACTOR,
@@ -96,6 +96,8 @@ def apply(op: Matvec, v: np.ndarray) -> np.ndarray:
 
 def _vector(value: Any, name: str, n: int) -> np.ndarray:
     arr = np.asarray(value)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+        raise InputError(name, f"must be an array of numbers, got {brief(value)}")
     if np.iscomplexobj(arr):
         what = "right-hand sides" if name == "b" else "initial guesses"
         raise InputError(name, f"complex {what} are not supported")
@@ -183,6 +185,8 @@ class KrylovSolver:
             self.maxiter = int(maxiter)
             if self.maxiter < 1:
                 raise InputError("maxiter", f"must be >= 1, got {self.maxiter}")
+        if callback is not None and not callable(callback):
+            raise InputError("callback", f"must be callable or None, got {brief(callback)}")
         self.callback = callback
         # iteration state (set by solve)
         self.r = np.zeros(0)
@@ -353,9 +357,10 @@ class KrylovSolver:
         self.threshold = threshold = max(self.rtol * rnorm0, self.atol)
         self.residuals = [rnorm0]
         if rnorm0 == 0.0 or rnorm0 <= threshold:
+            rule = (f"atol = {self.atol / self.scale:.1e}" if self.atol >= self.rtol * rnorm0 else
+                    f"rtol ||r0|| = {self.rtol:g} ||r0|| (rtol >= 1 stops before the first step)")
             self.reason = ("converged: ||r0|| = 0" if rnorm0 == 0.0 else
-                           f"converged: ||r0|| = {rnorm0 / self.scale:.1e} <= atol = "
-                           f"{self.atol / self.scale:.1e}")
+                           f"converged: ||r0|| = {rnorm0 / self.scale:.1e} <= {rule}")
             self.outcome = CONVERGED
             return self._result(t0, True, rnorm0, True)
 
