@@ -20,6 +20,7 @@ from threadpoolctl import threadpool_limits
 
 from .dd import MethodOutput, solve_bddc, solve_direct, solve_feti, solve_fetidp
 from .dd.check import judged
+from .errors import OutputError, brief
 from .krylov import TRUE_RESIDUAL_FACTOR, attained  # noqa: F401  (TRUE_RESIDUAL_FACTOR re-exported)
 from .limits import check_resources
 from .options import METHODS
@@ -237,8 +238,12 @@ def _mesh_report(spec: ProblemSpec, prep: Prepared, setup_seconds: float, solve_
             "mesh": spec.mesh, "parts": int(parts)}
 
 
-def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: np.ndarray | None = None) -> None:
-    """Write ``spec.output`` (a .vtu file for ParaView, :mod:`ddsolve.io.vtk`) if it is set."""
+def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: np.ndarray | None = None,
+                  result: SolveResult | None = None) -> None:
+    """Write ``spec.output`` (a .vtu file for ParaView, :mod:`ddsolve.io.vtk`) if it is set.
+
+    A write that fails (no space, a file size limit, a name the file system refuses) raises
+    :class:`~ddsolve.errors.OutputError` carrying ``result``, the existing file kept."""
     if not spec.output or u is None:
         return
     if not np.all(np.isfinite(u)) or (lam is not None and not np.all(np.isfinite(lam))):
@@ -247,7 +252,12 @@ def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: 
         return
     from .io.vtk import solution_fields, write_vtu
     nodal, cellwise = solution_fields(prep, u, lam)
-    write_vtu(spec.output, prep.scene, nodal, cellwise)
+    try:
+        write_vtu(spec.output, prep.scene, nodal, cellwise)
+    except OSError as exc:
+        why = exc.strerror or str(exc)
+        raise OutputError(f"could not write {brief(str(spec.output))}: {why} (the solve finished; an existing "
+                          f"file there is kept)", result) from None
     log.info("wrote %s", spec.output)
 # --- end of the mesh report block ----------------------------------------------------------------
 
@@ -267,7 +277,7 @@ def _solve(spec: ProblemSpec) -> SolveResult:
         fields["extra"].update(_mesh_report(spec, prep, fields["setup_seconds"], fields["solve_seconds"]))
         result = SolveResult(**identity, **fields)
         log.info("contact %s: %s", spec.method, result.reason)
-        _write_output(spec, prep, result.u, run.lam)
+        _write_output(spec, prep, result.u, run.lam, result)
         return result
 
     out = run.output
@@ -299,5 +309,5 @@ def _solve(spec: ProblemSpec) -> SolveResult:
     extra.update(_mesh_report(spec, prep, fields["setup_seconds"], fields["solve_seconds"]))
     result = SolveResult(**identity, **fields, extra=extra)
     log.info("%s %s: %s", spec.problem, spec.method, result.reason)
-    _write_output(spec, prep, result.u)
+    _write_output(spec, prep, result.u, result=result)
     return result

@@ -12,10 +12,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from typing import Any, Sequence
 
-from .errors import InputError
+from .errors import InputError, OutputError
 from .limits import check_resources, parse_size
 from .spec import ProblemSpec
 
@@ -134,6 +135,9 @@ def _attach_values(argv: Sequence[str], value_options: set[str], known: set[str]
 def _spec_from_args(args: argparse.Namespace) -> ProblemSpec:
     flags: dict[str, Any] = {name: getattr(args, name) for name in ProblemSpec.fields()
                              if getattr(args, name, None) is not None}
+    for name in ("mesh_file", "output"):    # a flag given empty is not one left out (a review: --output ""
+        if isinstance(flags.get(name), str) and not flags[name].strip():      # wrote nothing, --mesh-file ""
+            raise InputError(name, "is empty: give a file name, or leave the flag out")   # solved the square)
     if args.scene is not None:
         return ProblemSpec.from_yaml(args.scene, flags)
     return ProblemSpec.from_mapping(flags)
@@ -173,8 +177,16 @@ def _human(summary: dict[str, Any]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit status."""
-    import os
+    """Entry point; returns the exit status (130 after Ctrl-C: one line, no traceback; an output file being
+    written is removed, the previous one kept)."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        sys.stderr.write("ddsolve: interrupted\n")
+        return 130
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
     # under mpiexec (a launcher's environment variable; docs/parallel.md) the ranks check the input each on
     # its own, then agree (one allgather) before anything else: a rank that alone refused it (a file only it
     # cannot read, its own memory check) would otherwise leave the others waiting in MPI forever
@@ -212,12 +224,26 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return status
         from .api import solve         # serial: no launcher, a serial method on one rank, or -n 1 without mpi4py
         result = solve(spec)
+    except OutputError as exc:         # the solve finished but its file could not be written: print the result
+        if exc.result is not None:
+            _print_result(exc.result, args.json)
+        sys.stderr.write(f"ddsolve: error: {exc}\n")
+        return EXIT_INPUT
     except InputError as exc:
         sys.stderr.write(f"ddsolve: error: {exc}\n")     # one write: under mpiexec ranks' lines never interleave
         return EXIT_INPUT
-    summary = result.to_dict()
-    print(json.dumps(summary) if args.json else _human(summary))
+    _print_result(result, args.json)
     return 0
+
+
+def _print_result(result, as_json: bool) -> None:
+    """The result on stdout: JSON or the summary. A reader that closed the pipe (``| head``) is not an error
+    of ddsolve: stdout is pointed at /dev/null so that the interpreter's final flush stays quiet."""
+    summary = result.to_dict()
+    try:
+        print(json.dumps(summary) if as_json else _human(summary), flush=True)
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -78,6 +78,17 @@ class InputError(ValueError):
         super().__init__(f"{self.field}: {self.message}")
 
 
+class OutputError(InputError):
+    """The output file could not be written (no space, a file size limit, a name the file system refuses)
+    after the solve finished. Field ``output``; :attr:`result` holds the finished
+    :class:`~ddsolve.result.SolveResult`, so that nothing computed is lost (the command line prints it,
+    then the error line, and exits with status 2). An existing file at the target is kept."""
+
+    def __init__(self, message: str, result: Any = None) -> None:
+        super().__init__("output", message)
+        self.result = result
+
+
 def check_tolerance(name: str, value: Any) -> float:
     """``value`` as a float if it is a real number in (0, 1), else :class:`InputError` naming ``name``.
 
@@ -113,5 +124,5 @@ class ConvergenceWarning(UserWarning):
     """
 
 
-__all__ = ["InputError", "ConvergenceWarning", "brief", "check_flag", "check_tolerance", "clip", "MAX_VALUE",
+__all__ = ["InputError", "OutputError", "ConvergenceWarning", "brief", "check_flag", "check_tolerance", "clip", "MAX_VALUE",
            "MAX_FIELD", "MAX_MESSAGE"]

@@ -441,7 +441,17 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
     if output:
         if not output.lower().endswith(".vtu"):
             raise InputError("output", f"must be a .vtu file (ParaView), got {brief(output)}")
+        name = os.path.basename(output)
+        if name.lower() == ".vtu":              # the writer read '.vtu' as a hidden file without a suffix
+            raise InputError("output", f"needs a file name before '.vtu', got {brief(output)}")
         parent = os.path.dirname(os.path.abspath(output))
+        try:
+            name_max = os.pathconf(parent, "PC_NAME_MAX") if os.path.isdir(parent) else 255
+        except (OSError, ValueError):
+            name_max = 255
+        if len(os.fsencode(name)) > name_max:    # refused by the rename after the solve (a review)
+            raise InputError("output", f"file name of {len(os.fsencode(name))} bytes, longer than the "
+                                       f"{name_max} the file system takes: {brief(name)}")
         if not os.path.isdir(parent):
             raise InputError("output", f"directory {brief(parent)} does not exist")
         if os.path.isdir(output):
@@ -622,7 +632,12 @@ class ProblemSpec:
     @classmethod
     def from_yaml(cls, path: str | Path, overrides: Mapping[str, Any] | None = None) -> "ProblemSpec":
         """Read a YAML scene file (:func:`read_scene`); ``overrides`` (e.g. CLI flags) take precedence."""
-        return cls.from_mapping({**read_scene(path), **(overrides or {})})
+        spec = cls.from_mapping({**read_scene(path), **(overrides or {})})
+        if spec.output and os.path.abspath(spec.output) == os.path.abspath(path) or (
+                spec.output and os.path.exists(spec.output) and os.path.samefile(spec.output, path)):
+            # the solution would replace the scene that asked for it (a review: rc 0, the scene file gone)
+            raise InputError("output", f"{brief(spec.output)} is the scene file itself")
+        return spec
 
     def to_dict(self) -> dict[str, Any]:
         """All fields as a plain dictionary."""

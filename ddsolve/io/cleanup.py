@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import os
 import signal
+import stat
 import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["removed_on_termination"]
+__all__ = ["removed_on_termination", "replace_onto", "resolved_target"]
 
 #: The signals whose default action kills the process without an exception.
 SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
@@ -63,3 +64,22 @@ def removed_on_termination(*paths: str | os.PathLike) -> Iterator[None]:
     finally:
         for signum, previous in installed.items():
             signal.signal(signum, previous)
+
+
+def resolved_target(path: str | os.PathLike) -> Path:
+    """The file an output at ``path`` replaces: a symbolic link's target (a review: the link itself was
+    replaced by a regular file and the file it named left as it was), else ``path``."""
+    path = Path(path)
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
+
+
+def replace_onto(tmp: str | os.PathLike, target: str | os.PathLike) -> None:
+    """``os.replace(tmp, target)``, the new file taking the permission bits of the file it replaces (a
+    ``chmod 600`` result became 644: the temporary file's umask default)."""
+    try:
+        mode = os.stat(target).st_mode
+    except OSError:
+        mode = None
+    if mode is not None and stat.S_ISREG(mode):
+        os.chmod(tmp, stat.S_IMODE(mode))
+    os.replace(tmp, target)

@@ -48,7 +48,7 @@ import h5py
 import numpy as np
 
 from .check import quick_check
-from .cleanup import removed_on_termination
+from .cleanup import removed_on_termination, replace_onto, resolved_target
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "ResultFileError", "NoSpaceError", "write_result", "atomic_target",
            "read_params", "read_result", "read_residuals", "read_solution", "validate_result", "quick_check",
@@ -325,7 +325,7 @@ def atomic_target(path: str | os.PathLike) -> Iterator[Path]:
         For a full disk: ``no space left on device writing <path>`` (the
         original error is its ``__cause__``).
     """
-    path = Path(path)
+    path = resolved_target(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -338,7 +338,7 @@ def atomic_target(path: str | os.PathLike) -> Iterator[Path]:
         with removed_on_termination(tmp):      # SIGTERM/SIGHUP: no temporary file left either
             yield tmp
             _inject_enospc(path)
-            os.replace(tmp, path)
+            replace_onto(tmp, path)
     except BaseException as exc:
         if isinstance(exc, Exception) and not isinstance(exc, NoSpaceError) and _no_space(exc):
             raise NoSpaceError(path) from exc

@@ -21,6 +21,7 @@ renamed onto the target with :func:`os.replace`.
 from __future__ import annotations
 
 import base64
+import errno
 import os
 import re
 import struct
@@ -30,7 +31,7 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from .cleanup import removed_on_termination
+from .cleanup import removed_on_termination, replace_onto, resolved_target
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..scene import Scene
@@ -55,7 +56,10 @@ def _inline_base64(data: bytes) -> bytes:
 
     def inline(match: re.Match[bytes]) -> bytes:
         offset = int(match.group(2))
-        (nbytes,) = struct.unpack_from(size_fmt, blob, offset)
+        nbytes = struct.unpack_from(size_fmt, blob, offset)[0] if offset + size_len <= len(blob) else None
+        if nbytes is None or offset + size_len + nbytes > len(blob):
+            # NGSolve does not report a failed write (a file size limit, a full disk): its file is short
+            raise OSError(errno.EIO, "the VTK data NGSolve wrote is incomplete (a file size limit or a full disk?)")
         chunk = blob[offset:offset + size_len + nbytes]
         return (match.group(1) + b'format="binary"' + match.group(3) + b"\n" + base64.b64encode(chunk)
                 + b"\n" + match.group(4))
@@ -87,7 +91,7 @@ def write_vtu(path: str | os.PathLike, scene: "Scene", nodal: Mapping[str, np.nd
     import ngsolve as ngs
     from netgen.meshing import Mesh as NGMesh
 
-    path = Path(path)
+    path = resolved_target(path)
     if path.suffix.lower() != ".vtu":
         raise ValueError(f"output must be a .vtu file, got {path}")
     coords = np.asarray(scene.coords, dtype=float)
@@ -120,7 +124,7 @@ def write_vtu(path: str | os.PathLike, scene: "Scene", nodal: Mapping[str, np.nd
                 fh.write(data)
                 fh.flush()
                 os.fsync(fh.fileno())
-            os.replace(written, path)
+            replace_onto(written, path)
     except BaseException:
         for leftover in (written, base):
             try:

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, OutputError
 from ..result import SolveResult
 from ..spec import ProblemSpec
 from .comm import CountingComm
@@ -213,7 +213,7 @@ def _solve_contact(spec: ProblemSpec, prob, comm: CountingComm, prep_seconds: fl
     if spec.output:                # rank 0 alone writes; the gap of the file needs the serial B (as --check)
         from ..api import _write_output
         from ..prepared import prepare
-        _write_output(spec, prepare(spec, prob.scene), result.u, sol.lam)
+        _write_output(spec, prepare(spec, prob.scene), result.u, sol.lam, result)
     return result
 
 
@@ -307,7 +307,8 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
             from types import SimpleNamespace
 
             from ..api import _write_output
-            _write_output(spec, SimpleNamespace(scene=prob.scene, sub=prob.topo, contact=None), result.u)
+            _write_output(spec, SimpleNamespace(scene=prob.scene, sub=prob.topo, contact=None), result.u,
+                          result=result)
         return result
 
 
@@ -393,6 +394,11 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int | None:
         if comm.Get_rank() == 0:
             summary = result.to_dict()
             print(json.dumps(summary) if as_json else human(summary), flush=True)
+    except OutputError as exc:     # rank 0 alone writes, after the last collective: print what was computed
+        if exc.result is not None:
+            print(json.dumps(exc.result.to_dict()) if as_json else human(exc.result.to_dict()), flush=True)
+        os.write(2, f"ddsolve: error: {exc}\n".encode(errors="replace"))
+        return 2
     except InputError as exc:
         if not getattr(exc, "every_rank", False):
             _abort(comm, exc)

@@ -106,9 +106,13 @@ def netgen_arrays(ngmesh: Any) -> NetgenData:
     material = np.asarray(el["index"], dtype=np.int64) - 1
     n_mat = int(material.max()) + 1
     n_bc = int(segment_bc.max()) + 1 if segment_bc.size else 0
+    try:
+        material_names = [ngmesh.GetMaterial(i + 1) for i in range(n_mat)]
+        bc_names = [ngmesh.GetBCName(i) for i in range(n_bc)]
+    except UnicodeDecodeError:
+        raise InputError("mesh", "a material or boundary name of the mesh is not UTF-8 text") from None
     return NetgenData(coords=coords, elements=nodes[:, :3] - 1, material=material, segments=segments,
-                      segment_bc=segment_bc, material_names=[ngmesh.GetMaterial(i + 1) for i in range(n_mat)],
-                      bc_names=[ngmesh.GetBCName(i) for i in range(n_bc)])
+                      segment_bc=segment_bc, material_names=material_names, bc_names=bc_names)
 
 
 # --------------------------------------------------------------------------- geometries
@@ -596,6 +600,11 @@ def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
                 if len(data) > limit:
                     raise InputError("mesh", f"{path} decompresses to more than {limit / 2**20:.0f} MiB "
                                              f"({GZ_MAX_RATIO}x its size): not a gzipped netgen mesh")
+            try:                                 # netgen's names reach Python as UTF-8 (a bcname byte 0xff:
+                data.decode("utf-8")             # a UnicodeDecodeError traceback, a review)
+            except UnicodeDecodeError as exc:
+                raise InputError("mesh", f"{path} holds bytes that are not UTF-8 text (byte {exc.start}): "
+                                         f"not a netgen mesh, or a name in another encoding") from None
             text = data.decode("latin-1")
     except (OSError, EOFError) as exc:           # EOFError: a truncated .gz
         raise InputError("mesh", f"cannot read {path}: {exc}") from None

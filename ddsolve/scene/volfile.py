@@ -37,7 +37,7 @@ import re
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, brief
 
 __all__ = ["check_vol_text"]
 
@@ -46,6 +46,8 @@ _COUNTED = ("points", "surfaceelements", "volumeelements", "pointelements", "mat
             "facedescriptors", "edgedescriptors")
 _ELEMENT_SIZES = (3, 4, 6, 8)
 _SINGLE = ("dimension", "geomtype")                 # sections of one integer value
+#: str.translate table deleting the characters of an integer as netgen reads it (ASCII digits, signs)
+_NOT_INTEGER = str.maketrans("", "", "0123456789+-")
 _INT_MAX = 2**31 - 1                                # netgen reads these columns as C ints
 
 
@@ -117,8 +119,9 @@ def check_vol_text(text: str, name: str = "mesh file") -> int:
     if "surfaceelements" in sections:
         lines = sections["surfaceelements"][1:]          # (surfaceelementsuv: uv parameters follow)
         widths = np.fromiter((len(ln.split()) for ln in lines), dtype=np.int64, count=len(lines))
+        tokens = " ".join(lines).split()
         try:
-            vals = np.array(" ".join(lines).split(), dtype=float)
+            vals = np.array(tokens, dtype=float)
         except ValueError:
             raise InputError("mesh", f"{name}: section 'surfaceelements' holds a value that is not a number") from None
         if not np.isfinite(vals).all():
@@ -126,8 +129,10 @@ def check_vol_text(text: str, name: str = "mesh file") -> int:
         starts = np.cumsum(widths) - widths                # first value of every line
         if lines and (widths < 5).any():
             raise InputError("mesh", f"{name}: a surface element line has fewer than 5 numbers")
-        header = vals[(starts[:, None] + np.arange(5)).ravel()] if lines else np.zeros(0)
+        head_at = (starts[:, None] + np.arange(5)).ravel() if lines else np.zeros(0, dtype=np.int64)
+        header = vals[head_at]
         _integers(header, "surfaceelements", name)
+        _integer_tokens(tokens, head_at, "surfaceelements", name)
         n_vertices = header[4::5].astype(np.int64)
         if not np.isin(n_vertices, _ELEMENT_SIZES).all() or (widths < 5 + n_vertices).any():
             raise InputError("mesh", f"{name}: a surface element has a bad number of points "
@@ -136,6 +141,7 @@ def check_vol_text(text: str, name: str = "mesh file") -> int:
                                                     - np.repeat(np.cumsum(n_vertices) - n_vertices, n_vertices))
         points = vals[take]
         _integers(points, "surfaceelements", name)
+        _integer_tokens(tokens, take, "surfaceelements", name)
         _in_range(points.astype(np.int64), n_points, "surfaceelements", name)
     # integer columns: edge segments p1 p2 trignum1 trignum2 (and the descriptor number, column 7, of
     # the gi3 form), point elements pnum index; the first n_points of them name points
@@ -146,6 +152,7 @@ def check_vol_text(text: str, name: str = "mesh file") -> int:
             cols = int_cols + ((6,) if key == "edgesegments" and all(len(f) >= 7 for f in fields) else ())
             if any(len(f) < len(int_cols) for f in fields):
                 raise InputError("mesh", f"{name}: a line of section {key!r} is too short")
+            _integer_tokens([f[c] for f in fields for c in cols], None, key, name)
             try:
                 table = np.array([[float(f[c]) for c in cols] for f in fields])
                 every = np.array(" ".join(lines).split(), dtype=float)       # the float columns too
@@ -163,9 +170,20 @@ def _integers(values: np.ndarray, key: str, name: str) -> None:
     """Integer columns: whole numbers in [-1, 2^31) (NaN, 1e308 or 2.5 made netgen crash)."""
     ok = np.isfinite(values) & (values == np.round(values)) & (values >= -1) & (values <= _INT_MAX)
     if not ok.all():
-        bad = values[~ok].ravel()[0]
-        raise InputError("mesh", f"{name}: section {key!r} holds {bad!r} where a whole number (at least -1) "
+        bad = float(values[~ok].ravel()[0])
+        raise InputError("mesh", f"{name}: section {key!r} holds {bad:g} where a whole number (at least -1) "
                                  f"belongs")
+
+
+def _integer_tokens(tokens: list[str], at: np.ndarray | None, key: str, name: str) -> None:
+    """The integer columns written as integers: netgen reads them with C++ ``>> int``, which stops at the
+    '.' of ``20.0`` (or the 'e' of ``2e1``) and reads the rest as the next number; that misaligned the
+    element table and crashed netgen (SIGSEGV, a review of 2026-11-27)."""
+    picked = tokens if at is None else [tokens[i] for i in at.tolist()]
+    if "".join(picked).translate(_NOT_INTEGER):     # a character other than an ASCII digit or a sign
+        bad = next(t for t in picked if t.translate(_NOT_INTEGER))
+        raise InputError("mesh", f"{name}: section {key!r} holds {brief(bad)} where an integer (written "
+                                 f"without a decimal point or exponent) belongs")
 
 
 def _in_range(points: np.ndarray, n_points: int, key: str, name: str) -> None:
