@@ -76,7 +76,7 @@ _MAX_PATH = 4096
 COND_METHODS: tuple[str, ...] = ("feti", "fetidp", "bddc", "feti-feti", "hybrid")
 
 #: A decimal number: optional sign, digits with an optional point, optional exponent (no '_', no hex).
-_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)   # ASCII digits only (not "٤")
 _PATTERN = re.compile(r"(?P<kind>body-checkerboard|checkerboard)(?:\s*:\s*(?P<value>.*))?", re.IGNORECASE | re.DOTALL)
 _RANDOM = re.compile(r"random(?:\s*:\s*(?P<seed>.*))?", re.IGNORECASE | re.DOTALL)
 _DOSTAL = re.compile(r"dostal(?:\s*:(?P<rest>.*))?", re.IGNORECASE | re.DOTALL)

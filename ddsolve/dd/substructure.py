@@ -33,6 +33,37 @@ log = logging.getLogger(__name__)
 PRIMAL_KINDS = PRIMALS
 
 
+
+def rho_powers(rho: np.ndarray, gamma: float, group: np.ndarray, n_groups: int) -> np.ndarray:
+    """rho^gamma of each entry, or, where that over- or underflows (rho^gamma = 1e1200), the same ratios
+    within each group (the copies of a node) scaled to a largest value of 1, from gamma log(rho).
+
+    Parameters
+    ----------
+    rho : ndarray, shape (n,)
+        The coefficient of each entry (> 0).
+    gamma : float
+        The exponent of the rho-scaling (Section 2.3).
+    group : ndarray of int, shape (n,)
+        The group of each entry, in [0, n_groups).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Positive weights whose ratios within a group are those of rho^gamma. Where gamma log(rho) itself
+        overflows (gamma 1e308: inf - inf), the largest entries of a group get 1 and the others 0.
+    """
+    with np.errstate(over="ignore", under="ignore"):
+        weight = rho ** gamma
+    if np.all((weight > 0.0) & np.isfinite(weight)):
+        return weight
+    log_w = gamma * np.log(rho)
+    top = np.full(n_groups, -np.inf)
+    np.maximum.at(top, group, log_w)
+    top_w = top[group]
+    with np.errstate(invalid="ignore"):
+        return np.where(log_w == top_w, 1.0, np.exp(log_w - top_w))
+
 class Substructures:
     """Layout of W vectors and subdomain data of an assembled scene.
 
@@ -340,12 +371,7 @@ class Substructures:
         if scaling == "multiplicity":
             weight = np.ones(self.n_W)
         else:
-            weight = self.rho[self.sub_of_W] ** gamma
-            if not np.all((weight > 0.0) & np.isfinite(weight)):   # rho^gamma over/underflows: same ratios,
-                log_w = gamma * np.log(self.rho[self.sub_of_W])   # scaled to a largest weight of 1 per node
-                top = np.full(self.scene.n_nodes, -np.inf)
-                np.maximum.at(top, self.node_of_W, log_w)
-                weight = np.exp(log_w - top[self.node_of_W])
+            weight = rho_powers(self.rho[self.sub_of_W], gamma, self.node_of_W, self.scene.n_nodes)
         total = np.bincount(self.node_of_W, weights=weight, minlength=self.scene.n_nodes)
         return weight / total[self.node_of_W]
 

@@ -131,6 +131,8 @@ def _scalar_attr(key: str, value: Any) -> Any:
     if isinstance(value, (bool, np.bool_)):
         return np.bool_(value)
     if isinstance(value, (int, np.integer)):
+        if not -2**63 <= int(value) < 2**63:
+            raise TypeError(f"{key}: cannot store {value!r} as an HDF5 attribute (outside int64)")
         return np.int64(value)
     if isinstance(value, (float, np.floating)):
         return np.float64(value)

@@ -68,6 +68,19 @@ def _inline_base64(data: bytes) -> bytes:
     return body.rstrip() + b"\n</VTKFile>\n"
 
 
+def _counterclockwise(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """``elements`` (n, 3 or 4) with every cell's vertices in counter-clockwise order (positive signed area,
+    VTK's convention, as the structured quadrilaterals; netgen's triangles came clockwise, a review)."""
+    x, y = coords[elements, 0], coords[elements, 1]
+    area = np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
+    flip = area < 0
+    if not flip.any():
+        return elements
+    out = elements.copy()
+    out[flip] = out[flip][:, ::-1]
+    return out
+
+
 def write_vtu(path: str | os.PathLike, scene: "Scene", nodal: Mapping[str, np.ndarray],
               cellwise: Mapping[str, np.ndarray]) -> Path:
     """Write nodal and per-element fields of a scene to a ``.vtu`` file, atomically.
@@ -95,7 +108,7 @@ def write_vtu(path: str | os.PathLike, scene: "Scene", nodal: Mapping[str, np.nd
     if path.suffix.lower() != ".vtu":
         raise ValueError(f"output must be a .vtu file, got {path}")
     coords = np.asarray(scene.coords, dtype=float)
-    elements = np.asarray(scene.elements, dtype=np.int32)
+    elements = _counterclockwise(coords, np.asarray(scene.elements, dtype=np.int32))
     ngmesh = NGMesh(dim=2)
     ngmesh.AddPoints(np.ascontiguousarray(np.column_stack([coords, np.zeros(coords.shape[0])])))
     region = ngmesh.AddRegion("omega", 2)
@@ -146,7 +159,9 @@ def solution_fields(prep, u: np.ndarray, lam: np.ndarray | None = None) -> tuple
     lam : ndarray, shape (n_contact,), optional
         Contact multipliers (problem contact): written as the nodal fields
         ``multiplier`` and ``gap`` (B u = u^1 - u^2, feasible where <= 0) on
-        both copies of every contact node, 0 elsewhere.
+        both copies of every contact node, 0 elsewhere; ``contact_node`` is 1 on
+        those nodes and 0 elsewhere (where ``gap`` is not defined: NGSolve's VTK
+        output turns a NaN into NaN on every cell).
 
     Returns
     -------
@@ -160,14 +175,17 @@ def solution_fields(prep, u: np.ndarray, lam: np.ndarray | None = None) -> tuple
     nodal = {"u": values}
     element_sub = np.asarray(scene.element_subdomain)
     cellwise = {"subdomain": element_sub.astype(float),
-                "body": np.asarray(scene.subdomain_body)[element_sub].astype(float)}
+                "body": np.asarray(scene.subdomain_body)[element_sub].astype(float),
+                "rho": np.asarray(scene.rho, dtype=float)[element_sub]}
     if lam is not None and prep.contact is not None:
         pairs = prep.contact.gi.pair_nodes
         multiplier = np.zeros(scene.n_nodes)
         gap = np.zeros(scene.n_nodes)
+        on_contact = np.zeros(scene.n_nodes)        # gap 0 off the boundary read as "in contact": this tells
         g = prep.contact.gap(np.asarray(u, dtype=float))
         for k in (0, 1):
             multiplier[pairs[:, k]] = lam
             gap[pairs[:, k]] = g
-        nodal.update(multiplier=multiplier, gap=gap)
+            on_contact[pairs[:, k]] = 1.0
+        nodal.update(multiplier=multiplier, gap=gap, contact_node=on_contact)
     return nodal, cellwise

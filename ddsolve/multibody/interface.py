@@ -14,7 +14,7 @@ import itertools
 import numpy as np
 import scipy.sparse as sp
 
-from ..dd.substructure import Substructures
+from ..dd.substructure import Substructures, rho_powers
 from ..errors import InputError
 from ..scene.scene import unique_row_labels
 
@@ -74,12 +74,7 @@ class GlobalInterface:
         if sub.scaling == "multiplicity":
             w = np.ones(sub.n_W)
         else:
-            w = sub.rho[sub.sub_of_W] ** sub.gamma
-            if not np.all((w > 0.0) & np.isfinite(w)):   # rho^gamma over/underflows: same ratios, scaled
-                log_w = sub.gamma * np.log(sub.rho[sub.sub_of_W])   # to a largest weight of 1 per location
-                top = np.full(loc.max() + 1, -np.inf)
-                np.maximum.at(top, loc[sub.node_of_W], log_w)
-                w = np.exp(log_w - top[loc[sub.node_of_W]])
+            w = rho_powers(sub.rho[sub.sub_of_W], sub.gamma, loc[sub.node_of_W], loc.max() + 1)   # per location
         node_w = np.bincount(sub.node_of_W, weights=w, minlength=scene.n_nodes)
         loc_w = np.bincount(loc, weights=node_w, minlength=loc.max() + 1)
         weight = np.zeros(sub.n_W)

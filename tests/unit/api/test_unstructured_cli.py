@@ -282,7 +282,8 @@ def test_output_vtu(spec, tmp_path):
     width = scene.elements.shape[1]
     assert n_cells == scene.elements.shape[0] and n_points == width * n_cells   # vertices written per cell
     assert arrays["Points"].size == 3 * n_points
-    names = {"u", "subdomain", "body"} | ({"multiplier", "gap"} if spec["problem"] == "contact" else set())
+    names = {"u", "subdomain", "body", "rho"} | ({"multiplier", "gap", "contact_node"} if spec["problem"] == "contact"
+                                                else set())
     assert names <= set(arrays)
     for name in names:
         assert arrays[name].size == n_points
@@ -291,3 +292,5 @@ def test_output_vtu(spec, tmp_path):
     if spec["problem"] == "contact":
         assert arrays["multiplier"].min() >= 0 and arrays["multiplier"].max() > 0
         assert arrays["gap"].max() <= 1e-6
+        on = arrays["contact_node"] == 1.0
+        assert on.any() and not on.all() and np.all(arrays["multiplier"][~on] == 0)

@@ -131,3 +131,25 @@ def test_a_closed_pipe_is_quiet(tmp_path):
     proc = subprocess.run(" ".join(CLI + ["--json"]) + " | head -c 10", shell=True, cwd=tmp_path,
                           capture_output=True, text=True, timeout=120)
     assert proc.stdout == '{"problem"' and proc.stderr == ""
+
+
+def test_cells_are_written_counterclockwise():
+    import numpy as np
+    from ddsolve.io.vtk import _counterclockwise
+    coords = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    cells = np.array([[0, 2, 1], [0, 1, 2]], dtype=np.int32)
+    np.testing.assert_array_equal(_counterclockwise(coords, cells), [[1, 2, 0], [0, 1, 2]])
+    quads = np.array([[0, 3, 2, 1], [0, 1, 2, 3]], dtype=np.int32)
+    np.testing.assert_array_equal(_counterclockwise(coords, quads), [[1, 2, 3, 0], [0, 1, 2, 3]])
+
+
+def test_rho_is_written_per_cell(tmp_path):
+    import re
+    import base64
+    import numpy as np
+    target = tmp_path / "u.vtu"
+    solve(ProblemSpec(subdomains=2, elements=2, rho="checkerboard:100", output=str(target)))
+    text = target.read_text()
+    blob = re.search(r'Name="rho"[^>]*>\s*(\S+)\s*<', text).group(1)
+    values = np.frombuffer(base64.b64decode(blob)[4:], dtype=np.float64)
+    assert sorted(set(values.tolist())) == [1.0, 100.0] and values.size == 16 * 4
