@@ -57,7 +57,8 @@ def rho_powers(rho: np.ndarray, gamma: float, group: np.ndarray, n_groups: int) 
         weight = rho ** gamma
     if np.all((weight > 0.0) & np.isfinite(weight)):
         return weight
-    log_w = gamma * np.log(rho)
+    with np.errstate(over="ignore"):
+        log_w = gamma * np.log(rho)
     top = np.full(n_groups, -np.inf)
     np.maximum.at(top, group, log_w)
     top_w = top[group]
