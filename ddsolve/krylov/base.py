@@ -45,6 +45,8 @@ Matvec = Callable[[np.ndarray], np.ndarray]
 
 #: Outcomes of :meth:`KrylovSolver.iterate`.
 CONVERGED, MAXITER, BREAKDOWN = "converged", "maxiter", "breakdown"
+#: A breakdown below this residual ratio ||r|| / ||r0|| is rounding (:meth:`KrylovSolver.breakdown`).
+ROUNDING_LEVEL = 1e-10
 
 # The iteration runs unscaled while max |r_0| lies in [2^-_SCALE_FREE, 2^_SCALE_FREE].
 _SCALE_FREE = 64
@@ -246,7 +248,15 @@ class KrylovSolver:
         return None
 
     def breakdown(self, reason: str) -> str:
-        """Set ``reason`` (which starts with ``breakdown:``) and return BREAKDOWN."""
+        """Set ``reason`` (which starts with ``breakdown:``) and return BREAKDOWN.
+
+        A breakdown after the residual fell to the rounding level (||r|| <= 1e-10 ||r0||) is noted as
+        such: a tolerance below the attainable accuracy, not an indefinite operator (a review:
+        ``solve_feti(rtol=1e-20)`` read "operator not positive definite")."""
+        rnorm0 = getattr(self, "rnorm0", 0.0)
+        if self.residuals and rnorm0 > 0 and self.residuals[-1] <= ROUNDING_LEVEL * rnorm0:
+            reason = (f"{reason}; the residual had reached {self.residuals[-1] / rnorm0:.1e} of ||r0||: "
+                      f"rounding (a tolerance below the attainable accuracy), not the operator")
         self.reason = reason
         return BREAKDOWN
 

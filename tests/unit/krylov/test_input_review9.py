@@ -25,3 +25,14 @@ def test_bad_arguments_are_input_errors(kwargs, field):
     with pytest.raises(InputError, match="^b: must be an array of numbers, got 'abc'"):
         pcg(A, "abc")
     assert pcg(A, [1, 2, 3], rtol=1e-12).converged                 # integers and lists are numbers
+
+
+def test_a_breakdown_at_the_rounding_level_says_so():
+    from ddsolve import ProblemSpec, prepare
+    from ddsolve.dd import solve_feti
+    p = prepare(ProblemSpec(subdomains=4, elements=8))
+    kr = solve_feti(p.sub, rtol=1e-20).krylov
+    assert not kr.converged and kr.reason.startswith("breakdown:")
+    assert "rounding (a tolerance below the attainable accuracy), not the operator" in kr.reason
+    indefinite = pcg(np.diag([1.0, -1.0, 2.0]), b, rtol=1e-8)
+    assert indefinite.reason.startswith("breakdown") and "rounding" not in indefinite.reason
