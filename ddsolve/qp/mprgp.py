@@ -246,7 +246,7 @@ def _mprgp_core(matvec: Callable[[np.ndarray], np.ndarray], b: np.ndarray, lb: n
     out = _CoreResult(x=x, g=g, converged=False, reason="")
     Gamma2 = Gamma * Gamma
     p = np.where(x > lb, g, 0.0)                     # p = phi(x^0)
-    fresh = True                                     # g recomputed as A x - b (not updated recursively) since
+    fresh = True                                     # g is A x - b as computed, not updated recursively
     replacements = 0
     try:
         while True:
