@@ -27,7 +27,7 @@ from typing import Any
 import ngsolve
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, brief
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +121,10 @@ def _number(name: str, value: Any) -> float:
     try:
         out = float(value)
     except (TypeError, ValueError):
-        raise InputError(name, f"expected a number, got {value!r}") from None
+        if isinstance(value, ngsolve.CoefficientFunction):     # in a dict or pair of per-body values
+            raise InputError(name, "a per-body value must be a number; for a function give one "
+                                   "CoefficientFunction for both bodies (e.g. with IfPos or MaterialCF)") from None
+        raise InputError(name, f"expected a number, got {brief(value)}") from None
     if not np.isfinite(out):
         raise InputError(name, f"must be finite, got {value!r}")
     return out
@@ -233,7 +236,9 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
     f : float, dict, pair, ngsolve.CoefficientFunction or callable
         Load: a number or one per body, or a real scalar CoefficientFunction on
         ``mesh`` (any: of ``x``, ``y``, ``MaterialCF``, a GridFunction), or
-        ``f(x, y)`` called with NGSolve's coordinate functions. A function is
+        ``f(x, y)`` called with NGSolve's coordinate functions ``ngsolve.x``, ``ngsolve.y``
+        (CoefficientFunctions, not arrays: write ``IfPos(x - 1, a, b)``, not
+        ``np.where(x > 1, a, b)``). A function is
         integrated on the user's mesh against the P1 shape functions with six
         points inside each triangle (none on the contact line).
     method : {"active-set", "smalbe", "direct"}
