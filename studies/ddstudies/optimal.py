@@ -126,6 +126,7 @@ def hybrid_optimal_row(bodies: int, subdomains: int, elements: int, contact: str
 
     from ddsolve.krylov.optimal import minimal_residual_counts
     from ddsolve.multibody import GlobalInterface
+    from ddsolve.multibody.fallback import with_s_ol_fallback
     from ddsolve.multibody.hybrid import HybridSolver
     from ddsolve.prepared import prepare
     from ddsolve.spec import ProblemSpec
@@ -140,11 +141,14 @@ def hybrid_optimal_row(bodies: int, subdomains: int, elements: int, contact: str
         gi = GlobalInterface(prep.sub)
         hs = HybridSolver(prep.sub, gi)
         active = gi.contact_mask(contact)
-        options = _solver_options(ps)      # the preset's hybrid keywords (none today: same rules)
+        options = _solver_options(ps)      # the preset's hybrid keywords (thesis: no S~_OL fallback)
         projection = options.pop("projection", getattr(ps, "projection", "orthogonal"))
-        out = hs.solve(active, rtol=ps.rtol, maxiter=max(ps.maxiter, maxiter), norm=ps.norm,
-                       projection=projection, **options)
-        A, M, b, x0 = hs.system(active, projection=projection)
+        fallback = options.pop("s_ol_fallback", True)
+        out = with_s_ol_fallback(lambda s_ol: hs.solve(active, rtol=ps.rtol, maxiter=max(ps.maxiter, maxiter),
+                                                       norm=ps.norm, projection=projection, s_ol=s_ol,
+                                                       **options), fallback)
+        # the system of the solve that counted (S~_OL of the fallback where the thesis's broke down)
+        A, M, b, x0 = hs.system(active, projection=projection, s_ol=out.extra.get("s_ol", "thesis"))
         opt = minimal_residual_counts(A, b, M, x0, rtol=ps.rtol, maxiter=maxiter, norm=ps.norm)
         ev = None
         if spectrum and b.size <= DENSE_LIMIT:

@@ -77,6 +77,16 @@ def test_hybrid_row_small_case():
     assert r.pos_min == pytest.approx(1.0, abs=1e-8)
 
 
+def test_hybrid_row_thesis_preset():
+    """The thesis preset's hybrid keywords include s_ol_fallback=False, which HybridSolver.solve does not
+    take: the study's rule table_4_2_optimal failed with a TypeError for every config with the thesis
+    rule set (a review of the reports, 2026-11-27)."""
+    thesis = optimal.hybrid_optimal_row(2, 2, 2, "full", preset="thesis")
+    default = optimal.hybrid_optimal_row(2, 2, 2, "full")
+    assert thesis.rule_set == "thesis" and default.rule_set == "default"
+    assert (thesis.pcr, thesis.optimal) == (default.pcr, default.optimal) == (16, 16)   # the same rules here
+
+
 def test_main_writes_report_and_json(tmp_path):
     out = tmp_path / "r" / "t.md"
     assert optimal.main(["--case", "2,2,2", "--case", "99,99,99", "--contacts", "middle",
