@@ -93,7 +93,7 @@ def test_tables_render_beside_the_thesis(summary, thesis):
     assert "PCG it." not in md6 and "24 6 5 6" in md6
     md_c, tex_c, comp, caption = render_comparison(df, thesis)
     assert caption in md_c and caption.endswith(".") and "wall time [s]" in tex_c
-    assert comp[("total it.", "active set thesis")].tolist() == [32, 40]
+    assert comp[("total it.", "active set printed")].tolist() == [32, 40]
 
 
 def synthetic(totals_a: list[int], totals_s: list[int]) -> pd.DataFrame:

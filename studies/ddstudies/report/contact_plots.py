@@ -267,7 +267,7 @@ def plot_method_comparison(comparison: pd.DataFrame, path: str | os.PathLike, *,
     comparison : DataFrame
         From :func:`ddstudies.report.contact_tables.method_comparison` (index
         (N_sub(1/H), H/h); columns ``("total it.", label)``, ``("total it.",
-        label + " thesis")``, ``("wall time [s]", label)``).
+        label + " printed")``, ``("wall time [s]", label)``).
     path : path-like
         Output PNG.
     caption : str, optional
@@ -295,10 +295,10 @@ def plot_method_comparison(comparison: pd.DataFrame, path: str | os.PathLike, *,
         if ("total it.", m) in comparison.columns:
             vals = pd.to_numeric(comparison[("total it.", m)], errors="coerce").astype(float)
             ax1.bar(x + offset, vals, width, color=color, label=f"{m} (ours)")
-        if ("total it.", f"{m} thesis") in comparison.columns:
-            ref = pd.to_numeric(comparison[("total it.", f"{m} thesis")], errors="coerce").astype(float)
+        if ("total it.", f"{m} printed") in comparison.columns:
+            ref = pd.to_numeric(comparison[("total it.", f"{m} printed")], errors="coerce").astype(float)
             ax1.plot(x + offset, ref, "o", mfc="none", mec=color, mew=1.5, ms=6, ls="none",
-                     label=f"{m} (thesis)")
+                     label=f"{m} (printed in the thesis)")
         if ("wall time [s]", m) in comparison.columns:
             secs = pd.to_numeric(comparison[("wall time [s]", m)], errors="coerce").astype(float)
             ax2.bar(x + offset, secs, width, color=color, label=m)
