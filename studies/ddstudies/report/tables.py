@@ -607,7 +607,8 @@ def to_markdown(table: pd.DataFrame, *, digits: int = 4, missing: str = "-") -> 
 
 
 _LATEX_ESCAPES = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
-                  "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\^{}"}
+                  "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\^{}",
+                  "†": r"\textdagger{}", "‡": r"\textdaggerdbl{}", "|": r"\textbar{}"}   # OT1 has no | nor †
 
 
 def latex_escape(text: str) -> str:
