@@ -305,15 +305,15 @@ def test_dry_run_table_4(workdir):
     assert "preset_tag=_thesis" in text
     assert "results/table_4/hybrid/full/Nb12_Ns2_m2.h5" in text
     assert "results/table_4/hybrid/middle/Nb2_Ns48_m2.h5" in text  # beyond the thesis's table
-    assert "reports/table_4/table_4_2.md" in text and "reports/table_4/figure_hybrid_iterations.png" in text
+    assert "reports/table_4/table_4_2.md" in text and "reports/table_4/figure_4_3.png" in text
     assert "reports/table_4/table_4_growth.md" in text and "figure_iterations_vs_HbHs.png" in text
     assert "reports/table_4/table_4_2_optimal.md" in text and "reports/table_4/table_4_1_readings.md" in text
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "thesis.yaml",
                      "--config", "methods=[feti-feti]")
     text = proc.stdout + proc.stderr
     assert planned(proc)["solve_case"] == 46 * 2
-    assert "table_4_1.md" in text and "figure_4_3.png" in text
-    assert "table_4_2" not in text and "figure_hybrid_iterations" not in text
+    assert "table_4_1.md" in text and "figure_4_2_hs.png" in text
+    assert "table_4_2" not in text and "figure_4_3" not in text
     assert "table_4_growth" not in text and "figure_iterations_vs_HbHs" not in text
     assert "table_4_1_readings.md" in text   # FETI-FETI's exact spectra under the thesis's readings
 
@@ -338,7 +338,7 @@ def test_tiny_multibody_study_end_to_end(workdir):
     assert not (reports / "table_4_2.md").exists()  # no hybrid runs: no table 4.2
     readings = (reports / "table_4_1_readings.md").read_text()
     assert "| 2 | 2 | 2 | I | weighted | all | full |" in readings and "thesis 2.5536" in readings
-    for figure in ("figure_4_2", "figure_4_3"):
+    for figure in ("figure_4_2", "figure_4_2_hs"):
         assert (reports / f"{figure}.png").read_bytes()[:4] == b"\x89PNG"
 
     again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "tiny.yaml")
