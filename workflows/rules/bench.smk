@@ -66,7 +66,8 @@ rule bench_summary:
     output:
         summary=f"results/{STUDY}/summary.csv",
         manifest=f"results/{STUDY}/summary.sha256",
-        table=report(f"reports/{STUDY}/work_precision.csv", caption="../report/bench_table.rst",
+        table=f"reports/{STUDY}/work_precision.csv",
+        table_html=report(f"reports/{STUDY}/work_precision_table.html", caption="../report/bench_table.rst",
                      category="Work-precision benchmark"),
     log:
         f"logs/{STUDY}/summary.log",

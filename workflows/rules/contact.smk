@@ -8,7 +8,8 @@ rule contact_table:
         summary="results/{study}/summary.csv",
         thesis=lambda wc: thesis_table(wc.table),
     output:
-        md=report("reports/{study}/{table}.md", caption="../report/contact_table.rst",
+        md="reports/{study}/{table}.md",
+        md_html=report("reports/{study}/{table}.html", caption="../report/contact_table.rst",
                   category="Chapters 5 and 6: contact"),
         tex="reports/{study}/{table}.tex",
     wildcard_constraints:
@@ -31,7 +32,8 @@ rule contact_comparison:
         table_5_1=thesis_table("table_5_1") if "thesis_tables" in config else [],
         table_6_1=thesis_table("table_6_1") if "thesis_tables" in config else [],
     output:
-        md=report("reports/{study}/comparison.md", caption="../report/contact_comparison.rst",
+        md="reports/{study}/comparison.md",
+        md_html=report("reports/{study}/comparison.html", caption="../report/contact_comparison.rst",
                   category="Chapters 5 and 6: contact"),
         tex="reports/{study}/comparison.tex",
         png=report("reports/{study}/comparison.png", caption="../report/contact_comparison.rst",
@@ -76,7 +78,8 @@ rule figure_5_2:
 # time against the KKT residual reached; the verdict per rule set is computed.
 rule contact_work_precision:
     output:
-        md=report("reports/{study}/work_precision.md", caption="../report/contact_work_precision.rst",
+        md="reports/{study}/work_precision.md",
+        md_html=report("reports/{study}/work_precision.html", caption="../report/contact_work_precision.rst",
                   category="Chapters 5 and 6: contact"),
         csv="reports/{study}/work_precision.csv",
         png=report("reports/{study}/work_precision.png", caption="../report/contact_work_precision.rst",
@@ -94,4 +97,5 @@ rule contact_work_precision:
         "../envs/ddsolve.yaml"
     shell:
         "python -m ddstudies.contact_precision {params.grids} --rtols 1e-4 1e-5 1e-6 1e-7 1e-8 "
-        "--presets {params.presets} --f '{params.f}' --maxiter {params.maxiter} --out {output.md} > {log} 2>&1"
+        "--presets {params.presets} --f '{params.f}' --maxiter {params.maxiter} --out {output.md} > {log} 2>&1 "
+        "&& python -m ddstudies.report.html {output.md} {output.md_html}"

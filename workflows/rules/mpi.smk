@@ -42,7 +42,8 @@ rule mpi_summary:
         mpi_case_files(),
     output:
         table=f"reports/{STUDY}/mpi.csv",
-        markdown=report(f"reports/{STUDY}/mpi.md", caption="../report/mpi.rst", category="MPI"),
+        markdown=f"reports/{STUDY}/mpi.md",
+        markdown_html=report(f"reports/{STUDY}/mpi.html", caption="../report/mpi.rst", category="MPI"),
     resources:
         tasks=1,
         mem_mb=2000,

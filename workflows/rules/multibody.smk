@@ -10,7 +10,8 @@ rule table_4:
         summary="results/{study}/summary.csv",
         thesis=lambda wc: thesis_inputs(config["tables"][wc.table], wc.table),
     output:
-        md=report("reports/{study}/{table}.md", caption="../report/table_4.rst", category="Chapter 4: multibody"),
+        md="reports/{study}/{table}.md",
+        md_html=report("reports/{study}/{table}.html", caption="../report/table_4.rst", category="Chapter 4: multibody"),
         tex="reports/{study}/{table}.tex",
     wildcard_constraints:
         table="|".join(config["tables"]),
@@ -64,7 +65,8 @@ rule table_4_2_optimal:
     input:
         thesis=thesis_table("table_4_2"),
     output:
-        md=report("reports/{study}/table_4_2_optimal.md", caption="../report/table_4_2_optimal.rst",
+        md="reports/{study}/table_4_2_optimal.md",
+        md_html=report("reports/{study}/table_4_2_optimal.html", caption="../report/table_4_2_optimal.rst",
                   category="Chapter 4: multibody"),
         json="reports/{study}/table_4_2_optimal.json",
     params:
@@ -83,7 +85,8 @@ rule table_4_2_optimal:
         "python -m ddstudies.optimal {params.cases} --contacts {params.contacts} "
         "--thesis {input.thesis} --f '{params.f}' --rtol {params.rtol} --presets {params.presets} "
         "--max-n {params.max_n} "
-        "--out {output.md} > {log} 2>&1"
+        "--out {output.md} > {log} 2>&1 "
+        "&& python -m ddstudies.report.html {output.md} {output.md_html}"
 
 
 # Table 4.1 readings (ddstudies.fetifeti_readings): exact FETI-FETI condition numbers of the
@@ -94,7 +97,8 @@ rule table_4_1_readings:
     input:
         thesis=thesis_table("table_4_1"),
     output:
-        md=report("reports/{study}/table_4_1_readings.md", caption="../report/table_4_1_readings.rst",
+        md="reports/{study}/table_4_1_readings.md",
+        md_html=report("reports/{study}/table_4_1_readings.html", caption="../report/table_4_1_readings.rst",
                   category="Chapter 4: multibody"),
         json="reports/{study}/table_4_1_readings.json",
     params:
@@ -109,4 +113,5 @@ rule table_4_1_readings:
         "../envs/ddsolve.yaml"
     shell:
         "python -m ddstudies.fetifeti_readings {params.cases} --contacts {params.contacts} "
-        "--thesis {input.thesis} --f '{params.f}' --max-n {params.max_n} --out {output.md} > {log} 2>&1"
+        "--thesis {input.thesis} --f '{params.f}' --max-n {params.max_n} --out {output.md} > {log} 2>&1 "
+        "&& python -m ddstudies.report.html {output.md} {output.md_html}"

@@ -15,7 +15,8 @@ rule ngsolve:
 rule ngsolve_bench:
     output:
         csv=f"results/{STUDY}/ngsolve.csv",
-        markdown=report(f"reports/{STUDY}/ngsolve.md", caption="../report/ngsolve_table.rst", category="NGSolve"),
+        markdown=f"reports/{STUDY}/ngsolve.md",
+        markdown_html=report(f"reports/{STUDY}/ngsolve.html", caption="../report/ngsolve_table.rst", category="NGSolve"),
         plot=report(f"reports/{STUDY}/ngsolve.png", caption="../report/ngsolve_plot.rst", category="NGSolve"),
     params:
         config=lambda wc: json.dumps({key: config[key] for key in NGSOLVE_KEYS if key in config}, sort_keys=True),
@@ -30,4 +31,5 @@ rule ngsolve_bench:
         "../envs/ddsolve.yaml"
     shell:
         "OMP_NUM_THREADS=1 python -m ddstudies.ngsolve_bench '{params.config}' {output.csv} {output.markdown} "
-        "{output.plot} > {log} 2>&1"
+        "{output.plot} > {log} 2>&1 "
+        "&& python -m ddstudies.report.html {output.markdown} {output.markdown_html}"

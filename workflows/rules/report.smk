@@ -5,7 +5,8 @@ rule table:
     input:
         "results/{study}/summary.csv",
     output:
-        md=report("reports/{study}/table.md", caption="../report/poisson_table.rst", category="Poisson"),
+        md="reports/{study}/table.md",
+        md_html=report("reports/{study}/table.html", caption="../report/poisson_table.rst", category="Poisson"),
         tex="reports/{study}/table.tex",
     params:
         methods=config["methods"],

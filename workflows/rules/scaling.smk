@@ -42,7 +42,8 @@ rule scaling_summary:
         summary=f"results/{STUDY}/summary.csv",
         manifest=f"results/{STUDY}/summary.sha256",
         table=f"reports/{STUDY}/scaling.csv",
-        markdown=report(f"reports/{STUDY}/scaling.md", caption="../report/scaling_table.rst",
+        markdown=f"reports/{STUDY}/scaling.md",
+        markdown_html=report(f"reports/{STUDY}/scaling.html", caption="../report/scaling_table.rst",
                         category="Contact scaling"),
     params:
         targets=studies_workflow.sorted_keys(config.get("targets", {})),

@@ -36,7 +36,8 @@ rule stress_report:
     input:
         expand(f"results/{STUDY}/cases/{{series}}.json", series=STRESS_SERIES),
     output:
-        md=report(f"reports/{STUDY}/stress.md", caption="../report/stress.rst", category="Stress study"),
+        md=f"reports/{STUDY}/stress.md",
+        md_html=report(f"reports/{STUDY}/stress.html", caption="../report/stress.rst", category="Stress study"),
         csv=f"results/{STUDY}/stress.csv",
     log:
         f"logs/{STUDY}/stress_report.log",

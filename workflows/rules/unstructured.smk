@@ -44,9 +44,11 @@ rule unstructured_summary:
         unstructured_case_files(),
     output:
         summary=f"results/{STUDY}/summary.csv",
-        table=report(f"reports/{STUDY}/unstructured.csv", caption="../report/unstructured_table.rst",
+        table=f"reports/{STUDY}/unstructured.csv",
+        table_html=report(f"reports/{STUDY}/unstructured_table.html", caption="../report/unstructured_table.rst",
                      category="Unstructured meshes"),
-        markdown=report(f"reports/{STUDY}/unstructured.md", caption="../report/unstructured_summary.rst",
+        markdown=f"reports/{STUDY}/unstructured.md",
+        markdown_html=report(f"reports/{STUDY}/unstructured.html", caption="../report/unstructured_summary.rst",
                         category="Unstructured meshes"),
     params:
         targets=studies_workflow.sorted_keys(config.get("targets", {})),
@@ -123,7 +125,8 @@ rule unstructured_cond_law:
     input:
         f"results/{STUDY}/cond/summary.csv",
     output:
-        markdown=report(f"reports/{STUDY}/cond_law.md", caption="../report/unstructured_cond_table.rst",
+        markdown=f"reports/{STUDY}/cond_law.md",
+        markdown_html=report(f"reports/{STUDY}/cond_law.html", caption="../report/unstructured_cond_table.rst",
                         category="Unstructured meshes"),
         table=f"reports/{STUDY}/cond_law.csv",
         plot=report(f"reports/{STUDY}/cond_law.png", caption="../report/unstructured_cond_plot.rst",

@@ -14,3 +14,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     table = summary_table(df)
     write_table(table, sm.output.table)
     print(table.to_string(), flush=True)
+
+from ddstudies.report.html import write_twins  # noqa: E402
+
+write_twins(snakemake.output)  # noqa: F821  (the HTML copies of the tables, for the report)

@@ -26,3 +26,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     plot_method_comparison(table, sm.output.png, caption=caption,     # name the rule set where it is not obvious
                            rule_set=shown if several or shown != DEFAULT else None)
     print(md)
+
+from ddstudies.report.html import write_twins  # noqa: E402
+
+write_twins(snakemake.output)  # noqa: F821  (the HTML copies of the tables, for the report)

@@ -18,3 +18,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     Path(sm.output.md).write_text(md)
     Path(sm.output.tex).write_text(tex)
     print(md)
+
+from ddstudies.report.html import write_twins  # noqa: E402
+
+write_twins(snakemake.output)  # noqa: F821  (the HTML copies of the tables, for the report)

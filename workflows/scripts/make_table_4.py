@@ -81,3 +81,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         Path(sm.output.md).write_text(heading + to_markdown(table))
         Path(sm.output.tex).write_text(to_latex(table))
         print(to_markdown(table))
+
+from ddstudies.report.html import write_twins  # noqa: E402
+
+write_twins(snakemake.output)  # noqa: F821  (the HTML copies of the tables, for the report)

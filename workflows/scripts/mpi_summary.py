@@ -32,3 +32,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     Path(sm.output.markdown + ".tmp").write_text(text)
     Path(sm.output.markdown + ".tmp").replace(sm.output.markdown)
     print(text, flush=True)
+
+from ddstudies.report.html import write_twins  # noqa: E402
+
+write_twins(snakemake.output)  # noqa: F821  (the HTML copies of the tables, for the report)

@@ -24,3 +24,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         table.to_csv(tmp, index=False)
     fails = [r["name"] for r in rows if r["outcome"] == "FAIL"]
     print(f"{len(rows)} cases, {len(fails)} FAIL: {' '.join(fails)}")
+
+from ddstudies.report.html import write_twins  # noqa: E402
+
+write_twins(snakemake.output)  # noqa: F821  (the HTML copies of the tables, for the report)

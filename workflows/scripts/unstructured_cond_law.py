@@ -21,3 +21,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     with atomic_target(Path(sm.output.plot)) as tmp:
         fig.savefig(tmp, format="png", dpi=120)
     print(text, flush=True)
+
+from ddstudies.report.html import write_twins  # noqa: E402
+
+write_twins(snakemake.output)  # noqa: F821  (the HTML copies of the tables, for the report)

@@ -22,3 +22,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     text = summary_markdown(summary)
     Path(sm.output.markdown).write_text(text)
     print(text, flush=True)
+
+from ddstudies.report.html import write_twins  # noqa: E402
+
+write_twins(snakemake.output)  # noqa: F821  (the HTML copies of the tables, for the report)
