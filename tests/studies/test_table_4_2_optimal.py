@@ -95,3 +95,12 @@ def test_main_writes_report_and_json(tmp_path):
     assert len(rows) == 1 and rows[0]["thesis"] == 10 and rows[0]["bodies"] == 2   # (99,99,99) too large: skipped
     text = out.read_text()
     assert "| 2 | 2 | 2 | II | default |" in text and finding([OptimalRow(**rows[0])]) in text
+
+
+def test_finding_counts_a_case_once_where_the_rule_sets_agree():
+    rows = [OptimalRow(2, 2, 2, "full", 66, 16, 16, 10, -1.0, -0.5, 1.0, 2.0, rule_set=rs)
+            for rs in ("default", "thesis")]
+    text = finding(rows)
+    assert text.startswith("In 1 of 1 compared cases (rule sets default, thesis and the same counts under each; "
+                           "a case counted once where the rule sets agree)")
+    assert "PCR attains the optimal count in 1 of 1 cases" in text
