@@ -62,8 +62,9 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
             "(linear, as Figure 4.2), FETI-FETI iterations a + b sqrt(H_b/H_s) (CG needs "
             "O(sqrt(cond)) steps), hybrid iterations a + b log(H_b/h) (the log(H_b/h) factor of "
             "Theorem 4.3.6 with H_s/h fixed). fits cross at: the H_b/H_s where the fitted "
-            "FETI-FETI iterations reach the fitted hybrid iterations (extrapolated beyond the "
-            "largest run).\n\n")
+            "FETI-FETI iterations reach the fitted hybrid iterations (a property of the two fits, "
+            "extrapolated where it lies beyond the largest run; the measured counts need not have "
+            "crossed there).\n\n")
         Path(sm.output.md).write_text(heading + to_markdown(table) + fits + to_markdown(shown))
         Path(sm.output.tex).write_text(to_latex(table) + "\n" + to_latex(shown))
         print(to_markdown(table) + fits + to_markdown(shown))
