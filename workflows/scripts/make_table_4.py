@@ -28,9 +28,14 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         "Problem (4.32): 1/H_b bodies per side, H_b/H_s subdomains per body side, H_s/h "
         "elements per subdomain side. Contact (I): continuity on the whole interface between "
         "bodies; (II): only on the middle third of each face between two bodies (cross points "
-        "of bodies meeting at a corner inactive). cond: Lanczos estimate of the condition number; "
-        "iter: Krylov iterations (stopping rule ||r_n||_2/||r_0||_2 < rtol); thesis: the value "
-        f"printed in the thesis ({names})")
+        "of bodies meeting at a corner inactive). "
+        + ("cond: Lanczos estimate of the condition number; " if "cond" in spec.get("quantities", ["cond"])
+           else "")
+        + "iter: Krylov iterations (stopping rule ||r_n||/||r_0|| < rtol: PCG for FETI-FETI, in ||.||_2 "
+          "with the orthogonal projection (thesis rule set) and on the Q-weighted residual of the "
+          "projection P_Q (default rule set, docs/methods.md); PCR for the hybrid method, in ||.||_2); "
+          f"thesis: the value printed in the thesis ({names}); rule set default: ddsolve's rules, thesis: "
+          "the --preset thesis rules")
 
     def constants(runs):
         text = describe_constants(runs)

@@ -1,4 +1,4 @@
-"""One unstructured contact solution with its METIS partition (issue 11, item 7).
+"""One unstructured contact solution with its METIS partition.
 
 The two membranes of (3.1) meshed by netgen (P1 triangles, conforming on the
 contact line x = 1, split apart into two bodies), each split into METIS
