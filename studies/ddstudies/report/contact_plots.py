@@ -142,7 +142,8 @@ def contact_line(problem: Any, solution: Any) -> pd.DataFrame:
     -------
     DataFrame
         Columns ``y``, ``u1`` (Omega^1 side), ``u2`` (Omega^2 side), ``gap`` =
-        u^2 - u^1 (>= 0 when feasible), ``lam`` (contact pressure) and
+        u^2 - u^1 (>= 0 when feasible), ``lam`` (the nodal contact multiplier: a force per node, not a
+        pressure; at y = 0, whose node has half the support, about half its neighbour's) and
         ``active`` (the solver's final active set).
     """
     u = np.asarray(solution.u, dtype=float)
@@ -191,10 +192,14 @@ def plot_membranes(surfaces: Sequence[MembraneSurface], path: str | os.PathLike,
         ax.set_xlabel("x")
         ax.set_ylabel("y")
         ax.set_zlabel("u")
+        x_lo = min(float(s.x.min()) for s in surfaces)
+        x_hi = max(float(s.x.max()) for s in surfaces)
+        ax.set_xticks(np.linspace(x_lo, x_hi, 5))          # 9 default ticks overlapped at a flat azimuth
         ax.view_init(elev=elev, azim=azim)
         ax.set_title(f"elevation {elev:g}°, azimuth {azim:g}°", fontsize=9)
     fig.suptitle(title or r"Solution of (3.1) on $\Omega^1$ (blue) and $\Omega^2$ (orange)")
-    fig.tight_layout()
+    fig.text(0.5, 0.01, r"$\Omega^1$: blue, $\Omega^2$: orange", ha="center", fontsize=9)
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
     return _save(fig, path)
 
 
@@ -238,13 +243,13 @@ def plot_contact_line(line: pd.DataFrame, path: str | os.PathLike, *, title: str
         ax.axvspan(a, b, color="0.88", zorder=0, label="contact zone (active pairs)" if k == 0 else None)
     ax.plot(y, line["u1"], "-", color="tab:blue", lw=1.6, label=r"$u^1(1, y)$")
     ax.plot(y, line["u2"], "--", color="tab:orange", lw=1.6, label=r"$u^2(1, y)$")
-    ax.plot(y[active], line["u1"].to_numpy()[active], "|", color="k", ms=6)
+    ax.plot(y[active], line["u1"].to_numpy()[active], "|", color="k", ms=6, label="active pair")
     ax.set_xlabel(r"$y$ on $\Gamma_c = \{1\} \times [0, 1]$")
     ax.set_ylabel("displacement")
     ax.set_xlim(float(y[0]), float(y[-1]))
     ax2 = ax.twinx()
-    ax2.plot(y, line["lam"], ".-", color="tab:green", lw=1.0, ms=4, label=r"$\lambda$ (contact pressure)")
-    ax2.set_ylabel(r"$\lambda$", color="tab:green")
+    ax2.plot(y, line["lam"], ".-", color="tab:green", lw=1.0, ms=4, label=r"$\lambda$ (nodal contact multiplier)")
+    ax2.set_ylabel(r"$\lambda$ (nodal force, not a pressure)", color="tab:green")
     ax2.tick_params(axis="y", colors="tab:green")
     ax2.set_ylim(bottom=min(0.0, float(line["lam"].min())))
     handles = ax.get_legend_handles_labels()
