@@ -32,10 +32,12 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         + ("cond: Lanczos estimate of the condition number; " if "cond" in spec.get("quantities", ["cond"])
            else "")
         + "iter: Krylov iterations (stopping rule ||r_n||/||r_0|| < rtol: PCG for FETI-FETI, in ||.||_2 "
-          "with the orthogonal projection (thesis rule set) and on the Q-weighted residual of the "
-          "projection P_Q (default rule set, docs/methods.md); PCR for the hybrid method, in ||.||_2); "
-          f"thesis: the value printed in the thesis ({names}); rule set default: ddsolve's rules, thesis: "
-          "the --preset thesis rules")
+          "with the orthogonal projection under the thesis preset and on the Q-weighted residual of the "
+          "projection P_Q under ddsolve's defaults, docs/methods.md; PCR for the hybrid method, in "
+          "||.||_2); "
+          f"thesis: the value printed in the thesis ({names})"
+        + ("; rule set default: ddsolve's rules, thesis: the --preset thesis rules" if len(rule_sets(df)) > 1
+           else ""))
 
     def constants(runs):
         text = describe_constants(runs)

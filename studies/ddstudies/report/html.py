@@ -125,7 +125,8 @@ def write_html(source: str | os.PathLike, target: str | os.PathLike) -> Path:
 
 def write_twins(output) -> None:
     """For every output ``<name>_html`` of a Snakemake rule, :func:`write_html` of its output ``<name>``."""
-    for name in output.keys():
+    names = output.keys() if hasattr(output, "keys") else vars(output).keys()     # a Namedlist, or a namespace
+    for name in list(names):
         if name.endswith("_html"):
             write_html(getattr(output, name[: -len("_html")]), getattr(output, name))
 
