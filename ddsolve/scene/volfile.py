@@ -143,6 +143,7 @@ def check_vol_text(text: str, name: str = "mesh file") -> int:
         _integers(points, "surfaceelements", name)
         _integer_tokens(tokens, take, "surfaceelements", name)
         _in_range(points.astype(np.int64), n_points, "surfaceelements", name)
+        _no_repeated_triangles(points.astype(np.int64), n_vertices, name)
     # integer columns: edge segments p1 p2 trignum1 trignum2 (and the descriptor number, column 7, of
     # the gi3 form), point elements pnum index; the first n_points of them name points
     for key, int_cols, n_point_cols in (("edgesegments", (0, 1, 2, 3), 2), ("pointelements", (0, 1), 1)):
@@ -184,6 +185,21 @@ def _integer_tokens(tokens: list[str], at: np.ndarray | None, key: str, name: st
         bad = next(t for t in picked if t.translate(_NOT_INTEGER))
         raise InputError("mesh", f"{name}: section {key!r} holds {brief(bad)} where an integer (written "
                                  f"without a decimal point or exponent) belongs")
+
+
+def _no_repeated_triangles(points: np.ndarray, n_vertices: np.ndarray, name: str) -> None:
+    """Refuse a triangle listed twice (the same three points): the two overlap, and the assembly would
+    count the element twice without a word (a review)."""
+    if n_vertices.size == 0 or not np.all(n_vertices == 3):
+        return
+    tri = np.sort(points.reshape(-1, 3), axis=1)
+    order = np.lexsort(tri.T[::-1])
+    same = np.all(tri[order[1:]] == tri[order[:-1]], axis=1)
+    if same.any():
+        first, second = sorted((int(order[np.argmax(same)]), int(order[np.argmax(same) + 1])))
+        raise InputError("mesh", f"{name}: surface elements {first + 1} and {second + 1} are the same triangle "
+                                 f"(points {', '.join(str(int(p)) for p in tri[order[np.argmax(same)]])}): "
+                                 f"overlapping elements")
 
 
 def _in_range(points: np.ndarray, n_points: int, key: str, name: str) -> None:

@@ -153,3 +153,15 @@ def test_rho_is_written_per_cell(tmp_path):
     blob = re.search(r'Name="rho"[^>]*>\s*(\S+)\s*<', text).group(1)
     values = np.frombuffer(base64.b64decode(blob)[4:], dtype=np.float64)
     assert sorted(set(values.tolist())) == [1.0, 100.0] and values.size == 16 * 4
+
+
+def test_a_repeated_triangle_is_refused(tmp_path, vol_text):
+    lines = vol_text.split("\n")
+    at = lines.index("surfaceelements")
+    count = int(lines[at + 1])
+    lines[at + 1] = str(count + 1)
+    lines.insert(at + 2, lines[at + 2])                  # the first element twice
+    path = tmp_path / "twice.vol"
+    path.write_text("\n".join(lines))
+    with pytest.raises(InputError, match="surface elements 1 and 2 are the same triangle"):
+        solve(ProblemSpec(mesh="unstructured", mesh_file=str(path), method="bddc"))
