@@ -390,6 +390,8 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
             what = ("is a directory" if os.path.isdir(mesh_file) else
                     "is not a regular file" if os.path.exists(mesh_file) else "")
             raise InputError("mesh_file", f"{brief(mesh_file)} {what}" if what else f"no such file: {brief(mesh_file)}")
+        if not mesh_file.lower().endswith((".vol", ".vol.gz")):       # netgen reads by the name's suffix
+            raise InputError("mesh_file", f"must be a netgen mesh (.vol or .vol.gz), got {brief(mesh_file)}")
         contact = _choice("contact", raw["contact"], CONTACTS, what="contact area")
         if contact != CONTACTS[0]:
             raise _inapplicable("contact", contact, "a mesh file ties every inter-body interface (its named "
