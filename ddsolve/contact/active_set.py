@@ -58,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from ..dd.operators import linear_operator, scaled_jump
-from ..errors import check_tolerance
+from ..errors import InputError, check_tolerance
 from ..krylov import pcg
 from ..krylov.result import KrylovResult
 from ..multibody.fallback import broke_down_on_s_ol
@@ -179,7 +179,10 @@ class ActiveSetHybrid:
         b = d - self.F(lam0)
         kr = pcg(F, b, rtol=rtol, maxiter=maxiter, M=M, P=P_op)
         lam_star = lam0 + kr.x
-        qp = mprgp(M, -lam_star, np.zeros(n), rtol=1e-10, maxiter=50 * n + 100)
+        try:
+            qp = mprgp(M, -lam_star, np.zeros(n), rtol=1e-10, maxiter=50 * n + 100)
+        except InputError as exc:       # not the user's input: an operator or load beyond the double range
+            raise FloatingPointError(f"the projection problem of (5.4) is not finite ({exc})") from None
         lam_hat = np.maximum(lam_star + self.preconditioner(qp.x), 0.0)
         log.info("active set: PCG on (5.4) %s; projection %s", kr.reason, qp.reason)
         return lam_star, lam_hat, kr, qp

@@ -316,7 +316,11 @@ def enforce(homogeneous: HomogeneousProblem, rho_bar: float | None) -> EnforcedP
     P = Projection(G, orthonormal=True)
     b = P.apply(homogeneous.d)
     PFP = spla.LinearOperator((n, n), matvec=lambda v: P.apply(dual.F(P.apply(np.ravel(v)))), dtype=np.float64)
-    norm_PFP, n_est = estimate_norm(PFP)
+    try:
+        with np.errstate(invalid="ignore", over="ignore"):
+            norm_PFP, n_est = estimate_norm(PFP)
+    except FloatingPointError:            # F overflowed (an extreme but accepted rho): a breakdown, reported
+        return "numerical breakdown in smalbe: the dual operator P F P returned non-finite values"
     if rho_bar is None:
         rho_bar = norm_PFP
     elif isinstance(rho_bar, bool) or not (isinstance(rho_bar, numbers.Real) and math.isfinite(rho_bar)

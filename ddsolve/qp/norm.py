@@ -11,7 +11,6 @@ import numpy as np
 import scipy.sparse.linalg as spla
 from scipy.sparse.linalg import aslinearoperator
 
-from ..errors import InputError
 
 __all__ = ["DENSE_MAX", "estimate_norm"]
 
@@ -48,6 +47,12 @@ def estimate_norm(A: Any, *, seed: int = 0, tol: float = 1e-4) -> tuple[float, i
     -------
     norm : float
         Estimate of ``||A||_2`` (0.0 for the zero operator).
+
+    Raises
+    ------
+    FloatingPointError
+        When a product with ``A`` is not finite (the callers name the operator: an
+        :class:`~ddsolve.errors.InputError` for a user's, a breakdown for an internal one).
     matvecs : int
         Multiplications by ``A`` performed.
     """
@@ -59,7 +64,7 @@ def estimate_norm(A: Any, *, seed: int = 0, tol: float = 1e-4) -> tuple[float, i
         count[0] += 1
         out = np.asarray(op.matvec(np.ravel(v)), dtype=np.float64).ravel()
         if not np.all(np.isfinite(out)):     # LAPACK/ARPACK would fail with "did not converge"
-            raise InputError("A", "the operator returned non-finite values (NaN or Inf)")
+            raise FloatingPointError("the operator returned non-finite values (NaN or Inf)")
         return out
 
     v0 = np.random.default_rng(seed).standard_normal(n)

@@ -57,9 +57,8 @@ from scipy.sparse.linalg import LinearOperator
 
 from ..errors import InputError
 from ..krylov.convergence import norm2
-from .mprgp import (ALPHA_FACTOR, _mprgp_core, _start_vector, as_operator, as_vector,
+from .mprgp import (ALPHA_FACTOR, _mprgp_core, _start_vector, as_operator, as_vector, checked_norm,
                     check_count, check_positive)
-from .norm import estimate_norm
 from .result import QPResult
 from .scaling import QPScaling
 
@@ -170,7 +169,7 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
     max_outer = check_count("max_outer", max_outer, 1)
     maxiter = max(200, 20 * n) if maxiter is None else check_count("maxiter", maxiter)
     norm_b = norm2(b)
-    if eps * norm_b == 0.0 and atol == 0.0:     # b = 0: the rule max(eps ||b||, atol) = 0 is never met (a review)
+    if norm_b == 0.0 and atol == 0.0:     # b = 0: the rule max(eps ||b||, atol) = 0 is never met (a review)
         raise InputError("atol", "b = 0 makes the stopping rule max(eps ||b||, atol) zero, which is never met: "
                                  "give atol > 0")
     if eta is not None:
@@ -181,13 +180,13 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
 
     n_hessian = 0
     if norm_A is None:
-        norm_A, k = estimate_norm(opA)
+        norm_A, k = checked_norm(opA, "A")
         n_hessian += k
     else:
         norm_A = check_positive("norm_A", norm_A)
     if norm_BE is None:
         btb = LinearOperator((n, n), matvec=lambda v: opB.rmatvec(opB.matvec(v)), dtype=np.float64)
-        norm_btb, _ = estimate_norm(btb)
+        norm_btb, _ = checked_norm(btb, "BE")
         norm_BE = math.sqrt(norm_btb)
     else:
         norm_BE = check_positive("norm_BE", norm_BE)
@@ -272,7 +271,8 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
         bt = b - BTmul(mu) + rho * BTc
         remaining = maxiter - total
         core = _mprgp_core(Hmul, bt, lb, x, g, alpha=alpha, Gamma=Gamma, stop=inner_stop,
-                           maxiter=remaining, halfstep=halfstep, g_exp=sc.e)
+                           maxiter=remaining, halfstep=halfstep, g_exp=sc.e,
+                           confirm=lambda msg: msg.startswith("outer rule met"))   # only the stop that ends it
         x, g = core.x, core.g
         total += core.steps
         inner.append(core.steps)

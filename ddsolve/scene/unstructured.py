@@ -600,15 +600,15 @@ def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
                 if len(data) > limit:
                     raise InputError("mesh", f"{path} decompresses to more than {limit / 2**20:.0f} MiB "
                                              f"({GZ_MAX_RATIO}x its size): not a gzipped netgen mesh")
-            try:                                 # netgen's names reach Python as UTF-8 (a bcname byte 0xff:
-                data.decode("utf-8")             # a UnicodeDecodeError traceback, a review)
-            except UnicodeDecodeError as exc:
-                raise InputError("mesh", f"{path} holds bytes that are not UTF-8 text (byte {exc.start}): "
-                                         f"not a netgen mesh, or a name in another encoding") from None
             text = data.decode("latin-1")
     except (OSError, EOFError) as exc:           # EOFError: a truncated .gz
         raise InputError("mesh", f"cannot read {path}: {exc}") from None
     mesh_end = check_vol_text(text, path)        # netgen crashes (SIGSEGV) on a truncated or inconsistent file
+    try:                                         # netgen's names reach Python as UTF-8 (a bcname byte 0xff:
+        data[:mesh_end].decode("utf-8")          # a UnicodeDecodeError traceback, a review); latin-1 keeps
+    except UnicodeDecodeError as exc:            # byte and character offsets equal
+        raise InputError("mesh", f"{path} holds bytes that are not UTF-8 text (byte {exc.start}): "
+                                 f"not a netgen mesh, or a name in another encoding") from None
     ngmesh = NGMesh(dim=2)
     try:
         if geometry or not text[mesh_end:].strip():

@@ -65,9 +65,10 @@ CONTACT_TABLES: dict[str, dict[str, Any]] = {
 }
 #: A run whose own stopping rule was met but whose result ddsolve's checks refused (reason "not accepted").
 REJECTED_MARK = "‡"
-REJECTED_NOTE = ("stopping rule met, but the result was rejected by ddsolve's acceptance check (force balance "
-                 "of the floating membrane, KKT residual; see the run's reason): not converged, and not comparable "
-                 "with the thesis's count; the count is where it stopped")
+REJECTED_NOTE = ("stopping rule met, but the result was rejected by ddsolve's checks (the force balance of the "
+                 "floating membrane, the KKT residual, or, for SMALBE, an active set that is not the solution's; "
+                 "the run's reason says which): not converged, and not comparable with the thesis's count; the "
+                 "count is where it stopped")
 
 CONTACT_METHOD_LABELS: dict[str, str] = {"active-set": "active set", "smalbe": "SMALBE", "direct": "direct"}
 

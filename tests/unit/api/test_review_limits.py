@@ -14,7 +14,7 @@ def test_more_parts_than_a_body_can_have_is_refused_before_meshing():
     t0 = time.perf_counter()
     with pytest.raises(InputError, match="^parts: 4 subdomains requested but each of the 10000 bodies"):
         check_resources(spec)
-    assert time.perf_counter() - t0 < 1.0
+    assert time.perf_counter() - t0 < 10.0      # not meshed: meshing took 50 s (a bound for a shared machine)
 
 
 def test_the_bound_admits_what_netgen_can_partition():

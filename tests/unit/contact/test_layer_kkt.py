@@ -50,3 +50,15 @@ def test_active_set_refuses_a_forcing_term_outside_the_unit_interval(problem):
 def test_smalbe_reports_eps_outside_the_unit_interval(problem):
     sol = solve_contact_smalbe(problem, eps=1.5)          # its documented contract: reported, not raised
     assert not sol.converged and "eps must be a number in (0, 1)" in sol.reason
+
+
+def test_an_overflowing_dual_operator_is_a_breakdown_not_an_input_error():
+    """rho = 2.3e-308 is accepted input; F overflows in SMALBE's norm estimate, whose new finiteness check
+    raised InputError('A: ...') out of ddsolve.solve (exit 2) where a breakdown is reported (a review)."""
+    import warnings
+
+    from ddsolve import solve
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        res = solve(ProblemSpec(problem="contact", method="smalbe", subdomains=2, elements=4, rho=2.3e-308))
+    assert not res.converged and res.reason.startswith("numerical breakdown in smalbe")

@@ -51,7 +51,7 @@ def test_integer_columns_written_as_floats_are_refused(tmp_path, vol_text, spell
 def test_mesh_names_that_are_not_utf8_are_refused(tmp_path, vol_text):
     path = tmp_path / "names.vol"
     data = vol_text.encode()
-    path.write_bytes(data.replace(b"\nendmesh", b"\nbcnames\n1\n1 bott\xffm\nendmesh", 1))
+    path.write_bytes(data.replace(b"\tbottom\n", b"\tbott\xffm\n", 1))
     assert b"bott\xffm" in path.read_bytes()
     with pytest.raises(InputError, match="not UTF-8 text"):
         solve(ProblemSpec(mesh="unstructured", mesh_file=str(path), method="bddc"))

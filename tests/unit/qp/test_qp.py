@@ -543,3 +543,22 @@ def test_qp_zero_thresholds_are_refused():
     res = smalbe(A, np.zeros(2), lb, np.ones((1, 2)), np.ones(1), atol=1e-10)
     assert res.converged and "<= atol = 1.000e-10" in res.reason
     np.testing.assert_allclose(res.x, [0.6, 0.4], atol=1e-8)      # min x^T A x / 2 on x1 + x2 = 1
+
+
+def test_smalbe_takes_a_tiny_nonzero_b():
+    """eps ||b|| underflowed to 0 for b ~ 1e-319 and the b = 0 refusal fired (a review)."""
+    res = smalbe(np.diag([2.0, 3.0]), np.full(2, 1e-319), 0.0, np.ones((1, 2)), np.array([1e-319]))
+    assert res.converged
+    np.testing.assert_allclose(res.x / 1e-319, [0.6, 0.4], rtol=1e-2)
+
+
+def test_norm_estimate_names_the_operator():
+    bad = LinearOperator((3, 3), matvec=lambda v: np.full(3, np.inf), dtype=float)
+    with pytest.raises(FloatingPointError):
+        estimate_norm(bad)
+    with pytest.raises(InputError, match="^BE: the operator returned non-finite values"):
+        smalbe(np.diag([2.0, 3.0, 4.0]), np.ones(3), 0.0, LinearOperator((1, 3), matvec=lambda v: np.full(1, np.nan),
+                                                                        rmatvec=lambda w: np.full(3, np.nan),
+                                                                        dtype=float), np.ones(1))
+    with pytest.raises(InputError, match="^tol: must be positive"):
+        mprgp(np.diag([2.0, 3.0]), np.ones(2), 0.0, tol=0.0)
