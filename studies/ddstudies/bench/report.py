@@ -91,7 +91,8 @@ def plot_work_precision(df: pd.DataFrame, path: str | os.PathLike | None, *, tim
             y = rows[ratio_column].to_numpy(dtype=float)
             ax.plot(x, y, linestyle="--" if peer else "-", marker=_MARKERS.get(problem, "^"),
                     color=colors[method], markerfacecolor="none" if peer else colors[method],
-                    label=f"{problem}: {method}" + (" (peer)" if peer else ""))
+                    label=f"{problem}: {method}" + (" (peer)" if peer else "")
+                    + (" (+ polish where accepted)" if method == "smalbe" else ""))
             bad = ~rows["converged"].astype(bool).to_numpy()
             if bad.any():
                 ax.plot(x[bad], y[bad], "x", color="red", markersize=10)
@@ -106,9 +107,11 @@ def plot_work_precision(df: pd.DataFrame, path: str | os.PathLike | None, *, tim
         ax.grid(True, which="both", alpha=0.3)
     backend = str(df["direct_backend"].iloc[0]) if "direct_backend" in df and len(df) else "direct"
     axes[0].set_ylabel(ylabel.format(backend=backend))
-    axes[1].legend(fontsize=8, loc="best")
+    handles, labels = axes[1].get_legend_handles_labels()       # below the panels: it covered data (a review)
+    fig.legend(handles, labels, loc="lower center", ncol=min(4, max(len(labels), 1)), fontsize=8, frameon=False)
     kind = "CPU" if time == "cpu" else "wall"
-    fig.suptitle(title or f"Work-precision: {kind} time (setup + solve) against error, one point per rtol")
-    fig.tight_layout()
+    fig.suptitle(title or f"Work-precision: {kind} time (setup + solve) against error, one point per rtol "
+                          "(red x: not converged; dotted: discretization error)")
+    fig.tight_layout(rect=(0, 0.04 + 0.04 * ((len(labels) + 3) // 4), 1, 1))
     _save(fig, path)
     return fig
