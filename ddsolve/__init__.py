@@ -9,7 +9,7 @@ one-level FETI, FETI-DP and BDDC (this release), with NGSolve assembly.
 """
 import logging
 
-from .errors import InputError
+from .errors import InputError, OutputError
 from .result import SolveResult
 from .spec import ProblemSpec
 
@@ -29,4 +29,4 @@ def prepare(spec, scene=None):  # noqa: D103 - documented in ddsolve.prepared.pr
 
 solve.__doc__ = "Solve a problem; see :func:`ddsolve.api.solve`."
 prepare.__doc__ = "Assemble and decompose a problem; see :func:`ddsolve.prepared.prepare`."
-__all__ = ["ProblemSpec", "SolveResult", "InputError", "solve", "prepare", "__version__"]
+__all__ = ["ProblemSpec", "SolveResult", "InputError", "OutputError", "solve", "prepare", "__version__"]
