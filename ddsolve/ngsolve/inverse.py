@@ -14,7 +14,7 @@ from scipy.sparse.csgraph import connected_components
 from ..dd import Substructures
 from ..dd.check import energy_error_estimate
 from ..dd.edges import subdomain_edges_3d
-from ..errors import ConvergenceWarning, InputError
+from ..errors import ConvergenceWarning, InputError, check_flag, check_tolerance
 from ..krylov.convergence import ERROR_CAP, ERROR_FACTOR, ERROR_FLOOR, error_limit
 from ..options import PRIMAL_METHODS, PRIMALS
 from .dofs import (
@@ -239,13 +239,7 @@ class DDInverse(ngsolve.BaseMatrix):
         if primal != "vertices" and method not in PRIMAL_METHODS:
             raise InputError("primal", f"{primal!r} needs method 'bddc' or 'fetidp'; method {method!r} has "
                                        "'vertices' only")
-        if isinstance(rtol, bool) or not isinstance(rtol, (int, float, np.integer, np.floating)):
-            raise InputError("rtol", f"must be a number in (0, 1), got {type(rtol).__name__}")
-        if not 0 < float(rtol) < 1:
-            raise InputError("rtol", f"must be in (0, 1), got {float(rtol):g}")
-        rtol = float(rtol)
-        if not isinstance(cond, (bool, np.bool_)):
-            raise InputError("cond", f"must be True or False, got {cond!r}")
+        rtol, cond = check_tolerance("rtol", rtol), check_flag("cond", cond)
         if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
             raise InputError("maxiter", f"must be a positive integer, got {maxiter!r}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):

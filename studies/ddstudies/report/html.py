@@ -18,6 +18,8 @@ import os
 import re
 from pathlib import Path
 
+from ddsolve.io.hdf5 import atomic_target
+
 __all__ = ["markdown_to_html", "csv_to_html", "write_html", "write_twins"]
 
 _STYLE = ("body{font-family:sans-serif;font-size:14px;margin:1em}table{border-collapse:collapse;margin:.6em 0}"
@@ -98,18 +100,20 @@ def markdown_to_html(text: str, title: str = "") -> str:
             paragraph.append(stripped)
         i += 1
     flush()
-    head = f"<title>{html.escape(title)}</title>" if title else ""
-    return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">{head}<style>{_STYLE}</style></head>\n"
-            f"<body>\n" + "\n".join(body) + "\n</body></html>\n")
+    return _page("\n".join(body), title)
 
 
 def csv_to_html(text: str, title: str = "") -> str:
     """A standalone HTML page with the CSV ``text`` as one table (the first row its header)."""
     rows = list(csv.reader(io.StringIO(text)))
+    return _page(_table(rows, header=True) if rows else "<p>(empty)</p>", title)
+
+
+def _page(body: str, title: str) -> str:
+    """A standalone HTML page around ``body``."""
     head = f"<title>{html.escape(title)}</title>" if title else ""
-    table = _table(rows, header=True) if rows else "<p>(empty)</p>"
     return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\">{head}<style>{_STYLE}</style></head>\n"
-            f"<body>\n{table}\n</body></html>\n")
+            f"<body>\n{body}\n</body></html>\n")
 
 
 def write_html(source: str | os.PathLike, target: str | os.PathLike) -> Path:
@@ -117,9 +121,8 @@ def write_html(source: str | os.PathLike, target: str | os.PathLike) -> Path:
     source, target = Path(source), Path(target)
     text = source.read_text(encoding="utf-8")
     page = (csv_to_html if source.suffix.lower() == ".csv" else markdown_to_html)(text, title=source.name)
-    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-    tmp.write_text(page, encoding="utf-8")
-    os.replace(tmp, target)
+    with atomic_target(target) as tmp:      # the project's atomic writer (no temporary file left on failure)
+        tmp.write_text(page, encoding="utf-8")
     return target
 
 

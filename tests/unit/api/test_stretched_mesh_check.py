@@ -26,14 +26,19 @@ def stretched_mesh(tmp_path_factory) -> Path:
     g.AddCircle((0.5, 0.5), 0.2, bc="hole", leftdomain=0, rightdomain=1)
     folder = tmp_path_factory.mktemp("stretched")
     g.GenerateMesh(maxh=0.05).Save(str(folder / "iso.vol"))
-    head, rest = (folder / "iso.vol").read_text().split("\npoints\n", 1)
+    return scaled_copy(folder / "iso.vol", folder / "stretched.vol", 1.0, 1e-3)
+
+
+def scaled_copy(source: Path, target: Path, sx: float, sy: float) -> Path:
+    """``source`` (a 2D .vol file) with every point's x scaled by ``sx`` and y by ``sy``, written to ``target``."""
+    head, rest = source.read_text().split("\npoints\n", 1)
     count, body = rest.split("\n", 1)
     lines = body.split("\n")
     for i in range(int(count)):
         x, y, z = (float(v) for v in lines[i].split())
-        lines[i] = f"{x:.16e} {1e-3 * y:.16e} {z:.16e}"
-    (folder / "stretched.vol").write_text(head + "\npoints\n" + count + "\n" + "\n".join(lines))
-    return folder / "stretched.vol"
+        lines[i] = f"{sx * x:.16e} {sy * y:.16e} {z:.16e}"
+    target.write_text(head + "\npoints\n" + count + "\n" + "\n".join(lines))
+    return target
 
 
 def _solve(path: Path, method: str):
@@ -57,13 +62,6 @@ def test_a_mesh_too_small_for_double_precision_names_the_mesh_file(stretched_mes
     """Coordinates of 1e-153: the element Jacobians underflow. The error blamed rho (= 1) before (a review)."""
     from ddsolve.errors import InputError
 
-    head, rest = (stretched_mesh.parent / "iso.vol").read_text().split("\npoints\n", 1)
-    count, body = rest.split("\n", 1)
-    lines = body.split("\n")
-    for i in range(int(count)):
-        x, y, z = (float(v) for v in lines[i].split())
-        lines[i] = f"{1e-153 * x:.16e} {1e-153 * y:.16e} {z:.16e}"
-    tiny = tmp_path / "tiny.vol"
-    tiny.write_text(head + "\npoints\n" + count + "\n" + "\n".join(lines))
+    tiny = scaled_copy(stretched_mesh.parent / "iso.vol", tmp_path / "tiny.vol", 1e-153, 1e-153)
     with pytest.raises(InputError, match=r"^mesh_file: the element matrices are not finite \(rho is at most 1\)"):
         solve(ProblemSpec(mesh="unstructured", mesh_file=str(tiny), parts=4, method="fetidp"))

@@ -5,17 +5,13 @@ import numpy as np
 import pytest
 
 from ddsolve import ProblemSpec, prepare, solve
+from ddsolve.api import energy_error
 from ddsolve.dd import solve_direct, solve_feti, solve_fetidp
 from ddsolve.krylov.convergence import error_limit
 from ddsolve.multibody import GlobalInterface
 from ddsolve.multibody.direct import solve_constrained_direct
 from ddsolve.multibody.fetifeti import FetiFetiSolver
 from ddsolve.multibody.hybrid import HybridSolver
-
-
-def energy_error(K, u, ref):
-    e = u - ref
-    return float(np.sqrt(e @ (K @ e) / (ref @ (K @ ref))))
 
 
 @pytest.fixture(scope="module")

@@ -155,7 +155,7 @@ def test_numpy_rtol_and_bad_cond():
     assert isinstance(inv.rtol, float) and inv.rtol == pytest.approx(1e-6)
     with pytest.raises(InputError, match="rtol: must be in \\(0, 1\\), got 2"):
         DDInverse(a, parts=4, rtol=np.float64(2.0))
-    with pytest.raises(InputError, match="rtol: must be a number in \\(0, 1\\), got str"):
+    with pytest.raises(InputError, match="rtol: must be a number in \\(0, 1\\), got '1e-6'"):
         DDInverse(a, parts=4, rtol="1e-6")
     with pytest.raises(InputError, match="cond: must be True or False, got 'yes'"):
         DDInverse(a, parts=4, cond="yes")
