@@ -10,6 +10,7 @@ rule aggregate:
         manifest="results/{study}/summary.sha256",
     log:
         "logs/{study}/aggregate.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,

@@ -71,6 +71,7 @@ rule bench_summary:
                      category="Work-precision benchmark"),
     log:
         f"logs/{STUDY}/summary.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,
@@ -91,6 +92,7 @@ rule bench_plot:
         time=config["plot_time"],
     log:
         f"logs/{STUDY}/plot.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,

@@ -16,6 +16,7 @@ rule contact_table:
         table="|".join(config["tables"]),
     log:
         "logs/{study}/{table}.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,
@@ -40,6 +41,7 @@ rule contact_comparison:
                    category="Chapters 5 and 6: contact"),
     log:
         "logs/{study}/comparison.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,

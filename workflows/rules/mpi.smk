@@ -44,10 +44,11 @@ rule mpi_summary:
         table=f"reports/{STUDY}/mpi.csv",
         markdown=f"reports/{STUDY}/mpi.md",
         markdown_html=report(f"reports/{STUDY}/mpi.html", caption="../report/mpi.rst", category="MPI"),
+    localrule: True
     resources:
         tasks=1,
-        mem_mb=2000,
-        runtime=15,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     log:
         f"logs/{STUDY}/summary.log",
     conda:

@@ -22,6 +22,7 @@ rule table_4:
         base=list(CASES[0]),
     log:
         "logs/{study}/{table}.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,
@@ -46,6 +47,7 @@ rule figure_4:
         base=list(CASES[0]),
     log:
         "logs/{study}/{figure}.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,

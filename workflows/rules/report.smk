@@ -12,6 +12,7 @@ rule table:
         methods=config["methods"],
     log:
         "logs/{study}/table.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,
@@ -31,6 +32,7 @@ rule plot_cond:
         methods=config["methods"],
     log:
         "logs/{study}/plot_cond.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,

@@ -49,6 +49,7 @@ rule scaling_summary:
         targets=studies_workflow.sorted_keys(config.get("targets", {})),
     log:
         f"logs/{STUDY}/summary.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,
@@ -66,6 +67,7 @@ rule scaling_plot:
         report(f"reports/{STUDY}/scaling.png", caption="../report/scaling_plot.rst", category="Contact scaling"),
     log:
         f"logs/{STUDY}/plot.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,

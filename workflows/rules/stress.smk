@@ -41,6 +41,7 @@ rule stress_report:
         csv=f"results/{STUDY}/stress.csv",
     log:
         f"logs/{STUDY}/stress_report.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,

@@ -52,10 +52,11 @@ rule unstructured_summary:
                         category="Unstructured meshes"),
     params:
         targets=studies_workflow.sorted_keys(config.get("targets", {})),
+    localrule: True
     resources:
         tasks=1,
-        mem_mb=2000,
-        runtime=15,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     log:
         f"logs/{STUDY}/summary.log",
     conda:
@@ -70,10 +71,11 @@ rule unstructured_plot:
     output:
         report(f"reports/{STUDY}/unstructured.png", caption="../report/unstructured_plot.rst",
                category="Unstructured meshes"),
+    localrule: True
     resources:
         tasks=1,
-        mem_mb=2000,
-        runtime=15,
+        mem_mb=REPORT_MEM_MB,
+        runtime=REPORT_RUNTIME,
     log:
         f"logs/{STUDY}/plot.log",
     conda:
@@ -111,6 +113,7 @@ rule unstructured_cond_aggregate:
         manifest=f"results/{STUDY}/cond/summary.sha256",
     log:
         f"logs/{STUDY}/cond/aggregate.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,
@@ -135,6 +138,7 @@ rule unstructured_cond_law:
         cond_law=studies_workflow.sorted_keys(config.get("cond_law", {})),
     log:
         f"logs/{STUDY}/cond/law.log",
+    localrule: True
     resources:
         tasks=1,
         mem_mb=REPORT_MEM_MB,
