@@ -47,6 +47,11 @@ Matvec = Callable[[np.ndarray], np.ndarray]
 CONVERGED, MAXITER, BREAKDOWN = "converged", "maxiter", "breakdown"
 #: A breakdown below this residual ratio ||r|| / ||r0|| is rounding (:meth:`KrylovSolver.breakdown`).
 ROUNDING_LEVEL = 1e-10
+#: An initial guess with ||r_0||_2 <= X0_ROUNDING_FACTOR eps (||b||_2 + ||A x_0||_2) solves the system to
+#: rounding (a normwise backward error of that order; ||A x_0|| stands for ||A|| ||x_0||, which bounds it):
+#: no iteration can lower such a residual, so it is accepted before the first step instead of ending
+#: "tolerance not attained" against a threshold rtol ||r_0|| below rounding.
+X0_ROUNDING_FACTOR = 64.0
 
 # The iteration runs unscaled while max |r_0| lies in [2^-_SCALE_FREE, 2^_SCALE_FREE].
 _SCALE_FREE = 64
@@ -195,6 +200,7 @@ class KrylovSolver:
         self.scale = 1.0
         self.rnorm0 = 0.0
         self.threshold = 0.0
+        self.x0_floor: float | None = None      # set with x0: see X0_ROUNDING_FACTOR
         self.matvecs = 0
         self.iterations = 0
         self.residuals: list[float] = []
@@ -309,8 +315,10 @@ class KrylovSolver:
     def _initial_residual(self) -> np.ndarray:
         """``r_0 = P (b - A x_0)`` (no operator application when ``x0`` is None)."""
         if self.x0_given:
-            r = self.b - apply(self.A, self.x)
+            Ax0 = apply(self.A, self.x)
+            r = self.b - Ax0
             self.matvecs += 1
+            self.x0_floor = X0_ROUNDING_FACTOR * np.finfo(float).eps * (self.l2norm(self.b) + self.l2norm(Ax0))
         else:
             r = self.b.copy()
         if self.P is not None:
@@ -366,6 +374,12 @@ class KrylovSolver:
         self.rnorm0 = rnorm0
         self.threshold = threshold = max(self.rtol * rnorm0, self.atol)
         self.residuals = [rnorm0]
+        floor = self.x0_floor
+        if floor is not None and rnorm0 > threshold and self.l2norm(r) <= floor * self.scale:
+            self.reason = (f"converged: x0 solves the system to rounding (||r0|| = {self.l2norm(r) / self.scale:.1e}"
+                           f" <= {X0_ROUNDING_FACTOR:g} eps (||b|| + ||A x0||) = {floor:.1e})")
+            self.outcome = CONVERGED
+            return self._result(t0, True, rnorm0, True)
         if rnorm0 == 0.0 or rnorm0 <= threshold:
             rule = (f"atol = {self.atol / self.scale:.1e}" if self.atol >= self.rtol * rnorm0 else
                     f"rtol ||r0|| = {self.rtol:g} ||r0|| (rtol >= 1 stops before the first step)")

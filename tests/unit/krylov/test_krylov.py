@@ -603,3 +603,38 @@ def test_a_restarted_solve_states_its_reason_for_the_whole_solve():
     done = PCG.restarted(np.diag(np.geomspace(1.0, 100.0, n)), b, rtol=1e-6, maxiter=200, restart=5)
     assert done.converged and done.restarts >= 1
     assert done.reason.startswith("converged: ||r||/||r0|| = ") and "<= 1.0e-06 after" in done.reason
+
+
+@pytest.mark.parametrize("solver", [pcg, pcr])
+@pytest.mark.parametrize("scale", [1.0, 1e150])     # 1e150: the run is rescaled (r0 ~ 1e136)
+def test_x0_that_solves_the_system_to_rounding_is_accepted(solver, scale):
+    """An x0 from a direct solve has ||r0|| at rounding: the rule rtol ||r0|| is then below rounding and
+    was reported "tolerance not attained" after useless iterations; it is converged before the first step."""
+    rng = np.random.default_rng(11)
+    a = laplacian_2d(12, rng)
+    b = a @ rng.standard_normal(a.shape[0]) * scale
+    x_direct = sp.linalg.spsolve(a.tocsc(), b)
+    r0 = np.linalg.norm(b - a @ x_direct)
+    assert 0 < r0 < 64 * np.finfo(float).eps * 2 * np.linalg.norm(b)       # a rounding-level residual
+    res = solver(a, b, x_direct, rtol=1e-8)
+    assert res.converged and res.iterations == 0 and res.reason.startswith("converged: x0 solves the system")
+    assert np.array_equal(res.x, x_direct) and res.true_residual == pytest.approx(r0, rel=1e-12)
+    # a guess off by more than rounding still iterates to the relative rule
+    near = x_direct + 1e-6 * np.linalg.norm(x_direct) / np.sqrt(x_direct.size)
+    res = solver(a, b, near, rtol=1e-6)
+    assert res.converged and res.iterations > 0 and _rel(res.x, x_direct) < 1e-9
+
+
+def test_x0_at_rounding_with_a_projection_is_accepted():
+    """The FETI case: r0 = P (b - A x0) at rounding for an x0 solving the projected system."""
+    rng = np.random.default_rng(12)
+    n, k = 40, 3
+    a = random_spd(rng, n)
+    g = rng.standard_normal((n, k))
+    q, _ = np.linalg.qr(g)
+    proj = np.eye(n) - q @ q.T
+    b = proj @ rng.standard_normal(n)
+    z = sla.null_space(q.T)
+    x = z @ np.linalg.solve(z.T @ a @ z, z.T @ b)
+    res = pcg(a, b, x, rtol=1e-10, P=proj)
+    assert res.converged and res.iterations == 0 and "to rounding" in res.reason
