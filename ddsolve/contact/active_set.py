@@ -407,5 +407,6 @@ def solve_contact_active_set(problem: ContactProblem, *, rtol: float = 1e-5, pcg
     sol.extra["setup_seconds"] = setup
     # the face-solve rules bound residuals, not the KKT conditions (5.5): the acceptance rule of every
     # iterative contact solve (rtol 0.5 returned a KKT residual of 0.42, lambda 200% off, "converged")
-    sol.converged, sol.reason = kkt_verdict(sol.converged, sol.reason, problem.kkt(sol.u, sol.lam).max, rtol)
+    sol.kkt = problem.kkt(sol.u, sol.lam)
+    sol.converged, sol.reason = kkt_verdict(sol.converged, sol.reason, sol.kkt.max, rtol)
     return sol

@@ -28,7 +28,7 @@ import scipy.sparse as sp
 
 from ..errors import InputError
 from ..multibody.direct import SingularMatrixError, factorize_spd, merge_matrix
-from .problem import ContactProblem
+from .problem import ContactProblem, KKTResiduals
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +65,9 @@ class ContactSolution:
     seconds : float
     n_factorizations : int
     extra : dict
+    kkt : KKTResiduals or None
+        The KKT residuals (5.5) of (u, lam) where the solver computed them for its verdict
+        (the active set method, SMALBE); :class:`~ddsolve.contact.run.ContactMeasures` reuses them.
     """
 
     u: np.ndarray
@@ -78,6 +81,7 @@ class ContactSolution:
     seconds: float = 0.0
     n_factorizations: int = 0
     extra: dict = field(default_factory=dict)
+    kkt: KKTResiduals | None = None
 
     @property
     def total_iterations(self) -> int:

@@ -77,9 +77,11 @@ class ContactMeasures:
     n_contact: int
 
     @classmethod
-    def of(cls, problem: ContactProblem, u: np.ndarray, lam: np.ndarray) -> ContactMeasures:
-        """From the assembled problem (serial)."""
-        return cls(kkt=problem.kkt(u, lam), energy=problem.energy(u), n_contact=int(problem.n_contact))
+    def of(cls, problem: ContactProblem, u: np.ndarray, lam: np.ndarray,
+           kkt: KKTResiduals | None = None) -> ContactMeasures:
+        """From the assembled problem (serial); ``kkt``: the residuals of (u, lam) if already computed."""
+        return cls(kkt=problem.kkt(u, lam) if kkt is None else kkt, energy=problem.energy(u),
+                   n_contact=int(problem.n_contact))
 
 
 def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: ContactSolution) -> dict[str, Any]:
@@ -91,7 +93,7 @@ def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: Conta
     unpolished = None
     if "lambda_unpolished" in sol.extra:
         unpolished = problem.kkt(sol.extra["u_unpolished"], sol.extra["lambda_unpolished"]).max
-    fields = contact_fields(spec, sol, ContactMeasures.of(problem, sol.u, sol.lam), kkt_unpolished=unpolished)
+    fields = contact_fields(spec, sol, ContactMeasures.of(problem, sol.u, sol.lam, sol.kkt), kkt_unpolished=unpolished)
     if spec.check:
         check_fields(spec, problem, sol, fields)
     return fields

@@ -352,13 +352,14 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         _accept(problem, u, lam_c, net, eps, extra)             # residuals of what is returned
     # the KKT acceptance rule of every iterative contact solve (SMALBE's own checks read its stationarity
     # against eps, without the ceiling: at eps 0.5 a KKT residual of 0.93 passed them)
-    converged, reason = kkt_verdict(converged, reason, problem.kkt(u, lam_c).max, eps)
+    kkt = problem.kkt(u, lam_c)
+    converged, reason = kkt_verdict(converged, reason, kkt.max, eps)
     seconds = time.perf_counter() - t0
     return ContactSolution(u=u, lam=lam_c, active=active, converged=converged, reason=reason,
                            outer_iterations=res.outer_iterations, inner_iterations=list(res.inner_iterations),
                            seconds=seconds,
                            n_factorizations=solver.n_factorizations if new_factorizations else 0,
-                           extra=extra)
+                           extra=extra, kkt=kkt)
 
 
 def _judge(problem: ContactProblem, res: QPResult, rec: RecoveredSolution, enforced: EnforcedProblem,

@@ -62,3 +62,22 @@ def test_an_overflowing_dual_operator_is_a_breakdown_not_an_input_error():
         warnings.simplefilter("ignore", RuntimeWarning)
         res = solve(ProblemSpec(problem="contact", method="smalbe", subdomains=2, elements=4, rho=2.3e-308))
     assert not res.converged and res.reason.startswith("numerical breakdown in smalbe")
+
+
+@pytest.mark.parametrize("method", ["active-set", "smalbe"])
+def test_the_solvers_kkt_residuals_are_those_of_the_result_and_reused(method, monkeypatch):
+    """The solver functions return the residuals of their verdict (ContactSolution.kkt), of the (u, lambda)
+    they return; ddsolve.solve reports those instead of computing them once more."""
+    import ddsolve
+    from ddsolve.contact.problem import ContactProblem
+
+    real = ContactProblem.kkt
+    seen = []
+    monkeypatch.setattr(ContactProblem, "kkt", lambda self, u, lam: seen.append((u, lam)) or real(self, u, lam))
+    res = ddsolve.solve(ProblemSpec(problem="contact", method=method, subdomains=2, elements=4))
+    assert res.converged
+    returned = [lam for u, lam in seen if np.array_equal(u, res.u)]
+    fresh = real(prepare(ProblemSpec(problem="contact", subdomains=2, elements=4)).contact, res.u, returned[-1])
+    assert res.extra["kkt_residual"] == fresh.max and res.extra["kkt_stationarity"] == fresh.stationarity
+    if method == "active-set":
+        assert len(seen) == 1        # was 2: the solver's verdict and ddsolve.solve's fields
