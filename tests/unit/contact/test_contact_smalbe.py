@@ -77,7 +77,7 @@ def test_kkt_thesis_tolerance(N, m):
     assert k.complementarity < 0.1 * eps
     # stationarity is 3-8 eps here (force residual = K x jumps; module docstring); < 1e-5 is
     # not attained at eps = 1e-5
-    assert k.stationarity < 20 * eps
+    assert k.stationarity < 10 * eps
 
 
 @pytest.mark.parametrize("N,m", GRIDS)
@@ -87,7 +87,7 @@ def test_kkt_tight_tolerance(N, m, eps, bound):
     assert s.converged, s.reason
     k = p.kkt(s.u, s.lam)
     assert k.max < bound, k
-    assert k.stationarity < 20 * eps
+    assert k.stationarity < 10 * eps
 
 
 def test_kkt_stationarity_scales_with_eps():
@@ -373,8 +373,9 @@ def test_default_refines_on_the_active_set(N, m):
     assert np.array_equal(sol.active, ref.active)
 
 
-@pytest.mark.parametrize("rho", ["body-checkerboard:1e-6", "body-checkerboard:1e6", "checkerboard:1e4"])
-def test_coefficient_jumps_are_refined_or_rejected(rho):
+@pytest.mark.parametrize("rho, rejected", [("body-checkerboard:1e-6", True), ("body-checkerboard:1e6", True),
+                                          ("checkerboard:1e4", False)])
+def test_coefficient_jumps_are_refined_or_rejected(rho, rejected):
     """With jumps SMALBE's dual rule (relative to ||b||) leaves large force residuals or a lambda
     off by 1%; polish="auto" refines on the active set (kept only if the KKT residual drops),
     and without it a pair whose stationarity exceeds STATIONARITY_FACTOR eps is not converged."""
@@ -395,7 +396,11 @@ def test_coefficient_jumps_are_refined_or_rejected(rho):
     assert np.array_equal(s.active, ref.active)
     assert rel(s.lam, ref.lam) < 1e-5 and p.kkt(s.u, s.lam).stationarity < 10 * eps
     plain = solve_contact_smalbe(p, eps=eps, polish=False)
-    if p.kkt(plain.u, plain.lam).stationarity > STATIONARITY_FACTOR * eps:
+    stationarity = p.kkt(plain.u, plain.lam).stationarity
+    if rejected:
+        assert stationarity > STATIONARITY_FACTOR * eps
         assert not plain.converged and "KKT stationarity" in plain.reason
-    # else (checkerboard 1e4): SMALBE alone leaves lambda off by ~1e-2 at a stationarity of ~2 eps,
-    # which no residual check can tell from the Table 6.1 runs; the refinement is what fixes it
+    else:   # checkerboard 1e4: SMALBE alone leaves lambda off by ~1e-2 at a stationarity of ~2 eps, which no
+        # residual check can tell from the Table 6.1 runs (a known limit); the refinement is what fixes it
+        assert plain.converged and stationarity <= STATIONARITY_FACTOR * eps
+        assert rel(plain.lam, ref.lam) > 1e-3

@@ -29,12 +29,18 @@ def test_matches_direct_solution(method, ns, m, rho):
 
 
 def test_direct_reference_is_exact_on_manufactured_solution():
-    # discrete problem with known solution: f = A u* assembled, solved directly
-    sub = substructures(subdomains=2, elements=4)
+    """solve_direct (the reference of every method test) on f = A u*: the load A u* of each dof is put on
+    its subdomain copies weighted by delta, so that R^T f_W = A u* exactly as the solver assembles it."""
+    from ddsolve.dd import solve_direct
+
+    sub = substructures(subdomains=3, elements=4, rho="checkerboard:100")
     A = sub.global_matrix()
     u_star = np.random.default_rng(5).standard_normal(sub.ndof)
-    from scipy.sparse.linalg import spsolve
-    np.testing.assert_allclose(spsolve(A.tocsc(), A @ u_star), u_star, rtol=1e-10)
+    sub.f_W = sub.delta * (A @ u_star)[sub.l2g]
+    np.testing.assert_allclose(sub.assemble_vector(sub.f_W), A @ u_star, rtol=1e-14, atol=1e-14)
+    out = solve_direct(sub)
+    assert out.krylov is None and out.n_factorizations == 1
+    np.testing.assert_allclose(out.u, u_star, rtol=0, atol=1e-10 * np.abs(u_star).max())
 
 
 def test_fetidp_lanczos_matches_exact_spectrum():
@@ -65,7 +71,7 @@ def test_fetidp_and_bddc_have_the_same_spectrum(ns, m, rho):
         res = solve(ProblemSpec(method=method, subdomains=ns, elements=m, rho=rho, f="random:0",
                                 rtol=1e-10, cond=True))
         conds[method] = res.cond
-    assert conds["fetidp"] == pytest.approx(conds["bddc"], rel=0.01)
+    assert conds["fetidp"] == pytest.approx(conds["bddc"], rel=2e-3)     # measured <= 4.4e-4 apart (both Lanczos estimates of one spectrum)
 
 
 def _cond(method, ns, m, **kw):

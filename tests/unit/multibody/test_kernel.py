@@ -43,10 +43,10 @@ def test_sums_and_subtract(layout):
     ref = _reference(column, n_float, u, summed)
     assert sums.shape == (n_float,)
     if n_float > 1:
-        assert np.array_equal(sums, ref)                              # bincount itself, bitwise
-    else:                                                             # pairwise: as accurate, other bits
-        exact = math.fsum(u[(column >= 0) if summed is None else (column >= 0) & summed])
-        assert abs(sums[0] - exact) <= 1e-14 * np.abs(u).sum()
+        assert np.array_equal(sums, ref)                              # the serial bits (bincount), bitwise
+    for k in range(n_float):                                          # and accurate: against exact sums
+        members = (column == k) if summed is None else (column == k) & summed
+        assert abs(sums[k] - math.fsum(u[members])) <= 1e-14 * np.abs(u).sum()
     on = column >= 0
     assert np.array_equal(fs.counts, np.bincount(column[on if summed is None else on & summed],
                                                  minlength=n_float))
