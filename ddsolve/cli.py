@@ -191,7 +191,8 @@ def _main(argv: Sequence[str] | None = None) -> int:
     # its own, then agree (one allgather) before anything else: a rank that alone refused it (a file only it
     # cannot read, its own memory check) would otherwise leave the others waiting in MPI forever
     size = None
-    if any(name in os.environ for name in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")):
+    if any(name in os.environ for name in ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")) \
+            or os.environ.get("SLURM_STEP_NUM_TASKS", "1") not in ("", "0", "1"):     # srun -n P >= 2 without PMI
         from .parallel.run import mpi_world_size
         size = mpi_world_size() or 1
     distributed, error = False, None

@@ -34,6 +34,9 @@ DISTRIBUTED: dict[str, tuple[str, ...]] = {"poisson": METHODS, "multibody": ("fe
                                            "contact": ("active-set",)}
 #: Environment variables that mark a process started by mpiexec (MPICH/Hydra, Open MPI, PMIx).
 MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")
+#: Set by srun in each task of a step (not in a batch script): srun -n P without a PMI plugin (MpiDefault=none,
+#: no --mpi=pmi2) starts P processes that MPI sees as singletons, each solving the whole problem.
+SLURM_STEP_ENV = "SLURM_STEP_NUM_TASKS"
 #: Test hook: a rank number; that rank raises once its setup is done (tests of the abort path only).
 FAIL_ENV = "DDSOLVE_TEST_FAIL_RANK"
 ABORT_GRACE_SECONDS = 1.0     # between the error line and MPI_Abort
@@ -49,6 +52,9 @@ def mpi_world_size(environ: dict | None = None) -> int | None:
                 return int(value)
             except ValueError:
                 return None
+    tasks = env.get(SLURM_STEP_ENV, "")
+    if tasks.isdigit() and int(tasks) > 1:      # srun's tasks without PMI: _world refuses them (MPI sees 1)
+        return int(tasks)
     return None
 
 
@@ -322,6 +328,9 @@ def _world():
         return None, f"mpi: running under mpiexec with {size} ranks needs mpi4py ({exc})"
     comm = MPI.COMM_WORLD
     if size is not None and comm.Get_size() != size:
+        if not any(name in os.environ for name in MPI_ENV):      # srun started them, with no PMI for MPI
+            return None, (f"mpi: srun started {size} tasks but MPI sees {comm.Get_size()}: no PMI (SLURM's "
+                          f"MpiDefault=none?); use srun --mpi=pmi2 (see srun --mpi=list), or mpiexec")
         return None, (f"mpi: the launcher started {size} processes but MPI sees {comm.Get_size()}: mpiexec is "
                       f"not the one of mpi4py's MPI ({MPI.Get_library_version().splitlines()[0].strip()}); use "
                       f"its mpiexec (the mpich package's)")

@@ -6,6 +6,7 @@ snakemake-executor-plugin-slurm), checks the outputs and stops the daemons it st
 """
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -77,9 +78,10 @@ def _cluster_missing() -> str | None:
     return None
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def cluster():
-    """A single-node SLURM cluster (tools/slurm-local.sh); stopped afterwards if this fixture started it."""
+    """A single-node SLURM cluster (tools/slurm-local.sh), started once for the module (a start right after a
+    stop could hang for minutes); stopped afterwards if this fixture started it."""
     reason = _cluster_missing()
     if reason:
         pytest.skip(f"no local SLURM cluster: {reason}")
@@ -110,3 +112,26 @@ def test_tiny_study_on_a_local_slurm_cluster(workdir, cluster):
     assert "BDDC iter" in (workdir / "reports" / "slurm_tiny" / "table.md").read_text()
     again = snakemake(workdir, "-n", *ARGS)
     assert "Nothing to be done" in again.stdout + again.stderr
+
+
+# FETI-DP only (the contact case's launch is the same command; it runs in tests/workflow/test_mpi_study.py)
+TINY_MPI = "kind: mpi\nstudy: tiny_mpi\nmethod: fetidp\nsubdomains: 4\nelements: 4\nranks: [1, 2]\nrepeats: 1\n"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("launcher", ["mpiexec", "srun --mpi=pmi2"])
+def test_tiny_mpi_study_on_a_local_slurm_cluster(workdir, cluster, launcher):
+    """P = 1 was refused by the plugin ("'tasks' must be greater than 1"), P = 2 asked for 2 x 2 cpus (pending
+    forever on a 2-core node), and a bare srun ran P singleton solves (a review)."""
+    if launcher.startswith("srun"):
+        plugins = subprocess.run(["srun", "--mpi=list"], capture_output=True, text=True, timeout=30)
+        if "pmi2" not in plugins.stdout + plugins.stderr:
+            pytest.skip("this SLURM has no pmi2 plugin (srun --mpi=list)")
+    (workdir / "tiny_mpi.yaml").write_text(TINY_MPI + f"launcher: {launcher}\n")
+    proc = snakemake(workdir, "--profile", "profiles/slurm", "--configfile", "tiny_mpi.yaml", *FAST_STATUS,
+                     timeout=400)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    one, two = (json.loads((workdir / "results" / "tiny_mpi" / "fetidp" / f"P{P}.json").read_text()) for P in (1, 2))
+    assert (one["n_ranks"], two["n_ranks"]) == (1, 2)
+    assert two["comm"]["messages_per_iteration"] > 0 and two["iterations"] == one["iterations"]
+    assert "fetidp, 225 dofs, 16 subdomains" in (workdir / "reports" / "tiny_mpi" / "mpi.md").read_text()

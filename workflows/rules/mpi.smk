@@ -23,9 +23,14 @@ rule mpi_case:
     params:
         spec=mpi_spec,
         repeats=int(config["repeats"]),
+        launcher=config["launcher"],
     resources:
         tasks=lambda wildcards: int(wildcards.P),
-        mpi=config["launcher"],
+        # the SLURM plugin refuses an MPI job of one task ("'tasks' must be greater than 1"): P = 1 declares none
+        # (an empty mpi: sbatch --ntasks=1); the script takes the launcher from params.launcher
+        mpi=lambda wildcards: config["launcher"] if int(wildcards.P) > 1 else "",
+        # one core per rank: with threads = P alone the plugin asked for P tasks x P cpus per task
+        cpus_per_task=1,
         mem_mb=lambda wildcards: 4000 * int(wildcards.P),
         runtime=60,
     threads: lambda wildcards: int(wildcards.P)

@@ -8,6 +8,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import json
     import os
+    import shlex
     import subprocess
     import sys
     from pathlib import Path
@@ -17,6 +18,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     flags = [f"--{key}={value}" for key, value in sm.params.spec.items()]
     solve = [sys.executable, "-m", "ddsolve", "solve", *flags, "--json"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    launcher = shlex.split(sm.params.launcher)     # e.g. "srun --mpi=pmi2": a command with its options
 
     def run(cmd: list[str]) -> dict:
         """The JSON of one run of cmd, with the load average before and after it."""
@@ -42,10 +44,10 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
 
     keys = ("solve_seconds", "iterations", "load_average")
     if P == 1:     # the serial solver (no mpiexec) in the same job: the peer of every distributed run
-        best, serial = fastest([sm.resources.mpi, "-n", "1", *solve], solve)
+        best, serial = fastest([*launcher, "-n", "1", *solve], solve)
         best["serial"] = {key: serial[key] for key in keys}
     else:          # the same command on one rank in the same job: the reference of this run's speed-up
-        best, peer = fastest([sm.resources.mpi, "-n", str(P), *solve], [sm.resources.mpi, "-n", "1", *solve])
+        best, peer = fastest([*launcher, "-n", str(P), *solve], [*launcher, "-n", "1", *solve])
         best["peer"] = {key: peer[key] for key in keys}
     out = Path(sm.output[0])
     tmp = out.with_suffix(".json.tmp")

@@ -207,3 +207,14 @@ def test_scene_files_of_one_name_must_agree_but_not_their_paths(tmp_path):
     proc = _mpmd(scene + [str(tmp_path / "n0" / "s.yaml")], scene + [str(tmp_path / "n1" / "s.yaml")])
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "n0" / "u.vtu").is_file() and not (tmp_path / "n1" / "u.vtu").exists()
+
+
+def test_srun_tasks_without_pmi_are_refused():
+    """srun -n 2 with SLURM's MpiDefault=none sets SLURM_STEP_NUM_TASKS but no PMI variable: each process was an
+    MPI singleton solving the whole problem, two JSON lines, exit 0 (a review)."""
+    env = {k: v for k, v in mpi_env().items() if not k.startswith(("PMI_", "HYDRA", "MPIR", "PMIX", "OMPI_"))}
+    env.update(SLURM_STEP_NUM_TASKS="2", SLURM_PROCID="0")
+    proc = subprocess.run([sys.executable, "-m", "ddsolve", "solve", "--subdomains", "2", "--elements", "2", "--json"],
+                          capture_output=True, text=True, timeout=TIMEOUT, env=env, cwd=ROOT)
+    assert proc.returncode == 2 and proc.stdout == "", proc.stderr
+    assert "srun started 2 tasks but MPI sees 1" in proc.stderr and "--mpi=pmi2" in proc.stderr
