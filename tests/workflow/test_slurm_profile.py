@@ -135,3 +135,18 @@ def test_tiny_mpi_study_on_a_local_slurm_cluster(workdir, cluster, launcher):
     assert (one["n_ranks"], two["n_ranks"]) == (1, 2)
     assert two["comm"]["messages_per_iteration"] > 0 and two["iterations"] == one["iterations"]
     assert "fetidp, 225 dofs, 16 subdomains" in (workdir / "reports" / "tiny_mpi" / "mpi.md").read_text()
+
+
+@pytest.mark.slow
+def test_a_timed_case_runs_on_the_cores_slurm_gave(workdir, cluster):
+    """The timed cases take all of --cores (scaling_threads): inside a SLURM job that was the node's count, more
+    than the job's allocation ("srun: More processors requested than permitted"; a review ran the quick
+    reproduction through the profile: it stopped at the first scaling case)."""
+    (workdir / "tiny_scaling.yaml").write_text(
+        "kind: scaling\nstudy: slurm_scaling\nsubdomains: 2\nelements: [2, 4]\nmethods: [active-set]\nrepeats: 1\n"
+        "profile: {elements: 4}\n")
+    proc = snakemake(workdir, "--profile", "profiles/slurm", "--configfile", "config/scaling.yaml", "tiny_scaling.yaml",
+                     *FAST_STATUS, timeout=400)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert len(re.findall(r"has been submitted with SLURM jobid", proc.stdout + proc.stderr)) == 3   # two cases, the profile
+    assert (workdir / "reports" / "slurm_scaling" / "scaling.md").is_file()

@@ -311,7 +311,11 @@ if KIND == "bench":
 
 def scaling_threads(wildcards):
     """All the cores given to Snakemake, so that the timed cases run one at a time
-    (1 where no --cores is given, as for --report)."""
+    (1 where no --cores is given, as for --report or a cluster run). In a cluster job
+    (remote mode, run with --cores all) the cores its submitter asked for: the node's
+    count would exceed the job's allocation (srun: More processors requested than permitted)."""
+    if workflow.remote_exec:
+        return int(os.environ.get("SLURM_CPUS_PER_TASK", 1))
     try:
         return workflow.cores
     except WorkflowError:
