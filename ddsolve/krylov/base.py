@@ -375,8 +375,9 @@ class KrylovSolver:
         self.threshold = threshold = max(self.rtol * rnorm0, self.atol)
         self.residuals = [rnorm0]
         floor = self.x0_floor
-        if floor is not None and rnorm0 > threshold and self.l2norm(r) <= floor * self.scale:
-            self.reason = (f"converged: x0 solves the system to rounding (||r0|| = {self.l2norm(r) / self.scale:.1e}"
+        r2 = self.l2norm(r) if floor is not None and rnorm0 > threshold else math.inf    # the stopping norm may differ
+        if r2 <= (floor or 0.0) * self.scale:
+            self.reason = (f"converged: x0 solves the system to rounding (||r0|| = {r2 / self.scale:.1e}"
                            f" <= {X0_ROUNDING_FACTOR:g} eps (||b|| + ||A x0||) = {floor:.1e})")
             self.outcome = CONVERGED
             return self._result(t0, True, rnorm0, True)
