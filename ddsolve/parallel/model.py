@@ -178,7 +178,8 @@ def mpi_report(runs: list[dict], m: Machine = Machine(), strong_subdomains: floa
         row["t_iter_model"] = t_iter(run["n_ranks"], n_sub, cal, m)["t_iter"]
         rows.append(row)
     lines = ["# Distributed solve (ddsolve.parallel)", "",
-             f"{first['method']}, {first['ndof']} dofs, {n_sub} subdomains, H/h = {first['elements']}.", "",
+             f"{first['method']}, {first['ndof']} dofs, {n_sub} subdomains, H/h = {first['elements']}; "
+             f"rule set {first.get('preset') or 'default'!r} (ddsolve.presets) in every run.", "",
              _serial_line(first),
              "| P | iterations | solve s | P = 1 in the job s | speed-up | vs serial | s/iteration (measured) "
              "| s/iteration (model) "
@@ -214,7 +215,8 @@ def measured_report(runs: list[dict]) -> tuple[list[dict], str]:
     rows = [{"problem": run["problem"], "method": run["method"], **_measured_row(run, first),
              "t_iter_measured": run["solve_seconds"] / max(run["iterations"], 1)} for run in runs]
     lines = [f"{first['problem']} / {first['method']}, {first['ndof']} dofs, {first['subdomains']} x "
-             f"{first['subdomains']} subdomains per body, H/h = {first['elements']} (measured only).", "",
+             f"{first['subdomains']} subdomains per body, H/h = {first['elements']} (measured only); "
+             f"rule set {first.get('preset') or 'default'!r} (ddsolve.presets) in every run.", "",
              _serial_line(first),
              "| P | iterations | solve s | P = 1 in the job s | speed-up | vs serial | solve s/iteration | messages/it "
              "| bytes/it "

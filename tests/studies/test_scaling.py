@@ -79,6 +79,7 @@ def test_summary_targets_and_plot(tmp_path):
     assert [met for _, _, met in summary["targets"]] == [True, True, True]
     text = summary_markdown(summary)
     assert "| 20 | 40 | 1,282,401 |" in text and "dofs^" in text
+    assert "Rule sets: every number here is from rule set 'default'" in text     # the rules named
     bad = scaling_summary(_synthetic(3.0, 3.0, power=1.3))
     assert bad["fits"]["active-set"].exponent == pytest.approx(1.3)
     assert [met for _, _, met in bad["targets"]] == [False, False, False]

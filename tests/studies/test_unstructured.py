@@ -64,6 +64,7 @@ def test_fits_recover_exponents_and_targets_are_checked():
     assert len(exps) == 2 and all(c["met"] for c in exps)
     text = summary_markdown(summary)
     assert "| poisson | fetidp | 1.05 |" in text and "## Targets" in text
+    assert "Rule sets: every number here is from rule set 'default'" in text     # the rules named
     header = next(line for line in text.splitlines() if line.startswith("| problem"))
     assert " error " in header and "| 2.5e-09 |" in text          # each method's accuracy is in the report
 

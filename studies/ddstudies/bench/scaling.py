@@ -36,6 +36,7 @@ from ddsolve.prepared import prepare
 from ddsolve.spec import ProblemSpec
 
 from ..report.plots import _save
+from ..report.rule_sets import DEFAULT, NOTE_MARK, only_sentence
 from .case import CaseRecord
 from .contact import CONTACT_METHODS, solve_contact
 from .memory import peak_rss_mb
@@ -305,7 +306,8 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Scaling of the
     head = ["N", "H/h", "dofs"] + [f"{m} [s]" for m in methods] + [f"{m} it (outer)" for m in methods]
     if "ratio" in table:
         head.append(f"{DDSOLVE_METHOD} / {REFERENCE_METHOD}")
-    lines = [f"# {title}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines = [f"# {title}", "", f"{NOTE_MARK} {only_sentence(DEFAULT)}", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for _, row in table.iterrows():
         cells = [str(int(row["subdomains"])), str(int(row["elements"])), f"{int(row['ndof']):,}"]
         cells += [f"{row[f'{m}_seconds']:.3f}" for m in methods]

@@ -45,6 +45,7 @@ import pandas as pd
 from threadpoolctl import threadpool_limits
 
 from ..report.plots import _save
+from ..report.rule_sets import DEFAULT, NOTE_MARK, only_sentence
 from .memory import current_rss_mb, peak_rss_mb
 from .scaling import ExponentFit, fit_exponent
 
@@ -343,7 +344,8 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Unstructured m
              "direct: factorization + solve of the assembled matrix); ratio to the reference of the same job; "
              "cpu_seconds/cpu_ratio: CPU time of the method's own call (DD without partition and "
              "substructuring) and its ratio; error: relative 2-norm difference to the reference peer's solution; "
-             "load: 1-minute load average at the start of the run.", ""]
+             "load: 1-minute load average at the start of the run.", "",
+             f"{NOTE_MARK} {only_sentence(DEFAULT)}", ""]
     shown = table.copy()
     for col in ("seconds", "cpu_seconds", "setup_seconds", "solve_seconds", "partition_seconds"):
         if col in shown:

@@ -55,3 +55,6 @@ def test_speed_up_is_against_the_one_rank_run_of_the_same_job():
     assert [r["peer_solve_seconds"] for r in rows] == pytest.approx([2.0, 1.8, 2.0])
     assert [r["speedup_vs_serial"] for r in rows] == pytest.approx([1.1, 2.2, 2.75])
     assert "| 2 | 7 | 1.000 | 1.800 | 1.80 | 2.20 |" in text and "measured in the same job" in text
+    assert "rule set 'default' (ddsolve.presets) in every run" in text             # the rules named
+    _, thesis = measured_report([_run(1, 2.0, preset="thesis")])
+    assert "rule set 'thesis' (ddsolve.presets) in every run" in thesis
