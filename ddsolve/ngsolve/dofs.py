@@ -72,6 +72,9 @@ def check_space(fes: Any) -> None:
         raise InputError("fes", f"expected an ngsolve H1 space, got {name}")
     if isinstance(fes, ngsolve.comp.ProductSpace):
         raise InputError("fes", f"compound or vector space {name} is not supported; give a scalar H1 space")
+    if isinstance(fes, ngsolve.comp.Periodic) and isinstance(fes.base_space, ngsolve.H1):
+        check_space(fes.base_space)     # Periodic(H1(...)): its elements read the identified dofs
+        return
     if not isinstance(fes, ngsolve.H1):
         raise InputError("fes", f"space {name} ({fes.type}) is not supported; give a scalar H1 space")
     if fes.is_complex:
@@ -80,6 +83,40 @@ def check_space(fes: Any) -> None:
         raise InputError("fes", f"vector-valued H1 (dim={fes.dim}) is not supported; give a scalar H1 space")
     if fes.mesh.dim not in (2, 3):
         raise InputError("fes", f"only 2D and 3D meshes are supported, got a {fes.mesh.dim}D mesh")
+
+
+def uncompressed(fes: Any) -> tuple[Any, np.ndarray | None]:
+    """The space under ``ngsolve.Compress(space)`` and the dofs of it that ``fes`` numbers.
+
+    Returns
+    -------
+    space : ngsolve.FESpace
+        ``fes`` itself where it is not compressed.
+    dofs : ndarray of int, shape (fes.ndof,), or None
+        Compressed dof i is dof ``dofs[i]`` of ``space`` (NGSolve's active dofs, in order); None
+        where ``fes`` is not compressed.
+    """
+    import ngsolve
+
+    if not isinstance(fes, ngsolve.comp.Compress):
+        return fes, None
+    space = fes.GetBaseSpace()
+    if isinstance(space, ngsolve.comp.Compress):
+        raise InputError("fes", "a space compressed twice is not supported; give Compress(H1(...)) once")
+    # the embedding (a permutation matrix, space.ndof x fes.ndof) applied to 1..n numbers the dofs
+    E = fes.Embedding()
+    x = ngsolve.BaseVector(fes.ndof, False)
+    x.FV().NumPy()[:] = np.arange(1, fes.ndof + 1)
+    y = ngsolve.BaseVector(space.ndof, False)
+    y.data = E * x
+    number = np.rint(y.FV().NumPy()).astype(np.int64)
+    held = np.flatnonzero(number)
+    dofs = np.full(fes.ndof, -1, dtype=np.int64)
+    dofs[number[held] - 1] = held
+    if held.size != fes.ndof or (dofs < 0).any():
+        raise InputError("fes", f"Compress: the embedding maps {held.size} of {fes.ndof} dofs (fes.Update() "
+                                "after a change of the space?)")
+    return space, dofs
 
 
 def vertex_table(mesh: Any) -> np.ndarray:
@@ -112,27 +149,75 @@ def element_index(mesh: Any) -> np.ndarray:
     return np.asarray(els.NumPy()["index"], dtype=np.int64)
 
 
-def element_dofs(fes: Any) -> np.ndarray:
-    """Global H1 dofs of every volume element in element-local order, shape (n_elements, n_local)."""
+def active_elements(fes: Any) -> np.ndarray | None:
+    """Mesh numbers of the volume elements that carry dofs of ``fes``, or None where all of them do.
+
+    A space made with ``definedon=`` (e.g. ``H1(mesh, definedon="inner")``) has dofs on the
+    elements of its regions only; NGSolve numbers the vertex dofs of the whole mesh (those
+    outside unused, never free), the edge, face and cell dofs of those elements only, in the
+    mesh's order.
+
+    Returns
+    -------
+    ndarray of int, shape (n_active,), increasing, or None
+
+    Raises
+    ------
+    InputError
+        ``fes`` defined on boundaries only, or on no volume element.
+    """
+    import ngsolve
+
+    mask = np.array(list(fes.GetDefinedOnRegion().Mask()), dtype=bool)     # one flag per material
+    if not mask.any():   # all False: no definedon=, or definedon= boundaries (then no element has dofs)
+        if fes.mesh.ne and not len(fes.GetDofNrs(ngsolve.ElementId(ngsolve.VOL, 0))):
+            raise InputError("fes", "the space has no dofs on the volume elements (definedon= boundaries?); "
+                                    "give a space on (some of) the mesh's materials")
+        return None
+    on = mask[element_index(fes.mesh) - 1]
+    if on.all():
+        return None
+    if not on.any():
+        raise InputError("fes", "the space is defined on no volume element (definedon= matches no material)")
+    return np.flatnonzero(on)
+
+
+def element_dofs(fes: Any, elements: np.ndarray | None = None) -> np.ndarray:
+    """Global H1 dofs of volume elements in element-local order, shape (n_elements, n_local).
+
+    ``elements``: the mesh numbers of the rows (:func:`active_elements` of a space with
+    ``definedon=``); None for every element of the mesh.
+    """
+    import ngsolve
+
     mesh = fes.mesh
     V = vertex_table(mesh)
+    if elements is not None:
+        V = V[elements]
+    if isinstance(fes, ngsolve.comp.Periodic):
+        # the identified dofs differ from the vectorised table on the periodic boundary only, which the
+        # sample of _matches may miss on a fine mesh: the conversion operator reads every element
+        return _converted_dofs(fes, V.shape[0])
     if mesh.dim == 2 and V.shape[1] == 3:
-        table = _triangle_dofs(fes, V)
+        table = _triangle_dofs(fes, V, elements)
         if table is not None:
             return table
     elif mesh.dim == 3:
-        table = _tetrahedron_dofs(fes, V)
+        table = _tetrahedron_dofs(fes, V, elements)
         if table is not None:
             return table
-    return _converted_dofs(fes)
+    return _converted_dofs(fes, V.shape[0])
 
 
-def _triangle_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
-    """Vectorised table for a uniform-order H1 space on triangles, None if NGSolve numbers differently."""
+def _triangle_dofs(fes: Any, V: np.ndarray, elements: np.ndarray | None = None) -> np.ndarray | None:
+    """Vectorised table for a uniform-order H1 space on triangles, None if NGSolve numbers differently.
+
+    ``V``: the vertex table of the elements ``elements`` (mesh numbers; None: all, in order).
+    """
     p = int(fes.globalorder)
     ne, nv = V.shape[0], fes.mesh.nv
     if p == 1:                          # vertex dofs only: dof = vertex number
-        return V.copy() if fes.ndof == nv and _matches(fes, V) else None
+        return V.copy() if fes.ndof == nv and _matches(fes, V, elements) else None
     edges = np.stack([np.sort(V[:, list(e)], axis=1) for e in TRIG_EDGES], axis=1)
     keys = (edges[:, :, 0] * nv + edges[:, :, 1]).ravel()
     edge_num, ned = _numbered(keys)
@@ -146,7 +231,7 @@ def _triangle_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     if nb:
         parts.append(nv + ned * (p - 1) + np.arange(ne)[:, None] * nb + np.arange(nb))
     table = np.concatenate(parts, axis=1)
-    return table if _matches(fes, table) else None
+    return table if _matches(fes, table, elements) else None
 
 
 def _numbered(keys: np.ndarray) -> tuple[np.ndarray, int]:
@@ -155,13 +240,14 @@ def _numbered(keys: np.ndarray) -> tuple[np.ndarray, int]:
     return number, uniq.size
 
 
-def _tetrahedron_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
+def _tetrahedron_dofs(fes: Any, V: np.ndarray, elements: np.ndarray | None = None) -> np.ndarray | None:
     """Vectorised table for a uniform-order H1 space on tetrahedra, None if NGSolve numbers differently.
 
     NGSolve numbers the vertex dofs first, then p - 1 dofs per edge, (p-1)(p-2)/2 per face and
     (p-1)(p-2)(p-3)/6 per cell, edges and faces in the order of their sorted vertex numbers; an
     element lists its edges as (0,3), (1,3), (2,3), (0,1), (0,2), (1,2) and its face i without
     vertex i. Checked against ``fes.GetDofNrs`` on CHECK_ELEMENTS elements (else None).
+    ``V``: the vertex table of the elements ``elements`` (mesh numbers; None: all, in order).
     """
     from .facets import element_facets
 
@@ -169,7 +255,7 @@ def _tetrahedron_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     ne, nv = V.shape[0], fes.mesh.nv
     n = np.int64(nv)
     if p == 1:                          # vertex dofs only: dof = vertex number
-        return V.copy() if fes.ndof == nv and _matches(fes, V) else None
+        return V.copy() if fes.ndof == nv and _matches(fes, V, elements) else None
     E = np.sort(V[:, np.array(TET_EDGES)], axis=2)
     edge_num, ned = _numbered((E[:, :, 0] * n + E[:, :, 1]).ravel())
     ne_dofs, nf_dofs, nc_dofs = p - 1, (p - 1) * (p - 2) // 2, (p - 1) * (p - 2) * (p - 3) // 6
@@ -187,7 +273,7 @@ def _tetrahedron_dofs(fes: Any, V: np.ndarray) -> np.ndarray | None:
     table = np.concatenate(parts, axis=1)
     if fes.ndof != nv + ned * ne_dofs + nface * nf_dofs + ne * nc_dofs:
         return None
-    return table if _matches(fes, table) else None
+    return table if _matches(fes, table, elements) else None
 
 
 def node_vertices(T: np.ndarray, order: int, dim: int, ndof: int) -> np.ndarray | None:
@@ -234,28 +320,32 @@ def node_vertices(T: np.ndarray, order: int, dim: int, ndof: int) -> np.ndarray 
     return out
 
 
-def _matches(fes: Any, table: np.ndarray) -> bool:
-    """Whether ``table`` agrees with ``fes.GetDofNrs`` on CHECK_ELEMENTS elements spread over the mesh."""
+def _matches(fes: Any, table: np.ndarray, elements: np.ndarray | None = None) -> bool:
+    """Whether ``table`` agrees with ``fes.GetDofNrs`` on CHECK_ELEMENTS of its rows spread over the mesh
+    (row e: mesh element ``elements[e]``, or e where ``elements`` is None)."""
     import ngsolve
 
     ne = table.shape[0]
     sample = np.unique(np.linspace(0, ne - 1, min(ne, CHECK_ELEMENTS)).astype(np.int64))
     for e in sample:
-        if tuple(fes.GetDofNrs(ngsolve.ElementId(ngsolve.VOL, int(e)))) != tuple(table[e]):
+        nr = int(e if elements is None else elements[e])
+        if tuple(fes.GetDofNrs(ngsolve.ElementId(ngsolve.VOL, nr))) != tuple(table[e]):
             log.info("NGSolve dof numbering differs from the vectorised table; using ConvertOperator")
             return False
     return True
 
 
-def _converted_dofs(fes: Any) -> np.ndarray:
-    """Table from the 0/1 conversion matrix of fes into Discontinuous(fes) (any element shape)."""
+def _converted_dofs(fes: Any, ne: int | None = None) -> np.ndarray:
+    """Table from the 0/1 conversion matrix of fes into Discontinuous(fes) (any element shape), for
+    the ``ne`` elements with dofs (default: all of the mesh's; Discontinuous numbers them element by
+    element, in the mesh's order)."""
     import ngsolve
 
     fesd = ngsolve.Discontinuous(fes)
-    ne = fes.mesh.ne
+    ne = fes.mesh.ne if ne is None else ne
     if ne == 0 or fesd.ndof % ne:
         raise InputError("fes", "elements with different numbers of dofs are not supported (a space with "
-                                "definedon= or with orders varying by element)")
+                                "orders varying by element)")
     C = ngsolve.comp.ConvertOperator(fes, fesd)
     r, c, v = C.COO()
     r, c, v = np.asarray(r), np.asarray(c), np.asarray(v)
@@ -267,14 +357,16 @@ def _converted_dofs(fes: Any) -> np.ndarray:
     return d2h.reshape(ne, -1)
 
 
-def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = None) -> np.ndarray:
+def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = None,
+                     n_elements: int | None = None) -> np.ndarray:
     """Element matrices of the volume integrators of ``a``, shape (n_elements, n_local, n_local).
 
     One assembly of the integrators (default ``a.integrators``; give the
     volume ones of :func:`split_integrators` when ``a`` has ``ds`` terms) on
     ``Discontinuous(fes)``: its matrix is block diagonal with one full
     n_local x n_local block per element, whose dofs are numbered contiguously
-    in element-local order.
+    in element-local order. ``n_elements``: the number of elements with dofs
+    (:func:`active_elements`; default all of the mesh's).
     """
     import ngsolve
     from netgen.meshing import NgException
@@ -299,7 +391,7 @@ def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = 
     except NgException as exc:          # e.g. a skeleton (interior facet) term, which couples two elements
         raise InputError("a", f"a term couples elements (dx(skeleton=True)?): not assembled element by element "
                               f"({exc})") from None
-    ne = fes.mesh.ne
+    ne = fes.mesh.ne if n_elements is None else int(n_elements)
     vals, cols, ptr = (np.asarray(x) for x in ad.mat.CSR())     # views, no copy
     width = n_local * n_local
     if vals.size != ne * width:
@@ -427,6 +519,8 @@ def boundary_element_matrices(fes: Any, integrators: list) -> tuple[np.ndarray, 
             continue
         ei = ngsolve.ElementId(el)
         fe, trafo = fes.GetFE(ei), mesh.GetTrafo(ei)
+        if fe.ndof == 0:        # outside the regions of a space with definedon=: no dofs, nothing assembled
+            continue
         mats.append(sum(integ.CalcElementMatrix(fe, trafo).NumPy() for integ in active))
         dofs.append(fes.GetDofNrs(ei))
         verts.append([v.nr for v in el.vertices])

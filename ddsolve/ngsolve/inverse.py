@@ -18,6 +18,7 @@ from ..errors import ConvergenceWarning, InputError, check_flag, check_tolerance
 from ..krylov.convergence import ERROR_CAP, ERROR_FACTOR, ERROR_FLOOR, error_limit
 from ..options import PRIMAL_METHODS, PRIMALS
 from .dofs import (
+    active_elements,
     add_boundary_matrices,
     boundary_element_matrices,
     check_space,
@@ -26,6 +27,7 @@ from .dofs import (
     is_symmetric,
     node_vertices,
     split_integrators,
+    uncompressed,
     vertex_table,
 )
 from .consistency import check_boundary_terms, check_finite, check_linear
@@ -151,13 +153,17 @@ class DDInverse(ngsolve.BaseMatrix):
     fes : ngsolve.H1, optional
         Defaults to ``a.space``; else a space with the same dofs (same mesh and
         order, e.g. other ``dirichlet=`` boundaries, whose ``FreeDofs()`` are used).
+        A scalar H1 space, also with ``definedon=`` (only its materials' elements
+        enter), ``ngsolve.Compress(H1(...))`` (the dropped dofs fixed at zero) or
+        ``ngsolve.Periodic(H1(...))``.
     method : {"bddc", "fetidp", "feti"}
     parts : int
         METIS parts (ignored when ``partition`` is given).
-    partition : None, "coarse", "materials" or array of int, shape (n_elements,)
+    partition : None, "coarse", "materials" or array of int, shape (mesh.ne,)
         None: METIS on the mesh; "coarse": METIS on the coarsest mesh of a
         ``mesh.Refine()`` hierarchy, children inherit the part; "materials":
-        one part per material; an array: the part of every element.
+        one part per material; an array: the part of every element (with
+        ``definedon=``, the labels of elements outside the space are ignored).
     primal : {"vertices", "vertices+edges"}
         Primal constraints; edge averages for bddc and fetidp only. 2D: "vertices" are the
         dofs shared by three or more parts (or two on the boundary); at order >= 2 an
@@ -226,8 +232,12 @@ class DDInverse(ngsolve.BaseMatrix):
         super().__init__()
         if not isinstance(a, ngsolve.BilinearForm):
             raise InputError("a", f"expected an ngsolve.BilinearForm, got {type(a).__name__}")
+        flags = a.flags.ToDict()
+        if flags.get("diagonal"):       # NGSolve keeps only the diagonal of each element matrix then
+            raise InputError("a", "a form with diagonal=True is not supported: its a.mat is the diagonal of the "
+                                  "element matrices; invert it directly (a.mat.Inverse(freedofs))")
         fes = a.space if fes is None else fes
-        check_space(fes)
+        check_space(uncompressed(fes)[0])
         if not fes.mesh == a.space.mesh:
             raise InputError("fes", "is on another mesh than the form's space; give a space on the form's mesh or None")
         if method not in METHODS:
@@ -278,26 +288,37 @@ class DDInverse(ngsolve.BaseMatrix):
         self.relative_residual: float | None = None
         self.scaled_residual: float | None = None
         self.error_estimate: float | None = None
-        self.free = _free_mask(fes, freedofs)
+        free = _free_mask(fes, freedofs)
         # the dofs whose loads a solve reads and whose values it returns: the free ones, except for a form
         # with condense=True, whose a.mat is NGSolve's Schur complement on the coupling dofs; DDInverse
         # then inverts that (as a.mat.Inverse(fes.FreeDofs(True))): the cell-interior (LOCAL_DOF) dofs are
         # free inside and eliminated, their loads read as zero and their values returned as zero
-        self.io_free = self.free
+        io_free = free
         if a.condense:
             local = np.array(fes.FreeDofs(False), dtype=bool) & ~np.array(fes.FreeDofs(True), dtype=bool)
-            self.free = self.free | local
-            self.io_free = self.free & ~local
-        ndof = self.ndof = fes.ndof
+            free = free | local
+            io_free = free & ~local
+        self.ndof = fes.ndof
+        # ngsolve.Compress(space): the solve works on the space under it, whose dofs self._dofs the
+        # compressed one numbers; the others are not free (their loads and values are not the user's)
+        space, self._dofs = uncompressed(fes)
+        ndof = self._n_space = space.ndof
+        self.free, self.io_free = self._to_space(free), self._to_space(io_free)
+        fes = space
 
         t = time.perf_counter()
+        # the elements with dofs: all, or those of the regions of a space with definedon= (its other
+        # elements, their vertex dofs unused and never free, are not part of the problem)
+        elements = self.elements = active_elements(fes)
         V = vertex_table(fes.mesh)
-        T = element_dofs(fes)
+        if elements is not None:
+            V = V[elements]
+        T = element_dofs(fes, elements)
         self.timings["dof_table"] = time.perf_counter() - t
         t = time.perf_counter()
         volume, boundary = split_integrators(a, fes)
         check_linear(a, fes, boundary)
-        Ke = element_matrices(a, fes, T.shape[1], volume)
+        Ke = element_matrices(a, fes, T.shape[1], volume, n_elements=T.shape[0])
         check_finite(Ke, "dx")
         bnd = boundary_element_matrices(fes, boundary)   # ds terms (Robin): added to the element they bound
         if bnd is not None:
@@ -309,7 +330,7 @@ class DDInverse(ngsolve.BaseMatrix):
             raise InputError("a", f"the form is not symmetric; method {method!r} needs a symmetric form")
         t = time.perf_counter()
         graph, boundary = facet_adjacency(V, dim, ndof)     # facet graph, boundary vertex dofs (= vertex numbers)
-        part = element_parts(fes.mesh, V, parts, partition, seed=seed, graph=graph)
+        part = element_parts(fes.mesh, V, parts, partition, seed=seed, graph=graph, elements=elements)
         n_pieces, piece_of_part = _mesh_pieces(part, graph)
         self.timings["partition"] = time.perf_counter() - t
         _check_not_singular(Ke, T, self.free, fes.mesh.nv, part, n_pieces, piece_of_part)   # after the partition's checks
@@ -343,7 +364,7 @@ class DDInverse(ngsolve.BaseMatrix):
             if fes.globalorder >= 2:      # the average of the vertex values (the linear interpolant's nodal mean)
                 sub.edge_weights = (pm.node_dof < fes.mesh.nv).astype(float)
         elif primal == "vertices+edges" and (fes.globalorder >= 2 or EDGE_WEIGHTS_P1):
-            sub.edge_weights = interface_edge_weights(fes, part, V, T)[pm.node_dof]
+            sub.edge_weights = interface_edge_weights(fes, part, V, T, elements)[pm.node_dof]
         self.sub = sub
         self.space = sub.primal_space()         # primal "vertices+edges": the edge-average basis (ddsolve.dd.edges)
         # global dof (of ddsolve: free nodes) -> H1 dof
@@ -405,6 +426,18 @@ class DDInverse(ngsolve.BaseMatrix):
 
     def CreateVector(self, colvector: bool = False):
         return ngsolve.BaseVector(self.ndof, False)
+
+    def _to_space(self, x: np.ndarray) -> np.ndarray:
+        """A vector (or mask) of the user's space, shape (ndof,), on the solver's space (zero elsewhere)."""
+        if self._dofs is None:
+            return x
+        out = np.zeros(self._n_space, dtype=x.dtype)
+        out[self._dofs] = x
+        return out
+
+    def _from_space(self, u: np.ndarray) -> np.ndarray:
+        """The user's entries, shape (ndof,), of a vector of the solver's space."""
+        return u if self._dofs is None else u[self._dofs]
 
     def _check_unchanged(self) -> None:
         """Refuse a space whose dofs changed since the build (mesh.Refine() and fes.Update())."""
@@ -491,7 +524,7 @@ class DDInverse(ngsolve.BaseMatrix):
                                      precondition=self._bddc.precondition)
 
     def _expand(self, u_W: np.ndarray, fb: np.ndarray | None) -> np.ndarray:
-        u = np.zeros(self.ndof)
+        u = np.zeros(self._n_space)
         u[self.h1_of_gdof] = self.sub.average(self.space.from_primal(u_W))
         c = self.cond_data
         if c.b.size:
@@ -504,7 +537,7 @@ class DDInverse(ngsolve.BaseMatrix):
         """u with A u = f on the free dofs, zero elsewhere; f, u of shape (ndof,)."""
         t = time.perf_counter()
         self._check_unchanged()
-        f = _check_vector("f", f, self.ndof)
+        f = self._to_space(_check_vector("f", f, self.ndof))
         # solve for f / 2^e with max |f| ~ 2^e: exact (a power of two), so the iterations and the result are
         # those of f, and a load near the overflow or underflow limits does not overflow the norms
         exponent = int(np.frexp(np.max(np.abs(f), initial=0.0))[1]) if np.all(np.isfinite(f)) else 0
@@ -534,7 +567,7 @@ class DDInverse(ngsolve.BaseMatrix):
                            f"iteration met its rule "
                            f"({kr.reason}); the problem is singular or too ill-conditioned, or this method's rule "
                            f"does not bound the error here (use method='bddc', or a lower rtol)")
-        u = np.ldexp(u, exponent)
+        u = self._from_space(np.ldexp(u, exponent))
         if not self.converged:
             log.warning("DDInverse: %s", self.reason)
             warnings.warn(f"DDInverse did not converge: {self.reason}", ConvergenceWarning, stacklevel=3)
@@ -581,8 +614,8 @@ class DDPreconditioner(ngsolve.BaseMatrix):
         inv = self.inv
         inv._check_unchanged()
         out = _check_vector("y", y.FV().NumPy(), inv.ndof)
-        f_W, fb = inv._condense_rhs(_check_vector("f", x.FV().NumPy(), inv.ndof))
-        out[:] = inv._expand(inv._bddc.precondition(f_W), fb)
+        f_W, fb = inv._condense_rhs(inv._to_space(_check_vector("f", x.FV().NumPy(), inv.ndof)))
+        out[:] = inv._from_space(inv._expand(inv._bddc.precondition(f_W), fb))
 
     def MultTrans(self, x: Any, y: Any) -> None:
         """P is symmetric."""

@@ -63,44 +63,54 @@ class DofScene:
 
 
 def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: int = 0,
-                  graph: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                  graph: tuple[np.ndarray, np.ndarray] | None = None,
+                  elements: np.ndarray | None = None) -> np.ndarray:
     """Part label of every element, shape (n_elements,), labels 0..n_parts-1, every part connected.
 
     ``partition``: None (METIS on the element graph into ``parts``), ``"coarse"``
     (METIS into ``parts`` on the coarsest mesh of a ``mesh.Refine()`` hierarchy,
     inherited by the children), ``"materials"`` (the mesh's materials), or an
-    array of length n_elements. The element graph joins elements that share a
+    array of length ``mesh.ne``. The element graph joins elements that share a
     facet (an edge in 2D, a face in 3D); parts that are not connected through
     facets are split into their connected pieces. ``graph``: the
     :func:`~ddsolve.ngsolve.facets.facet_graph` of V, if the caller has it.
+    ``elements``: the mesh numbers of the rows of ``V`` (the elements of a space
+    with ``definedon=``), None for all; a partition array then labels every
+    element of the mesh, the others' labels are ignored and the parts left
+    without elements dropped (the labels renumbered in order).
     """
     ne, dim = V.shape[0], int(mesh.dim)
     graph = facet_graph(V, dim) if graph is None else graph
+    of_space = "" if elements is None else " of the space (definedon=)"
     if partition is None:
         if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
             raise InputError("parts", f"must be a positive integer, got {parts!r}")
         if parts > ne:
-            raise InputError("parts", f"{parts} parts requested but the mesh has only {ne} elements")
+            raise InputError("parts", f"{parts} parts requested but the mesh{of_space} has only {ne} elements")
         return partition_elements(V, int(parts), seed=seed, field="parts", adjacency=graph, pieces=True)
     if isinstance(partition, str) and partition == "coarse":
-        return coarse_partition(mesh, V, parts, seed=seed, graph=graph)
+        return coarse_partition(mesh, V, parts, seed=seed, graph=graph, elements=elements)
     if isinstance(partition, str):
         if partition != "materials":
             raise InputError("partition", f"expected None, 'materials', 'coarse' or an array, got {partition!r}")
-        _, label = np.unique(element_index(mesh), return_inverse=True)
+        index = element_index(mesh)
+        _, label = np.unique(index if elements is None else index[elements], return_inverse=True)
     else:
         label = np.asarray(partition)
-        if label.ndim != 1 or label.shape[0] != ne:
-            raise InputError("partition", f"expected {ne} element labels, got shape {label.shape}")
+        n_mesh = int(mesh.ne)
+        if label.ndim != 1 or label.shape[0] != n_mesh:
+            raise InputError("partition", f"expected {n_mesh} element labels, got shape {label.shape}")
         if not np.issubdtype(label.dtype, np.integer) or (label.size and label.min() < 0):
             raise InputError("partition", "labels must be non-negative integers")
-        if label.size and label.max() >= ne:
-            raise InputError("partition", f"labels must be 0..P-1 with P parts at most the {ne} elements, got label "
-                                          f"{int(label.max())}")
+        if label.size and label.max() >= n_mesh:
+            raise InputError("partition", f"labels must be 0..P-1 with P parts at most the {n_mesh} elements, got "
+                                          f"label {int(label.max())}")
         counts = np.bincount(label)
         if (counts == 0).any():
             raise InputError("partition", f"{int((counts == 0).sum())} empty parts (labels must be 0..P-1, "
                                           f"each used)")
+        if elements is not None:      # the labels of the space's elements, renumbered 0..P'-1
+            _, label = np.unique(label[elements], return_inverse=True)
     return split_disconnected(V, label.astype(np.int64), graph)
 
 
@@ -127,16 +137,20 @@ def refinement_roots(mesh: Any) -> np.ndarray:
 
 
 def coarse_partition(mesh: Any, V: np.ndarray, parts: int, seed: int = 0,
-                     graph: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                     graph: tuple[np.ndarray, np.ndarray] | None = None,
+                     elements: np.ndarray | None = None) -> np.ndarray:
     """METIS on the coarsest mesh of the refinement hierarchy; children inherit the part.
 
     The coarse element graph is the fine element graph contracted by the
     coarsest ancestor (no coarse mesh is rebuilt). METIS then works on the
     coarse elements only, which is much cheaper than on the refined mesh.
+    ``elements``: the mesh numbers of the rows of ``V`` (None: all).
     """
     import pymetis
 
     root = refinement_roots(mesh)
+    if elements is not None:
+        root = root[elements]
     roots, coarse = np.unique(root, return_inverse=True)
     n_c = roots.size
     if n_c == V.shape[0]:
@@ -317,7 +331,7 @@ def ordering_anchors(sub: Any, node_dof: np.ndarray, dof_vertices: np.ndarray | 
 
 
 def interface_edge_weights(fes: Any, part: np.ndarray, V: np.ndarray | None = None,
-                           T: np.ndarray | None = None) -> np.ndarray:
+                           T: np.ndarray | None = None, elements: np.ndarray | None = None) -> np.ndarray:
     """w_j = int over the part interface of phi_j, for every H1 dof j, shape (ndof,).
 
     The weights of the edge averages (:mod:`ddsolve.dd.edges`, "Weighted
@@ -342,12 +356,17 @@ def interface_edge_weights(fes: Any, part: np.ndarray, V: np.ndarray | None = No
         :func:`~ddsolve.ngsolve.dofs.vertex_table` of the mesh.
     T : ndarray of int, shape (n_elements, n_local), optional
         :func:`~ddsolve.ngsolve.dofs.element_dofs` of ``fes`` (its edge dofs give the edge numbers).
+    elements : ndarray of int, optional
+        The mesh numbers of the rows of ``part`` (a space with ``definedon=``); None: every element.
     """
     import ngsolve
 
     mesh = fes.mesh
     F = ngsolve.FacetFESpace(mesh, order=0)
-    facet = mesh_edge_numbers(mesh, V, T, int(fes.globalorder))                           # (n_elements, edges per element)
+    if elements is None:
+        facet = mesh_edge_numbers(mesh, V, T, int(fes.globalorder))                       # (n_elements, edges per element)
+    else:     # the space numbers only its own edges: the facet space's numbers of every element, restricted
+        facet = mesh_edge_numbers(mesh)[elements]
     # an edge is on the interface iff the parts of its (one or two) elements differ: zero variance test
     # (exact in floating point: counts <= 2, labels < 2**26)
     owner = np.broadcast_to(part[:, None].astype(float), facet.shape).ravel()
@@ -358,6 +377,9 @@ def interface_edge_weights(fes: Any, part: np.ndarray, V: np.ndarray | None = No
     chi = ngsolve.GridFunction(F)
     chi.vec.FV().NumPy()[:] = interface
     touching = interface[facet].any(axis=1)
+    if elements is not None:
+        touching = np.zeros(mesh.ne, dtype=bool)
+        touching[elements] = interface[facet].any(axis=1)
     lf = ngsolve.LinearForm(fes)
     lf += 0.5 * chi * fes.TestFunction() * ngsolve.dx(element_boundary=True,
                                                       definedonelements=ngsolve.BitArray(list(touching)))
