@@ -353,7 +353,9 @@ def _converted_dofs(fes: Any, ne: int | None = None) -> np.ndarray:
     d2h = np.full(fesd.ndof, -1, dtype=np.int64)
     d2h[r[keep]] = c[keep]
     if (d2h < 0).any():
-        raise InputError("fes", "could not map the discontinuous dofs to the H1 dofs")
+        raise InputError("fes", "could not map the discontinuous dofs to the H1 dofs (a Periodic space whose "
+                                "definedon= region holds one side of a periodic identification only? NGSolve "
+                                "leaves that side's dofs unused)")
     return d2h.reshape(ne, -1)
 
 

@@ -13,7 +13,7 @@ import logging
 import os
 import sys
 import time
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -37,7 +37,9 @@ MPI_ENV = ("PMI_SIZE", "OMPI_COMM_WORLD_SIZE", "PMIX_SIZE")
 #: Set by srun in each task of a step (not in a batch script): srun -n P without a PMI plugin (MpiDefault=none,
 #: no --mpi=pmi2) starts P processes that MPI sees as singletons, each solving the whole problem.
 SLURM_STEP_ENV = "SLURM_STEP_NUM_TASKS"
-#: Test hook: a rank number; that rank raises once its setup is done (tests of the abort path only).
+#: Test hook: rank numbers (comma-separated); those ranks raise once their setup is done (tests of the
+#: abort path only): a RuntimeError, or with ":interrupt" after the numbers a KeyboardInterrupt (Ctrl-C
+#: seen by those ranks alone), with ":input" an InputError raised on those ranks only.
 FAIL_ENV = "DDSOLVE_TEST_FAIL_RANK"
 ABORT_GRACE_SECONDS = 1.0     # between the error line and MPI_Abort
 
@@ -288,9 +290,13 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
             owned = prob.sub.scene.subdomain_body
             prob.pieces["n_bodies_result"] = max(comm.comm.allgather(int(owned.max()) + 1 if owned.size else 0))
         prep_seconds = time.perf_counter() - t0
-        fail = os.environ.get(FAIL_ENV)
-        if fail is not None and fail == str(comm.rank):
-            raise RuntimeError(f"injected failure ({FAIL_ENV}={fail})")
+        fail_ranks, _, fail_kind = os.environ.get(FAIL_ENV, "").partition(":")
+        if str(comm.rank) in fail_ranks.split(","):
+            if fail_kind == "interrupt":
+                raise KeyboardInterrupt
+            if fail_kind == "input":
+                raise InputError("test", f"injected input error ({FAIL_ENV})")
+            raise RuntimeError(f"injected failure ({FAIL_ENV}={fail_ranks})")
         method = {"fetidp": solve_fetidp_mpi, "bddc": solve_bddc_mpi, "feti": solve_feti_mpi,
                   "feti-feti": solve_fetifeti_mpi, "hybrid": solve_hybrid_mpi, "active-set": None}[spec.method]
         t1 = time.perf_counter()
@@ -414,17 +420,32 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int | None:
         sys.stderr.flush()                                   # raised on every rank alike: no abort needed
         os.write(2, f"ddsolve: error: {exc}\n".encode(errors="replace"))     # one write: lines never interleave
         return 2
+    except KeyboardInterrupt:
+        # Ctrl-C: a rank waiting inside an MPI call never sees its own SIGINT, so returning 130 here
+        # left the job hanging (a review); the whole job ends, with the status of an interrupt
+        _abort(comm, line=f"ddsolve: interrupted (rank {comm.Get_rank()})\n", code=130)
     except Exception as exc:     # noqa: BLE001 - any failure on any rank ends the whole job
         _abort(comm, exc)
     return 0
 
 
-def _abort(comm, exc: BaseException) -> None:
-    """One line ``ddsolve: error: rank <r>: <type>: <message>``, then ``MPI_Abort`` of the whole job."""
-    line = f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n"
+def _abort(comm, exc: BaseException | None = None, *, line: str | None = None, code: int = 1) -> NoReturn:
+    """One line (default ``ddsolve: error: rank <r>: <type>: <message>``), then ``MPI_Abort`` of the whole job.
+
+    The process never returns: MPICH lets ``MPI_Abort`` return on some ranks when several call it at
+    once (a review: the line was then printed twice, and the rank went on), so it exits after it.
+    """
+    if line is None:
+        line = f"ddsolve: error: rank {comm.Get_rank()}: {type(exc).__name__}: {exc}\n"
     sys.stderr.flush()
     os.write(2, line.encode(errors="replace"))                    # one unbuffered write
     # MPI_Abort makes the launcher kill every process at once; give it time to forward the line
     # first (without the pause a loaded machine lost it now and then).
-    time.sleep(ABORT_GRACE_SECONDS)
-    comm.Abort(1)
+    try:
+        time.sleep(ABORT_GRACE_SECONDS)
+    except KeyboardInterrupt:              # a second Ctrl-C must not skip the abort (the other ranks would hang)
+        pass
+    try:
+        comm.Abort(code)
+    finally:
+        os._exit(code)

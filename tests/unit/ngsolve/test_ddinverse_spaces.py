@@ -200,3 +200,67 @@ def test_periodic_table_is_ngsolves_on_every_element():
     expected = np.array([fes.GetDofNrs(ngs.ElementId(ngs.VOL, e)) for e in range(mesh.ne)])
     assert np.array_equal(T, expected)
     assert np.unique(T[:, :3]).size < mesh.nv          # the identified vertices are gone
+
+
+def test_a_fes_numbering_the_dofs_otherwise_is_refused(inclusion):
+    """Equal ndof is not the same system: a periodic fes for a non-periodic form (and the reverse), or
+    another definedon= at order 1 (NGSolve numbers every vertex), was solved as given, reported converged."""
+    mesh = periodic_square(both=False)
+    plain, periodic = ngs.H1(mesh, order=2, dirichlet="outer"), ngs.Periodic(ngs.H1(mesh, order=2, dirichlet="outer"))
+    assert plain.ndof == periodic.ndof
+    for form_space, fes in ((plain, periodic), (periodic, plain)):
+        u, v = form_space.TnT()
+        with pytest.raises(InputError, match=r"^fes: numbers the dofs otherwise than the form's space"):
+            DDInverse(ngs.BilinearForm(ngs.grad(u) * ngs.grad(v) * ngs.dx), fes=fes, parts=4)
+    inner, outer = (ngs.H1(inclusion, order=1, definedon=r, dirichlet="outer|inner") for r in ("inner", "outer"))
+    assert inner.ndof == outer.ndof
+    u, v = inner.TnT()
+    with pytest.raises(InputError, match=r"^fes: numbers the dofs otherwise"):
+        DDInverse(ngs.BilinearForm(ngs.grad(u) * ngs.grad(v) * ngs.dx), fes=outer, parts=4)
+    # another dirichlet= is what fes is for
+    other = ngs.H1(inclusion, order=1, definedon="inner", dirichlet="inner")
+    error, inv = compare(other, lambda u, v: ngs.grad(u) * ngs.grad(v) * ngs.dx, 1, parts=4)
+    assert error < 1e-9
+    a = ngs.BilinearForm(ngs.grad(inner.TrialFunction()) * ngs.grad(inner.TestFunction()) * ngs.dx)
+    assert DDInverse(a, fes=other, parts=4).n_parts == 4
+
+
+def test_pieces_joined_only_by_a_periodic_identification_are_one_piece():
+    """Two rectangles, the right edge of B identified with the left edge of A, clamped on A's right edge
+    only: positive definite (B is held through the identification); it was refused as singular on B."""
+    from netgen.occ import X, Compound, IdentificationType, OCCGeometry, Rectangle
+
+    A = Rectangle(0.4, 1).Face()
+    B = Rectangle(0.4, 1).Face().Move((0.6, 0, 0))
+    A.faces.name, B.faces.name = "A", "B"
+    A.edges.Max(X).name, A.edges.Min(X).name = "Aright", "Aleft"
+    B.edges.Max(X).name = "Bright"
+    B.edges.Max(X).Identify(A.edges.Min(X), "per", IdentificationType.PERIODIC)
+    mesh = ngs.Mesh(OCCGeometry(Compound([A, B]), dim=2).GenerateMesh(maxh=0.1))
+    fes = ngs.Periodic(ngs.H1(mesh, order=2, dirichlet="Aright"))
+    for kw in ({"parts": 6}, {"partition": "materials", "method": "feti"}):
+        error, inv = compare(fes, lambda u, v: ngs.grad(u) * ngs.grad(v) * ngs.dx, 1 + y, **kw)
+        assert inv.converged and error < 1e-9, kw
+
+
+def test_condensed_form_with_a_dropped_cell_dof():
+    """condense=True on Compress(..., active_dofs=...) dropping one cell dof: that element position is not
+    condensed; the answer was right but the final check read those dofs as zero (not converged)."""
+    from netgen.geom2d import unit_square
+
+    mesh = ngs.Mesh(unit_square.GenerateMesh(maxh=0.1))
+    base = ngs.H1(mesh, order=3, dirichlet="left")
+    local = [i for i in range(base.ndof) if base.CouplingType(i) == ngs.COUPLING_TYPE.LOCAL_DOF]
+    active = ngs.BitArray(base.FreeDofs())
+    active.Clear(local[0])
+    fes = ngs.Compress(base, active_dofs=active)
+    u, v = fes.TnT()
+    a = ngs.BilinearForm(fes, condense=True)
+    a += ngs.grad(u) * ngs.grad(v) * ngs.dx
+    f = ngs.LinearForm((1 + y) * v * ngs.dx).Assemble()
+    inv = DDInverse(a, parts=8, rtol=1e-10)
+    a.Assemble()
+    ref = np.array((a.mat.Inverse(fes.FreeDofs(True), inverse="sparsecholesky") * f.vec).Evaluate().FV().NumPy())
+    got = (inv * f.vec).Evaluate().FV().NumPy()
+    assert inv.converged and inv.error_estimate < 1e-9, inv.reason
+    assert np.linalg.norm(ref - got) < 1e-9 * np.linalg.norm(ref)

@@ -5,6 +5,7 @@ Each test launches ``mpiexec -n P`` through subprocess (marker ``mpi``); skipped
 """
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -185,6 +186,40 @@ def test_failure_on_one_rank_aborts_all(problem):
     assert proc.stderr.count("ddsolve: error: ") == 1, proc.stderr
     assert ("ddsolve: error: rank 1: RuntimeError: injected failure (DDSOLVE_TEST_FAIL_RANK=1)\n"
             in proc.stderr), proc.stderr
+    assert proc.stdout.strip() == ""
+
+
+def test_fetidp_without_dual_multipliers_as_serial():
+    """A METIS scene whose every interface node is primal (nlambda = 0): solved directly, as serially
+    (before, every rank aborted with "A: operator has size 0"; a review)."""
+    args = ["-m", "ddsolve", "solve", "--mesh", "unstructured", "--geometry", "lshape", "--maxh", "0.3",
+            "--parts", "6", "--check", "--json"]
+    proc = mpiexec(2, args)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    assert result["nlambda"] == 0 and result["iterations"] == 0 and result["converged"]
+    assert result["reason"] == "no dual interface: solved directly" and result["error_vs_direct"] < 1e-12
+
+
+def test_interrupt_on_one_rank_ends_the_job():
+    """Ctrl-C seen by one rank while the others wait in a collective ends every rank with status 130 (before,
+    that rank returned 130 alone and the others waited forever; a review)."""
+    proc = mpiexec(3, ["-m", "ddsolve", "solve", "--subdomains", "3", "--elements", "4", "--json"],
+                    DDSOLVE_TEST_FAIL_RANK="1:interrupt")
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stderr.count("ddsolve: interrupted (rank 1)") == 1, proc.stderr
+    assert "ddsolve: error" not in proc.stderr and proc.stdout.strip() == ""
+
+
+@pytest.mark.parametrize("kind", ["", ":input"])
+def test_an_error_on_every_rank_is_reported_once_per_rank(kind):
+    """An error raised on every rank at once: MPICH may let MPI_Abort return on some ranks, which then
+    printed their line a second time and went on (a review); one line per rank, and the job fails."""
+    proc = mpiexec(2, ["-m", "ddsolve", "solve", "--subdomains", "2", "--elements", "4", "--json"],
+                    DDSOLVE_TEST_FAIL_RANK="0,1" + kind)
+    assert proc.returncode != 0
+    assert proc.stderr.count("ddsolve: error: ") == 2, proc.stderr
+    assert all(proc.stderr.count(f"ddsolve: error: rank {r}: ") == 1 for r in (0, 1)), proc.stderr
     assert proc.stdout.strip() == ""
 
 
