@@ -196,7 +196,7 @@ class DDInverse(ngsolve.BaseMatrix):
         None: METIS on the mesh; "coarse": METIS on the coarsest mesh of a
         ``mesh.Refine()`` hierarchy, children inherit the part; "materials":
         one part per material; an array: the part of every element (with
-        ``definedon=``, the labels of elements outside the space are ignored).
+        ``definedon=``, only the labels of the space's elements are used).
     primal : {"vertices", "vertices+edges"}
         Primal constraints; edge averages for bddc and fetidp only. 2D: "vertices" are the
         dofs shared by three or more parts (or two on the boundary); at order >= 2 an
@@ -257,6 +257,8 @@ class DDInverse(ngsolve.BaseMatrix):
         Seconds per phase (dof_table, assembly, partition, condense, substructures, setup, solve).
     n_parts : int
         Number of subdomains (after splitting parts that are not connected).
+    elements : ndarray of int or None
+        The mesh numbers of the elements with dofs (a space with ``definedon=``); None: all.
     """
 
     def __init__(self, a: Any, fes: Any = None, *, method: str = "bddc", parts: int = 16, partition: Any = None,
