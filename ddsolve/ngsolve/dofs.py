@@ -123,17 +123,20 @@ def vertex_table(mesh: Any) -> np.ndarray:
     """Vertex numbers of each volume element (0-based), shape (n_elements, k).
 
     2D: triangles (k = 3) or quadrilaterals (k = 4), vertices listed around the
-    element. 3D: tetrahedra (k = 4); other 3D element types raise
-    :class:`InputError`.
+    element. 3D: tetrahedra (k = 4) or hexahedra (k = 8, netgen's order: four around
+    the bottom face, then the four above them); a mesh of other or mixed 3D element
+    types raises :class:`InputError`.
     """
     if mesh.dim == 3:
         els = mesh.ngmesh.Elements3D().NumPy()
         nodes = np.asarray(els["nodes"], dtype=np.int64)
         nodes = nodes.reshape(nodes.shape[0], -1)
-        if nodes.shape[1] < 4 or (nodes.shape[1] > 4 and (nodes[:, 4:] != 0).any()):
-            raise InputError("mesh", "only tetrahedral 3D meshes are supported (hexahedra, prisms or pyramids "
-                                     "found)")
-        return nodes[:, :4] - 1
+        count = (nodes != 0).sum(axis=1)
+        k = int(count[0]) if count.size else 4
+        if k not in (4, 8) or (count != k).any():
+            raise InputError("mesh", "only tetrahedral or hexahedral 3D meshes are supported (prisms, pyramids "
+                                     "or mixed element types found)")
+        return nodes[:, :k] - 1
     els = mesh.ngmesh.Elements2D().NumPy()
     nodes = np.asarray(els["nodes"], dtype=np.int64)
     nodes = nodes.reshape(nodes.shape[0], -1)
@@ -202,7 +205,7 @@ def element_dofs(fes: Any, elements: np.ndarray | None = None) -> np.ndarray:
         table = _triangle_dofs(fes, V, elements)
         if table is not None:
             return table
-    elif mesh.dim == 3:
+    elif mesh.dim == 3 and V.shape[1] == 4:
         table = _tetrahedron_dofs(fes, V, elements)
         if table is not None:
             return table

@@ -1,7 +1,8 @@
 """Facets of the volume elements of a 2D or 3D mesh: adjacency, boundary vertices, lookup.
 
-A *facet* is an edge of a triangle or quadrilateral (2D) or a triangular face
-of a tetrahedron (3D). Everything is vectorised over the elements:
+A *facet* is an edge of a triangle or quadrilateral (2D), a triangular face
+of a tetrahedron or a quadrilateral face of a hexahedron (3D). Everything is
+vectorised over the elements:
 
 * :func:`element_facets`: the vertices of every facet of every element;
 * :func:`facet_graph`: pairs of elements sharing a facet (the element graph
@@ -25,6 +26,8 @@ __all__ = ["boundary_vertices", "element_facets", "facet_adjacency", "facet_grap
 
 #: The faces of a tetrahedron (vertex positions), each the vertices but one.
 TET_FACES = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
+#: The faces of a hexahedron in netgen's vertex order (0-3 around the bottom, 4-7 above them).
+HEX_FACES = ((0, 1, 2, 3), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7))
 
 
 def element_facets(V: np.ndarray, dim: int) -> np.ndarray:
@@ -34,21 +37,22 @@ def element_facets(V: np.ndarray, dim: int) -> np.ndarray:
     ----------
     V : ndarray of int, shape (n_elements, k)
         Vertex table (:func:`~ddsolve.ngsolve.dofs.vertex_table`): k = 3 or 4 in
-        2D (listed around the element), k = 4 (tetrahedra) in 3D.
+        2D (listed around the element), k = 4 (tetrahedra) or 8 (hexahedra) in 3D.
     dim : int
         2 or 3.
 
     Returns
     -------
-    ndarray of int, shape (n_elements, n_facets, dim)
-        n_facets = k in 2D (edge i joins vertices i and i + 1), 4 in 3D (face i
-        omits vertex i).
+    ndarray of int, shape (n_elements, n_facets, m)
+        2D: n_facets = k, m = 2 (edge i joins vertices i and i + 1); tetrahedra:
+        n_facets = 4, m = 3 (face i omits vertex i); hexahedra: n_facets = 6, m = 4
+        (:data:`HEX_FACES`).
     """
     V = np.asarray(V, dtype=np.int64)
     if dim == 2:
         F = np.stack([V, np.roll(V, -1, axis=1)], axis=2)
     elif dim == 3:
-        F = V[:, np.array(TET_FACES)]
+        F = V[:, np.array(HEX_FACES if V.shape[1] == 8 else TET_FACES)]
     else:
         raise ValueError(f"dim must be 2 or 3, got {dim}")
     return np.sort(F, axis=2)
@@ -84,7 +88,8 @@ def facet_adjacency(V: np.ndarray, dim: int, n: int) -> tuple[tuple[np.ndarray, 
     an edge), from the same sort as the boundary vertices (two sorts before: 2.0 s against 0.75 s
     for 2M triangles).
     """
-    F = element_facets(V, dim).reshape(-1, dim)
+    F = element_facets(V, dim)
+    F = F.reshape(-1, F.shape[-1])
     order, same = _sorted_rows(F)
     at = np.flatnonzero(same)
     owner = order // (F.shape[0] // max(V.shape[0], 1))
@@ -116,7 +121,8 @@ def facet_graph(V: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:
 
 def boundary_vertices(V: np.ndarray, dim: int, n: int) -> np.ndarray:
     """Vertices on a facet of exactly one element, as a mask of shape (n,)."""
-    F = element_facets(V, dim).reshape(-1, dim)
+    F = element_facets(V, dim)
+    F = F.reshape(-1, F.shape[-1])
     order, same = _sorted_rows(F)
     return _single_facet_vertices(F, order, np.flatnonzero(same), n)
 
@@ -126,15 +132,17 @@ def facet_owner(V: np.ndarray, dim: int, facets: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    facets : ndarray of int, shape (n_given, dim)
-        Vertices of facets of the mesh (e.g. of boundary elements), in any order.
+    facets : ndarray of int, shape (n_given, m)
+        Vertices of facets of the mesh (e.g. of boundary elements), in any order; m as in
+        :func:`element_facets`.
 
     Raises
     ------
     InputError
         A given facet is no facet of any element.
     """
-    F = element_facets(V, dim).reshape(-1, dim)
+    F = element_facets(V, dim)
+    F = F.reshape(-1, F.shape[-1])
     n_f = F.shape[0] // max(V.shape[0], 1)
     G = np.sort(np.asarray(facets, dtype=np.int64), axis=1)
     both = np.concatenate([F, G])

@@ -172,7 +172,7 @@ class DDInverse(ngsolve.BaseMatrix):
 
     ``gfu.vec.data = DDInverse(a) * f.vec`` solves A u = f on the free dofs
     (zero on the others), like ``a.mat.Inverse(fes.FreeDofs())``. The mesh is
-    2D (triangles or quadrilaterals) or 3D (tetrahedra). In 3D the primal dofs
+    2D (triangles or quadrilaterals) or 3D (tetrahedra or hexahedra). In 3D the primal dofs
     are those shared by three or more parts (the nodes of the subdomain edges
     and vertices, at every order) and the vertex dofs shared by two parts on the
     domain boundary: a vertex-only coarse space would not be scalable in 3D.
