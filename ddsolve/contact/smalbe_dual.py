@@ -59,7 +59,9 @@ floating body: |sum(lam) - net| <= 10 eps net (``FORCE_FACTOR``), net =
 -e~ = -integral of f over Omega^2 (``extra["force_error"]``), and have a KKT
 stationarity of :meth:`ContactProblem.kkt` of at most 100 eps
 (``STATIONARITY_FACTOR``; 1..7 eps on the Table 6.1 grids, but up to ~1e6 eps
-with coefficient jumps, since the dual rule is relative to ||b||). The
+with coefficient jumps, since the dual rule is relative to ||b||) and a
+penetration weighted by the stiffness (:meth:`ContactProblem.weighted_feasibility`)
+of at most :func:`~ddsolve.contact.problem.kkt_limit` (eps). The
 stopping rule guarantees the force balance (force error <= eps) for a
 converged run; failing either check turns converged into False with the
 reason. With ``polish="auto"`` (default) every converged result is then
@@ -105,7 +107,7 @@ import numpy as np
 from ..multibody.fetifeti import FetiFetiSolver
 from ..qp.result import QPResult
 from .direct import ContactSolution
-from .problem import ContactProblem, kkt_verdict
+from .problem import ContactProblem, kkt_limit, kkt_verdict
 from .smalbe_chain import (
     NORM_SAFETY,
     DualProblem,
@@ -325,7 +327,7 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
     rescue = polish == "auto" and not converged and (section_64 or res.converged)
     refine = polish == "auto" and converged
     if (polish is True and converged or rescue or refine) and active.any():
-        kkt_smalbe = problem.kkt(u, lam_c).max
+        kkt_smalbe = _residual(problem, u, lam_c)
         out = _polish(problem, solver, active, rec.lambda_balanced, n_local, eps, net, extra)
         if out is None and converged and extra.get("polish_wrong_set"):
             # the equality solve on SMALBE's active set needs a pulling multiplier: that set is not the
@@ -336,7 +338,7 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
                       f"solution's: the equality solve on it has a {extra['polish_reason']} (its lambda would pull)")
         elif out is None:
             reason = f"{reason}; polish on the active set rejected ({extra['polish_reason']})"
-        elif polish == "auto" and not problem.kkt(*out).max < kkt_smalbe:
+        elif polish == "auto" and not _residual(problem, *out) < kkt_smalbe:
             extra["polish"] = "rejected"
             reason = f"{reason}; polish on the active set rejected (KKT residual not lowered)"
         else:
@@ -344,8 +346,10 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
             active = lam_c > 0.0
             if rescue:
                 converged = True
-                reason = (f"{reason}; rescued by a FETI-FETI solve on SMALBE's active set "
-                          f"({extra['polish_iterations']} PCG iterations) that passes the KKT and force checks")
+                # "not accepted" must not begin the reason of a converged result (docs/api.md)
+                reason = (f"converged: rescued by a FETI-FETI solve on SMALBE's active set "
+                          f"({extra['polish_iterations']} PCG iterations) that passes the KKT and force checks; "
+                          f"SMALBE alone: {reason.removeprefix('not accepted: ')}")
             else:
                 reason = (f"{reason}; polished on the active set in {extra['polish_iterations']} PCG "
                           f"iterations")
@@ -392,6 +396,12 @@ def _judge(problem: ContactProblem, res: QPResult, rec: RecoveredSolution, enfor
     return converged, reason
 
 
+def _residual(problem: ContactProblem, u: np.ndarray, lam: np.ndarray) -> float:
+    """The larger of the KKT residual (5.5) and the stiffness-weighted penetration of a pair: what the
+    polish must lower to be kept."""
+    return max(problem.kkt(u, lam).max, problem.weighted_feasibility(u))
+
+
 def _accept(problem: ContactProblem, u: np.ndarray, lam: np.ndarray, net: float, eps: float,
             extra: dict) -> tuple[bool, str]:
     """A-posteriori acceptance check of a primal-dual pair (module docstring, "Acceptance check").
@@ -418,6 +428,13 @@ def _accept(problem: ContactProblem, u: np.ndarray, lam: np.ndarray, net: float,
     if not kkt.stationarity <= STATIONARITY_FACTOR * eps:
         return False, (f"KKT stationarity ||Ku - f + B^T lambda|| / (||f|| + ||B^T lambda||) = "
                        f"{kkt.stationarity:.1e} > {STATIONARITY_FACTOR:g} eps = {STATIONARITY_FACTOR * eps:.1e}")
+    # the penetration as a force (ContactProblem.weighted_feasibility): under coefficient jumps SMALBE can
+    # stop with pairs in the wrong set whose penetration the KKT feasibility, relative to ||u||_inf, misses
+    weighted = problem.weighted_feasibility(u)
+    extra["weighted_feasibility"] = weighted
+    if not weighted <= kkt_limit(eps):
+        return False, (f"penetration weighted by the stiffness max (B u)_+ diag(K) / ||diag(K) u||_inf = "
+                       f"{weighted:.1e} > {kkt_limit(eps):.1e} (pairs in the wrong set under a coefficient jump?)")
     return True, ""
 
 
