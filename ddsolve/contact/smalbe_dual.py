@@ -104,6 +104,7 @@ import time
 
 import numpy as np
 
+from ..krylov.convergence import norm2
 from ..multibody.fetifeti import FetiFetiSolver
 from ..qp.result import QPResult
 from .direct import ContactSolution
@@ -313,7 +314,7 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         "lambda_tilde": float(homogeneous.lambda_tilde[-1]), "mu": res.mu, "rigid_alpha": rec.rigid_alpha,
         "norm_b": norm_b, "norm_e": abs(dual.e), "tol_equality": tol_eq, "net_load": net,
         "gradient_norms": res.gradient_norms, "constraint_norms": res.constraint_norms,
-        "local_jump": float(np.linalg.norm(solver.B_loc @ rec.u_W)),
+        "local_jump": norm2(solver.B_loc @ rec.u_W),      # scaled: no overflow of the squares
         "equality_defect": Gx, "setup_seconds": setup, "qp_seconds": res.seconds,
         "lambda": rec.lambda_balanced, "u_unpolished": rec.u, "lambda_unpolished": rec.lam_contact,
     }

@@ -311,6 +311,8 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
             body_names = [str(b) for b in bodies]
         if len(body_names) != 2:
             raise InputError("bodies", f"contact needs two bodies (materials), got {body_names}")
+        if body_names[0] == body_names[1]:
+            raise InputError("bodies", f"the two bodies must be two different materials, got {body_names}")
         rho_b = _positive_per_body(rho, body_names)
         scene = scene_from_mesh(mesh.ngmesh, bodies=body_names, dirichlet=dirichlet, contact=contact,
                                 parts=int(parts), rho=np.repeat(rho_b, int(parts)), f=1.0, seed=seed)

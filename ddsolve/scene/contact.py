@@ -92,8 +92,12 @@ def two_membranes(subdomains: int, elements: int, *, f: float | np.ndarray | Non
         raise InputError("f", "must be finite on every element")
     on2 = scene.subdomain_body[scene.element_subdomain] == 1
     area = (1.0 / (ns * m)) ** 2
-    integral = float(loads[on2].sum() * area)
-    magnitude = float(np.abs(loads[on2]).sum() * area)
+    with np.errstate(over="ignore"):        # an overflowing sum is refused below, in one line
+        integral = float(loads[on2].sum() * area)
+        magnitude = float(np.abs(loads[on2]).sum() * area)
+    if not np.isfinite(magnitude):
+        raise InputError("f", f"the load's integral over Omega^2 overflows (|f| up to "
+                              f"{float(np.abs(loads).max()):.3g}); scale the load down (the solution scales with it)")
     if not integral < -NET_LOAD_FLOOR * magnitude:
         raise InputError("f", f"the floating membrane Omega^2 needs a load with negative integral "
                               f"(got {integral:.6g}, need < -{NET_LOAD_FLOOR:g} x integral of |f| = "

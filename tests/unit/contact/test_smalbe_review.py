@@ -71,3 +71,18 @@ def test_check_against_a_failed_reference_says_so():
     res = solve(dict(problem="contact", method="active-set", subdomains=5, elements=4, rho="checkerboard:1e10",
                      check=True))
     assert res.extra["check_reason"].startswith("the direct reference did not converge (active set cycles)")
+
+
+def test_huge_loads_neither_warn_nor_overflow():
+    """A load of 1e300 solves without numpy overflow warnings (SMALBE's local jump norm squared its
+    entries); one whose integral overflows is refused naming f (it printed a warning and 'got -inf')."""
+    import warnings
+
+    from ddsolve.errors import InputError
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        res = solve(dict(problem="contact", method="smalbe", f="dostal:-1e300,-1e300"))
+    assert res.converged
+    with pytest.raises(InputError, match=r"^f: the load's integral over Omega\^2 overflows"):
+        solve(dict(problem="contact", method="smalbe", f="dostal:-1e308,-1e308"))

@@ -92,6 +92,8 @@ def test_bad_input():
     kw = {"contact": "gap", "dirichlet": "wall", "f": -1.0, "parts": 1, "method": "direct"}
     with pytest.raises(InputError, match="bodies: the mesh has no material named 'middle'"):
         contact_solve(mesh, ("left", "middle"), **kw)
+    with pytest.raises(InputError, match=r"bodies: the two bodies must be two different materials, got \['left', 'left'\]"):
+        contact_solve(mesh, ("left", "left"), **kw)
     with pytest.raises(InputError, match="contact: the mesh has no boundary named 'slit'"):
         contact_solve(mesh, **{**kw, "contact": "slit"})
     with pytest.raises(InputError, match="dirichlet: the mesh has no boundary named 'floor'"):
