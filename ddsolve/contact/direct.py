@@ -35,6 +35,9 @@ log = logging.getLogger(__name__)
 #: The primal-dual active set solution is accepted only if every relative KKT
 #: residual (5.5) (:meth:`ContactProblem.kkt`) is at most this.
 KKT_TOL = 1e-8
+#: The stationarity tolerance is at least this multiple of its rounding level
+#: (:meth:`ContactProblem.stationarity_floor`; an exact solution reads 0.4-0.5 of it).
+ROUNDING_FACTOR = 10.0
 
 #: A solve function of a factored matrix: b (n,) -> x (n,).
 FaceSolve = Callable[[np.ndarray], np.ndarray]
@@ -173,7 +176,8 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
         scale-invariant pivot test; nothing is raised), or if the repeated
         active set's ``u``, ``lambda`` are not finite or violate the KKT
         conditions (5.5) (:meth:`ContactProblem.kkt`) by more than
-        :data:`KKT_TOL`.
+        :data:`KKT_TOL` (the stationarity: by more than :data:`ROUNDING_FACTOR` times its
+        rounding level, :meth:`ContactProblem.stationarity_floor`, where that is larger).
     """
     if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
         raise InputError("maxiter", f"must be an integer >= 1, got {maxiter!r}")   # 0 returned a NaN lambda
@@ -219,8 +223,13 @@ def _kkt_check(problem: ContactProblem, u: np.ndarray, lam: np.ndarray, reason: 
     if not (np.all(np.isfinite(u)) and np.all(np.isfinite(lam))):
         return False, f"non-finite u or lambda although the {reason.replace('active set ', 'active set was ')}"
     kkt = problem.kkt(u, lam)
-    if kkt.max <= KKT_TOL:
+    # the stationarity cannot be computed below its rounding level, which exceeds KKT_TOL at large
+    # coefficient jumps (body jumps of 1e6: 5e-8): there the tolerance is ROUNDING_FACTOR times that level
+    stat_tol = max(KKT_TOL, ROUNDING_FACTOR * problem.stationarity_floor(u, lam))
+    others = max(kkt.feasibility, kkt.dual_feasibility, kkt.complementarity)
+    if others <= KKT_TOL and kkt.stationarity <= stat_tol:      # NaN fails
         return True, reason
     parts = ", ".join(f"{k[4:]} {v:.1e}" for k, v in kkt.as_dict().items() if k != "kkt_residual")
     return False, (f"KKT conditions (5.5) not met although the {reason.replace('active set ', 'active set was ')}: "
-                   f"relative residuals {parts} (> {KKT_TOL:.0e})")
+                   f"relative residuals {parts} (> {KKT_TOL:.0e}; stationarity > {stat_tol:.1e}, its rounding "
+                   f"level times {ROUNDING_FACTOR:g} where larger)")
