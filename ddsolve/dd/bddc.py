@@ -6,7 +6,7 @@ import time
 import numpy as np
 
 from ..errors import check_flag, check_tolerance
-from ..krylov import pcg
+from ..krylov import KrylovResult, pcg
 from .common import MethodOutput
 from .operators import DirichletSchur, PrimalConstrainedSolver, linear_operator
 from .substructure import Substructures
@@ -97,8 +97,12 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
 
     g = gather(schur.harmonic_extension_rhs(f_W))
     setup = time.perf_counter() - t0
-    kr = pcg(linear_operator(n_g, S_hat), g, None, rtol=rtol, maxiter=maxiter,
-             M=linear_operator(n_g, M), cond=cond)
+    if n_g == 0:            # every interface node primal, or no interface (a tiny mesh): nothing to iterate
+        kr = KrylovResult(x=np.zeros(0), converged=True, reason="no interface unknowns: solved directly",
+                          iterations=0, residuals=np.zeros(1))
+    else:
+        kr = pcg(linear_operator(n_g, S_hat), g, None, rtol=rtol, maxiter=maxiter,
+                 M=linear_operator(n_g, M), cond=cond)
     u_W = space.from_primal(schur.interior_solution(f_W, scatter(kr.x)))
     return MethodOutput(u=sub.average(u_W), krylov=kr, nlambda=0,
                         n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,

@@ -69,11 +69,17 @@ def _inline_base64(data: bytes) -> bytes:
 
 
 def _counterclockwise(coords: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    """``elements`` (n, 3 or 4) with every cell's vertices in counter-clockwise order (positive signed area,
-    VTK's convention, as the structured quadrilaterals; netgen's triangles came clockwise, a review)."""
+    """``elements`` (n, 3 or 4) ordered so that the written cells are counter-clockwise (positive signed
+    area, VTK's convention).
+
+    Quadrilaterals are given counter-clockwise. NGSolve's VTK output writes a triangle's vertices in the
+    reverse of the order netgen was given them, so triangles are given clockwise (a review found every
+    written triangle clockwise while this function made them counter-clockwise;
+    ``tests/unit/io/test_review_outputs.py`` reads the written file back).
+    """
     x, y = coords[elements, 0], coords[elements, 1]
     area = np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
-    flip = area < 0
+    flip = area > 0 if elements.shape[1] == 3 else area < 0
     if not flip.any():
         return elements
     out = elements.copy()

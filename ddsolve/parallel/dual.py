@@ -111,8 +111,11 @@ class DistributedDualSolution:
 
 def distributed_solve_dual(F: Matvec, M: Matvec, d: np.ndarray, G: sp.spmatrix | None, e: np.ndarray | None,
                            q: np.ndarray | None, *, comm: CountingComm, owned: np.ndarray, rtol: float = 1e-6,
-                           maxiter: int = 1000, cond: bool = False) -> DistributedDualSolution:
+                           maxiter: int = 1000, cond: bool = False,
+                           n_global: int | None = None) -> DistributedDualSolution:
     """:func:`ddsolve.dd.dual.solve_dual` on rank-local multipliers.
+
+    ``n_global``: the number of multipliers over all ranks; 0 returns at once, solved directly (as serial).
 
     Parameters
     ----------
@@ -130,6 +133,12 @@ def distributed_solve_dual(F: Matvec, M: Matvec, d: np.ndarray, G: sp.spmatrix |
         Entries counted in inner products.
     """
     n = d.shape[0]
+    if n_global == 0:       # no multipliers on any rank (a tiny mesh): nothing to iterate
+        kr = KrylovResult(x=np.zeros(n), converged=True, reason="no dual interface: solved directly",
+                          iterations=0, residuals=np.zeros(1))
+        k = 0 if G is None else G.shape[1]
+        return DistributedDualSolution(lam=np.zeros(n), alpha=np.zeros(k) if k else None, krylov=kr,
+                                       per_iteration=(0.0, 0.0, 0.0), krylov_seconds=0.0, coarse_seconds=0.0)
     sq, F_scaled, M_scaled, d_scaled = q_scaled(F, M, d, q)
     mu0 = np.zeros(n)
     proj = None

@@ -112,7 +112,7 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     setup = time.perf_counter() - t0
     mpi_at_setup = comm.counters.seconds          # the solve's MPI time starts here
     sol = distributed_solve_dual(F, M, F_d, G if k else None, e, q, comm=comm, owned=shared.owned, rtol=rtol,
-                                 maxiter=maxiter, cond=cond)
+                                 maxiter=maxiter, cond=cond, n_global=n_lam)
     kr = sol.krylov
     u_W = Kplus.solve(sub.f_W - B.T @ sol.lam)
     if sol.alpha is not None:

@@ -56,3 +56,14 @@ def test_projector_work_only_with_floating_bodies(monkeypatch, bodies, floating)
         assert hs.P_R(u) is u
     else:
         assert ff.R.shape[1] == floating and calls["GtG"] > 0 and calls["G"][0] is not None
+
+
+@pytest.mark.parametrize("method", ["bddc", "feti", "fetidp"])
+def test_a_scene_without_interface_unknowns_is_solved_directly(method):
+    """The hole at maxh 0.2 in 4 METIS parts has 5 free dofs and none on the interface: no Krylov solve is
+    needed (BDDC and FETI stopped with "A: operator has size 0"; FETI-DP already solved it directly)."""
+    from ddsolve import solve
+
+    res = solve(dict(mesh="unstructured", geometry="hole", maxh=0.2, parts=4, method=method, check=True))
+    assert res.converged and res.iterations == 0 and res.reason.endswith("solved directly")
+    assert res.error_vs_direct < 1e-12
