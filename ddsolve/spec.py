@@ -446,7 +446,10 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
         name = os.path.basename(output)
         if name.lower() == ".vtu":              # the writer read '.vtu' as a hidden file without a suffix
             raise InputError("output", f"needs a file name before '.vtu', got {brief(output)}")
-        parent = os.path.dirname(os.path.abspath(output))
+        # a symbolic link is written through (ddsolve.io.cleanup.resolved_target): its target's directory
+        # must exist (a review: a dangling link to nowhere/x.vtu created the directory nowhere/)
+        target = os.path.realpath(output) if os.path.islink(output) else output
+        parent = os.path.dirname(os.path.abspath(target))
         try:
             name_max = os.pathconf(parent, "PC_NAME_MAX") if os.path.isdir(parent) else 255
         except (OSError, ValueError):

@@ -132,7 +132,8 @@ def write_vtu(path: str | os.PathLike, scene: "Scene", nodal: Mapping[str, np.nd
             gf.vec.FV().NumPy()[:] = values
             coefs.append(gf)
             names.append(name)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if not path.parent.is_dir():     # the caller's directory must exist: no directory is created
+        raise FileNotFoundError(errno.ENOENT, f"directory {path.parent} does not exist")
     base = path.with_name(f".{path.stem[:200]}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")   # a legal name + 30 fits
     written = Path(str(base) + ".vtu")       # VTKOutput appends ".vtu" to its filename argument
     try:

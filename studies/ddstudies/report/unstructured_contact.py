@@ -141,10 +141,10 @@ def plot_unstructured_contact(problem: Any, solution: Any, path: str | os.PathLi
     ax_line.set_ylabel("u")
     twin = ax_line.twinx()
     twin.plot(y, line["lam"], ".", color="tab:red", ms=4, label="$\\lambda$")
-    twin.set_ylabel("$\\lambda$ (contact pressure)")
+    twin.set_ylabel("$\\lambda$ (nodal force, not a pressure)")     # as Figure 5.2's: it scales with the spacing
     handles = ax_line.get_legend_handles_labels()
     more = twin.get_legend_handles_labels()
-    ax_line.legend(handles[0] + more[0], handles[1] + more[1], fontsize=8, loc="center right")
+    ax_line.legend(handles[0] + more[0], handles[1] + more[1], fontsize=8, loc="best")
     ax_line.set_title(f"$\\Gamma_c$: {int(active.sum())} of {len(line)} pairs active (shaded)")
     ax_line.grid(True, alpha=0.3)
     if title:

@@ -190,3 +190,13 @@ def test_a_repeated_triangle_is_refused(tmp_path, vol_text):
     path.write_text("\n".join(lines))
     with pytest.raises(InputError, match="surface elements 1 and 2 are the same triangle"):
         solve(ProblemSpec(mesh="unstructured", mesh_file=str(path), method="bddc"))
+
+
+def test_a_dangling_link_does_not_create_its_directory(tmp_path):
+    """--output through a symbolic link to nowhere/x.vtu: refused like nowhere/x.vtu itself (a review: the
+    directory nowhere/ was created)."""
+    link = tmp_path / "dangling.vtu"
+    link.symlink_to("nowhere/x.vtu")
+    with pytest.raises(InputError, match=r"^output: directory .*nowhere' does not exist"):
+        solve(ProblemSpec(subdomains=2, elements=2, output=str(link)))
+    assert not (tmp_path / "nowhere").exists()
