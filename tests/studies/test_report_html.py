@@ -56,3 +56,11 @@ def test_csv_and_write_html(tmp_path):
     target = write_html(source, tmp_path / "t.html")
     assert target.read_text().startswith("<!DOCTYPE html>") and sorted(p.name for p in tmp_path.iterdir()) == [
         "t.html", "t.md"]
+
+
+def test_csv_numbers_are_shown_rounded():
+    """Long floats of a summary CSV are shown to 4 significant digits (a review: 223 cells such as
+    0.026443107999511994 made the table overflow); short numbers, integers and text stay as written."""
+    page = csv_to_html("method,seconds,rtol,n\nactive-set,0.026443107999511994,1e-06,12\n")
+    assert "<td>0.02644</td>" in page and "<td>1e-06</td>" in page and "<td>12</td>" in page
+    assert "<td>active-set</td>" in page and "white-space:nowrap" in page

@@ -23,7 +23,7 @@ from ddsolve.io.hdf5 import atomic_target
 __all__ = ["markdown_to_html", "csv_to_html", "write_html", "write_twins"]
 
 _STYLE = ("body{font-family:sans-serif;font-size:14px;margin:1em}table{border-collapse:collapse;margin:.6em 0}"
-          "th,td{border:1px solid #bbb;padding:2px 6px;text-align:right}th{background:#eee}"
+          "th,td{border:1px solid #bbb;padding:2px 6px;text-align:right;white-space:nowrap}th{background:#eee}"
           "td:first-child,th:first-child{text-align:left}code{background:#f4f4f4}")
 _RULE = re.compile(r"^\|?\s*:?-{3,}:?\s*(\|\s*:?-{3,}:?\s*)*\|?\s*$")
 
@@ -103,9 +103,24 @@ def markdown_to_html(text: str, title: str = "") -> str:
     return _page("\n".join(body), title)
 
 
+def _display(cell: str) -> str:
+    """A CSV cell as shown: a number with more than 6 significant digits rounded to 4 (a review: cells such
+    as 0.026443107999511994 made the tables unreadable); integers and text as they are. The CSV keeps them."""
+    try:
+        value = float(cell)
+    except ValueError:
+        return cell
+    digits = len(re.sub(r"[^0-9]", "", cell.split("e")[0].split("E")[0]).strip("0"))
+    if digits <= 6 or not cell.strip() or not re.search(r"[.eE]", cell):
+        return cell
+    return f"{value:.4g}"
+
+
 def csv_to_html(text: str, title: str = "") -> str:
-    """A standalone HTML page with the CSV ``text`` as one table (the first row its header)."""
+    """A standalone HTML page with the CSV ``text`` as one table (the first row its header; numbers shown
+    to 4 significant digits, :func:`_display`)."""
     rows = list(csv.reader(io.StringIO(text)))
+    rows = rows[:1] + [[_display(c) for c in row] for row in rows[1:]]
     return _page(_table(rows, header=True) if rows else "<p>(empty)</p>", title)
 
 
