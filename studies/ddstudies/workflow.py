@@ -20,7 +20,7 @@ from ddsolve import options
 __all__ = ["rule_sets", "contact_precision_grids", "KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate",
            "unique_labels", "bench_tol_label", "bench_rtols", "check_finite", "check_cases", "case_mem_mb",
            "case_runtime", "machine_memory", "check_results", "quarantine", "remove_stale_tmp", "release_complete",
-           "record_lock_owner", "release_stale_lock", "sha256", "write_manifest", "read_manifest",
+           "record_lock_owner", "release_stale_lock", "sha256", "write_manifest", "read_manifest", "write_text",
            "canonical_numbers"]
 
 #: Study kinds (config key ``kind``) and the schema each is validated against.
@@ -465,15 +465,20 @@ def sha256(path: str | os.PathLike) -> str:
     return digest.hexdigest()
 
 
-def write_manifest(paths: Iterable[str | os.PathLike], manifest: str | os.PathLike) -> None:
-    """Write ``<sha256>  <path>`` of each file (the ``sha256sum`` format), atomically."""
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (a temporary file beside it, then a rename): a report, table or
+    summary is never seen half written (a review found the table and summary scripts writing in place)."""
     from pathlib import Path
 
     from ddsolve.io.hdf5 import atomic_target
 
-    text = "".join(f"{sha256(path)}  {os.fspath(path)}\n" for path in paths)
-    with atomic_target(Path(manifest)) as tmp:
-        tmp.write_text(text)
+    with atomic_target(Path(path)) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def write_manifest(paths: Iterable[str | os.PathLike], manifest: str | os.PathLike) -> None:
+    """Write ``<sha256>  <path>`` of each file (the ``sha256sum`` format), atomically."""
+    write_text(manifest, "".join(f"{sha256(path)}  {os.fspath(path)}\n" for path in paths))
 
 
 def read_manifest(manifest: str | os.PathLike) -> dict[str, str]:

@@ -417,7 +417,7 @@ def test_scripts_render_reports_beyond_the_thesis(tmp_path):
 
 
 def test_poisson_study_with_several_bodies_is_rejected(workdir):
-    from test_pipeline import snakemake
+    from conftest import run_snakemake as snakemake     # not via test_pipeline: this folder runs alone too
 
     (workdir / "bodies.yaml").write_text("kind: grid\nstudy: b\nmethods: [bddc]\n"
                                          "sweeps: [{bodies: [1, 2], subdomains: 2, elements: 4}]\n")

@@ -3,13 +3,13 @@
 Inputs from Snakemake: input.summary, input.table_5_1, input.table_6_1 (thesis
 transcriptions), output.md, output.tex, output.png, log[0].
 """
-from pathlib import Path
 
 from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
+    from ddstudies.workflow import write_text
     from ddstudies.report.contact_plots import plot_method_comparison
     from ddstudies.report.contact_tables import render_comparison
 
@@ -19,8 +19,8 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
 
     summary = pd.read_csv(sm.input.summary)
     md, tex, table, caption = render_comparison(summary, theses)
-    Path(sm.output.md).write_text(md)
-    Path(sm.output.tex).write_text(tex)
+    write_text(sm.output.md, md)
+    write_text(sm.output.tex, tex)
     shown = chosen_rule_set(summary) if "preset" in summary.columns else DEFAULT
     several = "preset" in summary.columns and len(rule_sets(summary)) > 1
     plot_method_comparison(table, sm.output.png, caption=caption,     # name the rule set where it is not obvious

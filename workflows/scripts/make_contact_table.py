@@ -3,20 +3,20 @@
 Inputs from Snakemake: input.summary, input.thesis, output.md, output.tex,
 wildcards.table (table_5_1 or table_6_1), log[0].
 """
-from pathlib import Path
 
 from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
+    from ddstudies.workflow import write_text
     from ddstudies.report.contact_tables import render_contact_table
 
     sm = snakemake  # noqa: F821
     md, tex = render_contact_table(pd.read_csv(sm.input.summary), pd.read_csv(sm.input.thesis),
                                    sm.wildcards.table)
-    Path(sm.output.md).write_text(md)
-    Path(sm.output.tex).write_text(tex)
+    write_text(sm.output.md, md)
+    write_text(sm.output.tex, tex)
     print(md)
 
 from ddstudies.report.html import write_twins  # noqa: E402

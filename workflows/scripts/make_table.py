@@ -1,11 +1,11 @@
 """Snakemake script of rule table: summary CSV -> table.md and table.tex."""
-from pathlib import Path
 
 from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
+    from ddstudies.workflow import write_text
     from ddstudies.report.tables import condition_table, describe_constants, label_presets, to_latex, to_markdown
 
     df, methods = label_presets(pd.read_csv(snakemake.input[0]), snakemake.params.methods)  # noqa: F821
@@ -15,8 +15,8 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
                f"cond: Lanczos estimate of the condition number; iter: Krylov iterations; "
                f"1/H: subdomains per side; H/h: elements per subdomain side. "
                f"{describe_constants(df)}.\n\n")
-    Path(snakemake.output.md).write_text(heading + to_markdown(table))  # noqa: F821
-    Path(snakemake.output.tex).write_text(to_latex(table))  # noqa: F821
+    write_text(snakemake.output.md, heading + to_markdown(table))  # noqa: F821
+    write_text(snakemake.output.tex, to_latex(table))  # noqa: F821
     print(to_markdown(table))
 
 from ddstudies.report.html import write_twins  # noqa: E402

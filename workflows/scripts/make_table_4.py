@@ -12,6 +12,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import pandas as pd
 
+    from ddstudies.workflow import write_text
     from ddstudies.report.plots import hbhs_growth
     from ddstudies.report.rule_sets import chosen_rule_set, one_rule_set, rule_sets
     from ddstudies.report.tables import (describe_constants, growth_table,
@@ -72,8 +73,8 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
             "FETI-FETI iterations reach the fitted hybrid iterations (a property of the two fits, "
             "extrapolated where it lies beyond the largest run; the measured counts need not have "
             "crossed there).\n\n")
-        Path(sm.output.md).write_text(heading + to_markdown(table) + fits + to_markdown(shown))
-        Path(sm.output.tex).write_text(to_latex(table) + "\n" + to_latex(shown))
+        write_text(sm.output.md, heading + to_markdown(table) + fits + to_markdown(shown))
+        write_text(sm.output.tex, to_latex(table) + "\n" + to_latex(shown))
         print(to_markdown(table) + fits + to_markdown(shown))
     else:
         table = multibody_table(df, theses[0], method=spec["method"], quantities=spec["quantities"],
@@ -86,8 +87,8 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         heading = (
             f"# {spec['title']} (study `{sm.wildcards.study}`)\n\n"
             f"{legend}; dev.: (ours - thesis)/|thesis|.{extra}{constants(runs)}\n\n")
-        Path(sm.output.md).write_text(heading + to_markdown(table))
-        Path(sm.output.tex).write_text(to_latex(table))
+        write_text(sm.output.md, heading + to_markdown(table))
+        write_text(sm.output.tex, to_latex(table))
         print(to_markdown(table))
 
 from ddstudies.report.html import write_twins  # noqa: E402

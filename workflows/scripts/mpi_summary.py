@@ -8,6 +8,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     import csv
     from pathlib import Path
 
+    from ddstudies.workflow import write_text
     from ddsolve.parallel.model import measured_report, mpi_report
 
     sm = snakemake  # noqa: F821
@@ -29,8 +30,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         writer.writeheader()
         writer.writerows(rows)
     tmp.replace(sm.output.table)
-    Path(sm.output.markdown + ".tmp").write_text(text)
-    Path(sm.output.markdown + ".tmp").replace(sm.output.markdown)
+    write_text(sm.output.markdown, text)
     print(text, flush=True)
 
 from ddstudies.report.html import write_twins  # noqa: E402

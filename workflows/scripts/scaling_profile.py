@@ -15,6 +15,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     from pathlib import Path
 
     logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    from ddstudies.workflow import write_text
     from ddstudies.bench.scaling import profile_case
 
     sm = snakemake  # noqa: F821
@@ -24,5 +25,5 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
                         direct_threads=int(opts["direct_threads"]), top=int(sm.params.top),
                         stats_path=sm.output.stats)
     Path(sm.output.text).parent.mkdir(parents=True, exist_ok=True)
-    Path(sm.output.text).write_text(text)
+    write_text(sm.output.text, text)
     print(text, flush=True)

@@ -4,8 +4,8 @@
 from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
-    from pathlib import Path
 
+    from ddstudies.workflow import write_text
     from ddstudies.bench.scaling import scaling_summary, summary_markdown
     from ddstudies.aggregate import collect, write_table
     from ddstudies.workflow import write_manifest
@@ -17,7 +17,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     summary = scaling_summary(df, dict(sm.params.targets))
     write_table(summary["table"], sm.output.table)
     text = summary_markdown(summary)
-    Path(sm.output.markdown).write_text(text)
+    write_text(sm.output.markdown, text)
     print(text, flush=True)
 
 from ddstudies.report.html import write_twins  # noqa: E402

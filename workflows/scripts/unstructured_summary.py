@@ -5,10 +5,10 @@ ddstudies.bench.unstructured.unstructured_summary."""
 from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
-    from pathlib import Path
 
     import pandas as pd
 
+    from ddstudies.workflow import write_text
     from ddstudies.aggregate import write_table
     from ddstudies.bench.unstructured import summary_markdown, unstructured_summary
 
@@ -20,7 +20,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     summary = unstructured_summary(df, dict(sm.params.targets))
     write_table(summary["table"], sm.output.table)
     text = summary_markdown(summary)
-    Path(sm.output.markdown).write_text(text)
+    write_text(sm.output.markdown, text)
     print(text, flush=True)
 
 from ddstudies.report.html import write_twins  # noqa: E402

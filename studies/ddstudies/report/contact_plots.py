@@ -29,18 +29,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from .plots import _save  # noqa: E402  (atomic, as every figure of the report)
+
 log = logging.getLogger(__name__)
 
 __all__ = ["MembraneSurface", "solve_contact_case", "membrane_surfaces", "contact_line",
            "plot_membranes", "plot_contact_line", "plot_method_comparison"]
 
 
-def _save(fig: Any, path: str | os.PathLike) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
 
 
 def solve_contact_case(spec: Any) -> tuple[Any, Any]:

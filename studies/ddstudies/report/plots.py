@@ -40,19 +40,26 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from ddsolve.io.hdf5 import atomic_target  # noqa: E402
+
 from .rule_sets import DEFAULT, chosen_rule_set, one_rule_set, rule_sets  # noqa: E402
 from .tables import (CONTACT_CASES, LATEX_LABELS, METHOD_LABELS, MULTIBODY_ROW_LABELS,  # noqa: E402
                      ROW_LABELS, THESIS_KEYS, THESIS_QUANTITIES)
 
 
 
-def _save(fig, path) -> None:
-    """Write ``fig`` to ``path`` (PNG, 120 dpi) and close it; nothing when ``path`` is None."""
-    if path is not None:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=120)
+def _save(fig, path) -> Path | None:
+    """Write ``fig`` to ``path`` (its format from the suffix, 120 dpi) atomically and close it; nothing when
+    ``path`` is None (a review: figures were written straight to their final name)."""
+    if path is None:
+        return None
+    path = Path(path)
+    try:
+        with atomic_target(path) as tmp:
+            fig.savefig(tmp, dpi=120, format=path.suffix.lstrip(".") or "png")
+    finally:
         plt.close(fig)
+    return path
 
 def _finite_pairs(x, y) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(x, dtype=float).ravel()
