@@ -131,6 +131,23 @@ def test_params_do_not_depend_on_the_order_of_keys():
     assert sorted_keys([3, 1]) == [3, 1]                      # lists keep their order
 
 
+def test_a_config_error_is_one_line_with_status_2(workdir):
+    """As the command line's bad input: one line, exit status 2 (it was a WorkflowError with Snakemake's
+    header and 3-4 lines of call stack; a review); the grid keys next to sweeps are refused (ignored before),
+    also from a study entry of the reproduction, whose name the line gives."""
+    (workdir / "both.yaml").write_text("kind: grid\nstudy: b\nmethods: [bddc]\nsubdomains: [7]\n"
+                                       "sweeps: [{subdomains: [2], elements: [2]}]\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "both.yaml", check=False)
+    errors = [line for line in proc.stderr.splitlines() if "error" in line.lower()]
+    assert proc.returncode == 2 and errors == [
+        "ddsolve: error: invalid config (config.schema.yaml): subdomains: not allowed here (not with sweeps (they "
+        "replace the grid; give it in a sweep))"], proc.stderr
+    assert "Traceback" not in proc.stderr and 'File "' not in proc.stderr
+    (workdir / "studies.yaml").write_text("studies: [{name: mine, configfile: both.yaml}]\n")
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "studies.yaml", check=False)
+    assert proc.returncode == 2 and "ddsolve: error: studies: mine (both.yaml): invalid config" in proc.stderr
+
+
 def test_workflow_needs_an_explicit_kind(workdir):
     # a study named stress* is not a stress study: only `kind` says what a study is
     (workdir / "nokind.yaml").write_text("study: stress_like\nmethods: [bddc]\nsubdomains: [2]\nelements: [2]\n")

@@ -53,7 +53,7 @@ def study_cases():
     if CONTACT:  # two membranes, not a grid axis (the case paths have no bodies)
         cases = list(dict.fromkeys((1, s, m) for _, s, m in cases))
     elif not MULTIBODY and any(b != 1 for b, _, _ in cases):
-        raise WorkflowError("config: problem 'poisson' has exactly one body; use kind table_4 (problem "
+        config_error("config: problem 'poisson' has exactly one body; use kind table_4 (problem "
                             "multibody) to sweep over bodies")
     return cases
 
@@ -69,7 +69,7 @@ def study_presets():
         if presets == ["default"]:
             return [config["preset"]]
         if config["preset"] not in presets:
-            raise WorkflowError(f"invalid config: preset: {config['preset']!r} is not in presets {presets}")
+            config_error(f"invalid config: preset: {config['preset']!r} is not in presets {presets}")
     return presets
 
 
@@ -144,7 +144,7 @@ def thesis_table(name):
     path = f"{folder}/{name}.csv"
     if not os.path.isfile(path):
         have = sorted(f[:-4] for f in os.listdir(folder) if f.endswith(".csv")) if os.path.isdir(folder) else None
-        raise WorkflowError(f"invalid config: thesis_tables: no transcription {name!r} in {folder!r} "
+        config_error(f"invalid config: thesis_tables: no transcription {name!r} in {folder!r} "
                             + (f"(it has {have}); a table's name or its `thesis` key names one" if have is not None
                                else "(no such folder)"))
     return path
@@ -250,7 +250,7 @@ def _bench_cases():
                 try:
                     get_method(name, kind)
                 except KeyError as err:
-                    raise WorkflowError(f"invalid config: problems: {kind}: {key}: {err.args[0]}") from None
+                    config_error(f"invalid config: problems: {kind}: {key}: {err.args[0]}")
         for name in list(prob.get("methods", [])) + list(prob.get("peers", [])):
             if get_method(name, kind).iterative:
                 cases += [(kind, name, tol) for tol in BENCH_RTOLS]
@@ -285,13 +285,13 @@ if KIND == "bench":
     from ddstudies.bench.problems import check_load_cells
 
     if MAIN_PROCESS and config["direct"] not in available_direct_solvers():   # not after the first job
-        raise WorkflowError(f"invalid config: direct: backend {config['direct']!r} is not installed here "
-                            f"(available: {', '.join(available_direct_solvers())})")
+        config_error(f"invalid config: direct: backend {config['direct']!r} is not installed here "
+                     f"(available: {', '.join(available_direct_solvers())})")
 
     try:
         BENCH_RTOLS = studies_workflow.bench_rtols(config["rtols"])
     except studies_workflow.ConfigError as err:
-        raise WorkflowError(f"invalid config: {err}") from None
+        config_error(f"invalid config: {err}")
     BENCH_CASES = _bench_cases()
     BENCH_PROBLEMS = "|".join(re.escape(k) for k in config["problems"])
     # each problem's spec: a valid ProblemSpec that fits the machine (the reference solves its 2x refinement)
@@ -301,7 +301,7 @@ if KIND == "bench":
         try:
             check_load_cells(ProblemSpec.from_mapping(bench_spec(SimpleNamespace(kind=_kind))), _prob.get("load_cells"))
         except ValueError as err:
-            raise WorkflowError(f"invalid config: problems: {_kind}: {err}") from None
+            config_error(f"invalid config: problems: {_kind}: {err}")
 
 
 # --- kind scaling (scaling.smk) -------------------------------------------------------------
@@ -375,7 +375,7 @@ def unstructured_case(wildcards):
     try:
         parts = parts_for(series["refine"], series["parts"])[refine]
     except (ValueError, KeyError) as err:
-        raise WorkflowError(f"invalid config: problems: {wildcards.problem}: {err}") from None
+        config_error(f"invalid config: problems: {wildcards.problem}: {err}")
     contact = wildcards.problem == "contact"
     return {"problem": wildcards.problem, "maxh": float(series["maxh"]), "refine": refine, "parts": parts,
             "methods": case_methods(series["methods"], refine, series.get("max_refine")),
@@ -419,7 +419,7 @@ def unstructured_report_files():
 if KIND == "unstructured":
     for _problem, _series in config["problems"].items():
         if not isinstance(_series["parts"], int) and len(_series["parts"]) != len(_series["refine"]):
-            raise WorkflowError(f"invalid config: problems: {_problem}: parts: {len(_series['parts'])} values for "
+            config_error(f"invalid config: problems: {_problem}: parts: {len(_series['parts'])} values for "
                                 f"{len(_series['refine'])} refinements")
     from ddstudies.bench.unstructured import parts_for as _parts_for
 
@@ -439,7 +439,7 @@ if KIND == "unstructured":
             COND_SPECS = {f"results/{STUDY}/cond/{case.method}/{case.stem}.h5": studies_cond_law.case_spec(
                 case, rtol=_law["rtol"], maxiter=_law["maxiter"]) for case in studies_cond_law.cond_cases(_law)}
         except ValueError as err:
-            raise WorkflowError(f"invalid config: cond_law: {err}") from None
+            config_error(f"invalid config: cond_law: {err}")
     # every case (and the figure) is a valid ProblemSpec that fits the machine, before any job runs
     COND_SIZES = checked_cases(COND_SPECS.items())
     if "contact_figure" in config:
@@ -478,7 +478,7 @@ if KIND == "stress":
         STRESS_CASES = list(studies_workflow.unique_labels(
             ((case.name, case) for case in stress_catalog(config["tier"])), "stress cases").values())
     except studies_workflow.ConfigError as err:
-        raise WorkflowError(str(err)) from None
+        config_error(str(err))
     STRESS_SERIES = list(dict.fromkeys(_stress_job(case) for case in STRESS_CASES))
 
 
@@ -518,7 +518,7 @@ if KIND == "mpi":     # every case must fit the machine (a P = 1 run holds it al
             try:
                 check_supported(ProblemSpec.from_mapping(mpi_spec(SimpleNamespace(method=_method))), int(_P))
             except InputError as err:
-                raise WorkflowError(f"invalid config: ranks: {_P} for {_method}: {err}") from None
+                config_error(f"invalid config: ranks: {_P} for {_method}: {err}")
 
 
 def mpi_previous_case(wildcards):

@@ -16,7 +16,10 @@ import copy
 import yaml
 from snakemake.utils import update_config
 
-validate_config(config, "studies")
+try:
+    validate_config(config, "studies")
+except studies_workflow.ConfigError as err:
+    config_error(str(err))
 
 
 def study_config(entry):
@@ -26,7 +29,7 @@ def study_config(entry):
         with open(path) as stream:
             study = yaml.safe_load(stream) or {}
     except OSError as err:
-        raise WorkflowError(f"studies: {entry['name']}: cannot read configfile {entry['configfile']}: "
+        config_error(f"studies: {entry['name']}: cannot read configfile {entry['configfile']}: "
                             f"{err.strerror}")
     update_config(study, entry.get("set") or {})
     kind = study.get("kind")
@@ -39,17 +42,17 @@ def study_config(entry):
 
 STUDIES = [entry["name"] for entry in config["studies"]]
 if len(set(STUDIES)) != len(STUDIES):
-    raise WorkflowError(f"studies: names must be unique, got {STUDIES}")
+    config_error(f"studies: names must be unique, got {STUDIES}")
 _OUTPUT_OF = {}      # two entries with one `study` would write the same results/<study>/ (Snakemake: ambiguous rules)
 for entry in config["studies"]:
     _config = study_config(entry)
     try:        # each study's config, checked here so that an error names its entry
         validate_study(copy.deepcopy(_config))
-    except WorkflowError as err:
-        raise WorkflowError(f"studies: {entry['name']} ({entry['configfile']}): {err}") from None
+    except studies_workflow.ConfigError as err:
+        config_error(f"studies: {entry['name']} ({entry['configfile']}): {err}")
     _study = _config.get("study")
     if _study is not None and _study in _OUTPUT_OF:
-        raise WorkflowError(f"studies: {_OUTPUT_OF[_study]} and {entry['name']} both write study {_study!r} "
+        config_error(f"studies: {_OUTPUT_OF[_study]} and {entry['name']} both write study {_study!r} "
                             f"(results/{_study}/); give each entry its own `study`")
     _OUTPUT_OF[_study] = entry["name"]
 

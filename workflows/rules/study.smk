@@ -9,7 +9,10 @@
 #   ngsolve  DDInverse against NGSolve's solvers (config/ngsolve.yaml)
 #   unstructured  DD against direct solvers on METIS-partitioned P1 meshes (config/unstructured.yaml)
 # Its targets (rule all) are `targets()` of common.smk.
-KIND = validate_study(config)
+try:
+    KIND = validate_study(config)
+except studies_workflow.ConfigError as err:
+    config_error(str(err))
 
 
 include: "common.smk"

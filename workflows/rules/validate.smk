@@ -19,6 +19,15 @@ def _main_process():
 MAIN_PROCESS = _main_process()
 
 
+def config_error(message):
+    """Bad configuration: one line ``ddsolve: error: <message>`` on stderr and exit status 2, before any job
+    runs, as the command line answers bad input (a WorkflowError came with Snakemake's header and three
+    or four lines of its call stack; a review)."""
+    sys.stderr.write(f"ddsolve: error: {message}\n")
+    sys.stderr.flush()
+    sys.exit(2)
+
+
 def schema_path(schema):
     return os.path.join(workflow.basedir, "workflows", "schemas", f"{schema}.schema.yaml")
 
@@ -26,39 +35,37 @@ def schema_path(schema):
 def validate_config(data, schema, key="config"):
     """Validate `data` against workflows/schemas/<schema>.schema.yaml, filling in defaults.
 
-    Raises WorkflowError("invalid <key> (<schema>.schema.yaml): <path>: <what is wrong>").
+    Raises ConfigError("invalid <key> (<schema>.schema.yaml): <path>: <what is wrong>") (the caller
+    reports it with config_error, adding where it comes from).
     """
-    try:
-        studies_workflow.validate(data, schema_path(schema), key=key)
-    except studies_workflow.ConfigError as err:
-        raise WorkflowError(str(err)) from None
+    studies_workflow.validate(data, schema_path(schema), key=key)
 
 
 def validate_study(data):
     """Validate a single-study config against the schema of its `kind`; the kind.
 
     Numbers must be finite (YAML .nan / .inf are refused, naming the key), and integral floats
-    become ints after validation (studies_workflow.canonical_numbers); the cases themselves are checked through ddsolve.spec.ProblemSpec in common.smk.
+    become ints after validation (studies_workflow.canonical_numbers); the cases themselves are checked
+    through ddsolve.spec.ProblemSpec in common.smk. Raises ConfigError.
     """
-    try:
-        studies_workflow.check_finite(data)
-    except studies_workflow.ConfigError as err:
-        raise WorkflowError(str(err)) from None
+    studies_workflow.check_finite(data)
     kind = data.get("kind")
     if kind not in studies_workflow.SCHEMAS:
-        raise WorkflowError(f"invalid config: kind: {kind!r} is not one of {list(studies_workflow.SCHEMAS)} "
-                            f"(every single-study config names its kind)")
+        raise studies_workflow.ConfigError(f"invalid config: kind: {kind!r} is not one of "
+                                           f"{list(studies_workflow.SCHEMAS)} (every single-study config "
+                                           f"names its kind)")
     validate_config(data, studies_workflow.SCHEMAS[kind])
     studies_workflow.canonical_numbers(data)   # gamma: 1.0 and gamma: 1 are the same params (no rerun)
     return kind
 
 
 def checked_cases(cases):
-    """check_cases (ddstudies.workflow) as a WorkflowError: {label: size Estimate} of (label, spec) pairs."""
+    """check_cases (ddstudies.workflow), a failure reported by config_error: {label: size Estimate} of
+    (label, spec) pairs."""
     try:
         return studies_workflow.check_cases(cases, max_memory=config.get("max_memory"))
     except studies_workflow.ConfigError as err:
-        raise WorkflowError(str(err)) from None
+        config_error(str(err))
 
 
 def check_result_files(paths, summary=None, consumers=(), manifest=None):
