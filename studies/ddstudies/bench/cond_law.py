@@ -291,7 +291,7 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
     import matplotlib.pyplot as plt
 
     table: pd.DataFrame = summary["table"]
-    fig, (ax_p, ax_h) = plt.subplots(1, 2, figsize=(12, 4.8))
+    fig, (ax_p, ax_h) = plt.subplots(1, 2, figsize=(12, 7.2))
     markers = {"vertices": "o", "vertices+edges": "s"}
     for (method, primal), rows in table[table["sweep"] == "fixed_Hh"].groupby(["method", "primal"], sort=False):
         rows = rows.sort_values("parts")
@@ -304,7 +304,7 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
             ax_p.plot(p, fit.cond.a + fit.cond.b * np.log(p), "--", color=color)
             ax_p.plot(p, fit.limit.a + fit.limit.b / np.sqrt(p), "-", color=color, alpha=0.6,
                       label=f"{method}: {fit.limit.a:.2f} - {-fit.limit.b:.2f} / sqrt(P) (R^2 {fit.limit.r2:.2f})")
-            ax_p.axhline(fit.limit.a, color=color, lw=0.6, alpha=0.4)
+            ax_p.axhline(fit.limit.a, color=color, lw=0.6, alpha=0.4, label=f"{method}: its limit c_inf")
         ax_p.plot(rows["parts"], rows["iterations"] / 10.0, marker=marker, linestyle=":", color=color,
                   alpha=0.5, label=f"{method} ({primal}) iterations / 10")
     ax_p.set_xscale("log", base=2)
@@ -313,7 +313,8 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
     ax_p.set_ylabel("condition number")
     ax_p.set_title(SWEEP_TITLES["fixed_Hh"])
     ax_p.grid(True, which="both", alpha=0.3)
-    ax_p.legend(fontsize=7, loc="lower right")
+    # the legends below the panels: inside they covered points (a review)
+    ax_p.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
     for (method, primal), rows in table[table["sweep"] == "fixed_P"].groupby(["method", "primal"], sort=False):
         rows = rows.sort_values("H_over_h")
         color, marker = _COLORS.get(method, "tab:gray"), markers.get(primal, "^")
@@ -322,23 +323,30 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
                   label=f"{method} ({primal}), P = {int(rows['parts'].iloc[0])}")
         if fit:
             x = np.linspace(rows["one_plus_log"].min(), rows["one_plus_log"].max(), 50)
-            ax_h.plot(x, fit.C * x ** 2, "--", color=color, label=f"{fit.C:.3f} x^2 (R^2 {fit.r2:.2f})")
+            poor = not fit.r2 > 0          # a bound C x^2 that the points do not follow: drawn faintly
+            ax_h.plot(x, fit.C * x ** 2, "--", color=color, alpha=0.3 if poor else 1.0, lw=0.8 if poor else 1.5,
+                      label=f"{fit.C:.3f} x^2 (R^2 {fit.r2:.2f})")
             ax_h.plot(x, fit.offset.a + fit.offset.b * x ** 2, "-", color=color, alpha=0.6,
                       label=f"{fit.offset.a:.2f} + {fit.offset.b:.3f} x^2 (R^2 {fit.offset.r2:.2f})")
             ax_h.plot(x, fit.exponent_c * x ** fit.exponent, ":", color=color,
                       label=f"{fit.exponent_c:.2f} x^{fit.exponent:.2f} (free exponent)")
     from matplotlib.ticker import ScalarFormatter
 
+    from matplotlib.ticker import MaxNLocator, NullFormatter
+
     ax_h.set_xscale("log")
     ax_h.set_yscale("log")
     for axis in (ax_h.xaxis, ax_h.yaxis):
+        # a narrow log range has at most one decade tick: ticks at round values, labelled (the data
+        # between 1.2 and 2.6 had none; a review)
+        axis.set_major_locator(MaxNLocator(7))
         axis.set_major_formatter(ScalarFormatter())
-        axis.set_minor_formatter(ScalarFormatter())
+        axis.set_minor_formatter(NullFormatter())
     ax_h.set_xlabel("x = 1 + log(H/h),  H/h = sqrt(dofs / P)")
     ax_h.set_ylabel("condition number")
     ax_h.set_title(SWEEP_TITLES["fixed_P"])
-    ax_h.grid(True, which="both", alpha=0.3)
-    ax_h.legend(fontsize=7, loc="upper left")
+    ax_h.grid(True, which="major", alpha=0.3)
+    ax_h.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
     fig.tight_layout()
     _save(fig, path)
     return fig
