@@ -174,7 +174,7 @@ def plot_work_precision(df: pd.DataFrame, path: str | Path) -> Path:
         ok = g["converged"].astype(bool)
         mk = markers[grids.index((int(ns), int(m))) % len(markers)]
         name = "SMALBE + polish" if meth == "smalbe" and g["polished"].astype(bool).any() else LABELS.get(meth, meth)
-        label = f"{name}, N={ns}, H/h={m}, {rs}" + (f" ({int((~ok).sum())} not converged: hollow)" if (~ok).any()
+        label = f"{name}, N={ns}, H/h={m}, {rs} rules ({'solid' if rs == 'default' else 'dashed'})" + (f" ({int((~ok).sum())} not converged: hollow)" if (~ok).any()
                                                      else "")
         for ax, col in zip(axes, ("work_iterations", "seconds")):
             ax.plot(g["kkt_residual"][ok], g[col][ok], styles.get(rs, ":"), marker=mk, color=colors.get(meth, "k"),
@@ -191,7 +191,9 @@ def plot_work_precision(df: pd.DataFrame, path: str | Path) -> Path:
         ax.grid(True, which="both", alpha=0.3)
     handles, labels = axes[0].get_legend_handles_labels()
     fig.suptitle("Active set method vs SMALBE: work against accuracy (rtol / eps swept)")
-    fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=7, frameon=False)
+    # long handles: the dashes of the thesis rule set showed in the legend, not hidden behind the marker
+    # (the two rule sets' entries looked the same; a review)
+    fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=7, frameon=False, handlelength=5)
     fig.tight_layout(rect=(0, 0.06 + 0.035 * ((len(labels) + 1) // 2), 1, 1))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

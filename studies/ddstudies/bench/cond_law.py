@@ -336,12 +336,13 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
 
     ax_h.set_xscale("log")
     ax_h.set_yscale("log")
-    for axis in (ax_h.xaxis, ax_h.yaxis):
-        # a narrow log range has at most one decade tick: ticks at round values, labelled (the data
-        # between 1.2 and 2.6 had none; a review)
-        axis.set_major_locator(MaxNLocator(7))
+    for axis, (low, high) in ((ax_h.xaxis, ax_h.get_xlim()), (ax_h.yaxis, ax_h.get_ylim())):
+        # a log range within one decade has one decade tick or none: ticks at round values, labelled (the
+        # data between 1.2 and 2.6 had none; a review)
+        if 0 < low and high < 10 * low:
+            axis.set_major_locator(MaxNLocator(7))
+            axis.set_minor_formatter(NullFormatter())
         axis.set_major_formatter(ScalarFormatter())
-        axis.set_minor_formatter(NullFormatter())
     ax_h.set_xlabel("x = 1 + log(H/h),  H/h = sqrt(dofs / P)")
     ax_h.set_ylabel("condition number")
     ax_h.set_title(SWEEP_TITLES["fixed_P"])

@@ -94,8 +94,8 @@ def plot_work_precision(df: pd.DataFrame, path: str | os.PathLike | None, *, tim
                     label=f"{problem}: {method}" + (" (peer)" if peer else "")
                     + (" (+ polish where accepted)" if method == "smalbe" else ""))
             bad = ~rows["converged"].astype(bool).to_numpy()
-            if bad.any():
-                ax.plot(x[bad], y[bad], "x", color="red", markersize=10)
+            if bad.any():         # black: red is a method's colour too (a review)
+                ax.plot(x[bad], y[bad], "x", color="black", markersize=10)
         if column == "total_error":
             for problem, rows in df.groupby("problem", sort=False):
                 ax.axvline(float(rows["discretization_error"].iloc[0]), color="gray", linestyle=":",
@@ -105,13 +105,21 @@ def plot_work_precision(df: pd.DataFrame, path: str | os.PathLike | None, *, tim
         ax.invert_xaxis()
         ax.set_xlabel(label)
         ax.grid(True, which="both", alpha=0.3)
+    # a ratio range within one decade has one labelled tick or none: label round values (the peers near
+    # 1.1-1.3 had no label below 2; a review)
+    low, high = axes[0].get_ylim()
+    if 0 < low and high < 10 * low:
+        from matplotlib.ticker import MaxNLocator, NullFormatter, ScalarFormatter
+        axes[0].yaxis.set_major_locator(MaxNLocator(8))
+        axes[0].yaxis.set_major_formatter(ScalarFormatter())
+        axes[0].yaxis.set_minor_formatter(NullFormatter())
     backend = str(df["direct_backend"].iloc[0]) if "direct_backend" in df and len(df) else "direct"
     axes[0].set_ylabel(ylabel.format(backend=backend))
     handles, labels = axes[1].get_legend_handles_labels()       # below the panels: it covered data (a review)
     fig.legend(handles, labels, loc="lower center", ncol=min(4, max(len(labels), 1)), fontsize=8, frameon=False)
     kind = "CPU" if time == "cpu" else "wall"
     fig.suptitle(title or f"Work-precision: {kind} time (setup + solve) against error, one point per rtol "
-                          "(red x: not converged; dotted: discretization error)")
+                          "(black x: not converged; dotted: discretization error)")
     fig.tight_layout(rect=(0, 0.04 + 0.04 * ((len(labels) + 3) // 4), 1, 1))
     _save(fig, path)
     return fig
