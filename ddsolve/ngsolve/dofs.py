@@ -119,6 +119,10 @@ def uncompressed(fes: Any) -> tuple[Any, np.ndarray | None]:
     return space, dofs
 
 
+#: netgen's 3D element types (``Elements3D().NumPy()["type"]``) and their vertices: TET, TET10, HEX, HEX20.
+VERTICES_3D = {20: 4, 21: 4, 25: 8, 26: 8}
+
+
 def vertex_table(mesh: Any) -> np.ndarray:
     """Vertex numbers of each volume element (0-based), shape (n_elements, k).
 
@@ -131,9 +135,14 @@ def vertex_table(mesh: Any) -> np.ndarray:
         els = mesh.ngmesh.Elements3D().NumPy()
         nodes = np.asarray(els["nodes"], dtype=np.int64)
         nodes = nodes.reshape(nodes.shape[0], -1)
-        count = (nodes != 0).sum(axis=1)
-        k = int(count[0]) if count.size else 4
-        if k not in (4, 8) or (count != k).any():
+        # the vertices of netgen's element types: a second-order element (10-node tetrahedron, 20-node
+        # hexahedron) lists its edge nodes after them (counting its nodes refused those meshes; a review)
+        types = np.asarray(els["type"], dtype=np.int64)
+        lookup = np.zeros(max(VERTICES_3D) + 1, dtype=np.int64)        # 0: a type not supported
+        lookup[list(VERTICES_3D)] = list(VERTICES_3D.values())
+        vertices = np.where((types >= 0) & (types < lookup.size), lookup[np.clip(types, 0, lookup.size - 1)], 0)
+        k = int(vertices[0]) if vertices.size else 4
+        if k == 0 or (vertices != k).any():
             raise InputError("mesh", "only tetrahedral or hexahedral 3D meshes are supported (prisms, pyramids "
                                      "or mixed element types found)")
         return nodes[:, :k] - 1

@@ -162,6 +162,26 @@ def test_hexahedral_mesh(order, method, condense):
     assert inv.converged and inv.n_parts == 8 and energy < 1e-9
 
 
+@pytest.mark.parametrize("hexes", [True, False])
+def test_second_order_meshes(hexes):
+    """20-node hexahedra and 10-node tetrahedra (secondorder=True) list edge nodes after the vertices: they
+    were refused as prisms or mixed meshes (a review). Energy error against sparsecholesky."""
+    from ngsolve.meshes import MakeStructured3DMesh
+
+    mesh = MakeStructured3DMesh(hexes=hexes, nx=4, ny=4, nz=4, secondorder=True,
+                                mapping=lambda x, y, z: (x + 0.1 * y, y, z + 0.05 * x * y))
+    fes = ngs.H1(mesh, order=2, dirichlet="back")
+    u, v = fes.TnT()
+    terms = (1 + ngs.x) * ngs.grad(u) * ngs.grad(v) * ngs.dx
+    f = ngs.LinearForm(v * ngs.dx).Assemble()
+    inv = DDInverse(ngs.BilinearForm(terms), parts=4, rtol=1e-10)
+    a = ngs.BilinearForm(terms).Assemble()
+    ref = (a.mat.Inverse(fes.FreeDofs(), inverse="sparsecholesky") * f.vec).Evaluate()
+    d = ref.CreateVector()
+    d.data = ref - (inv * f.vec).Evaluate()
+    assert inv.converged and np.sqrt(ngs.InnerProduct(a.mat * d, d) / ngs.InnerProduct(a.mat * ref, ref)) < 1e-9
+
+
 def test_prisms_and_mixed_meshes_are_refused():
     from ngsolve.meshes import MakeStructured3DMesh
 
