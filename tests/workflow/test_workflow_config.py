@@ -148,6 +148,25 @@ def test_a_config_error_is_one_line_with_status_2(workdir):
     assert proc.returncode == 2 and "ddsolve: error: studies: mine (both.yaml): invalid config" in proc.stderr
 
 
+def test_more_config_errors_are_one_line(workdir):
+    """A studies entry whose file is not YAML or not a mapping (tracebacks), "nan" written as a string
+    (planned its jobs), a top-level bodies every sweep overrides (ignored): one line, exit status 2."""
+    (workdir / "broken.yaml").write_text("kind: grid\nstudy: x\nmethods: [feti\n")
+    (workdir / "list.yaml").write_text("- 1\n- 2\n")
+    cases = [(["--configfile", "s1.yaml"], "studies: p: configfile broken.yaml is not valid YAML"),
+             (["--configfile", "s2.yaml"], "studies: p: configfile list.yaml must hold a YAML mapping"),
+             (["--configfile", "config/bench.yaml", "--config", "rtols=[1e-2,nan]"],
+              "invalid config: rtols/1: must be a finite number, got nan"),
+             (["--configfile", "config/table_4.yaml", "--config", "bodies=5"],
+              "invalid config: bodies: every sweep gives its own bodies")]
+    (workdir / "s1.yaml").write_text("studies: [{name: p, configfile: broken.yaml}]\n")
+    (workdir / "s2.yaml").write_text("studies: [{name: p, configfile: list.yaml}]\n")
+    for args, message in cases:
+        proc = snakemake(workdir, "-n", "--cores", "1", *args, check=False)
+        errors = [line for line in proc.stderr.splitlines() if "error" in line.lower()]
+        assert proc.returncode == 2 and len(errors) == 1 and message in errors[0], (args, proc.stderr)
+
+
 def test_workflow_needs_an_explicit_kind(workdir):
     # a study named stress* is not a stress study: only `kind` says what a study is
     (workdir / "nokind.yaml").write_text("study: stress_like\nmethods: [bddc]\nsubdomains: [2]\nelements: [2]\n")

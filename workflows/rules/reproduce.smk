@@ -31,6 +31,12 @@ def study_config(entry):
     except OSError as err:
         config_error(f"studies: {entry['name']}: cannot read configfile {entry['configfile']}: "
                             f"{err.strerror}")
+    except (yaml.YAMLError, UnicodeDecodeError) as err:      # a traceback before (a review)
+        why = str(err).splitlines()[0] if str(err) else type(err).__name__
+        config_error(f"studies: {entry['name']}: configfile {entry['configfile']} is not valid YAML: {why}")
+    if not isinstance(study, dict):
+        config_error(f"studies: {entry['name']}: configfile {entry['configfile']} must hold a YAML mapping of "
+                     f"config keys, got a {type(study).__name__}")
     update_config(study, entry.get("set") or {})
     kind = study.get("kind")
     if "max_memory" in config and "max_memory" not in study and kind in studies_workflow.SCHEMAS:

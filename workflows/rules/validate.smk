@@ -54,7 +54,16 @@ def validate_study(data):
         raise studies_workflow.ConfigError(f"invalid config: kind: {kind!r} is not one of "
                                            f"{list(studies_workflow.SCHEMAS)} (every single-study config "
                                            f"names its kind)")
+    sweeps = data.get("sweeps")
+    if "bodies" in data and isinstance(sweeps, list) and sweeps and all(
+            isinstance(sweep, dict) and "bodies" in sweep for sweep in sweeps):
+        # the top-level bodies is only the default of a sweep without its own (a review: it was ignored)
+        raise studies_workflow.ConfigError("invalid config: bodies: every sweep gives its own bodies, so this "
+                                           "one is not used; give it in the sweeps")
     validate_config(data, studies_workflow.SCHEMAS[kind])
+    # again after the schema step, which reads strings such as "nan" (from --config or YAML 1.1) as numbers
+    # (a review: rtols [1e-2, nan] planned its jobs)
+    studies_workflow.check_finite(data)
     studies_workflow.canonical_numbers(data)   # gamma: 1.0 and gamma: 1 are the same params (no rerun)
     return kind
 

@@ -291,20 +291,22 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
     import matplotlib.pyplot as plt
 
     table: pd.DataFrame = summary["table"]
-    fig, (ax_p, ax_h) = plt.subplots(1, 2, figsize=(12, 7.2))
+    fig, (ax_p, ax_h) = plt.subplots(1, 2, figsize=(14, 7.4))
     markers = {"vertices": "o", "vertices+edges": "s"}
     for (method, primal), rows in table[table["sweep"] == "fixed_Hh"].groupby(["method", "primal"], sort=False):
         rows = rows.sort_values("parts")
         color, marker = _COLORS.get(method, "tab:gray"), markers.get(primal, "^")
         fit = summary["parts_fits"].get((method, primal))
-        label = f"{method} ({primal})" + (f": {fit.cond.a:.2f} + {fit.cond.b:.3f} log P" if fit else "")
-        ax_p.plot(rows["parts"], rows["cond"], marker=marker, linestyle="", color=color, label=label)
+        ax_p.plot(rows["parts"], rows["cond"], marker=marker, linestyle="", color=color,
+                  label=f"{method} ({primal})")
         if fit:
             p = np.geomspace(rows["parts"].min(), rows["parts"].max(), 50)
-            ax_p.plot(p, fit.cond.a + fit.cond.b * np.log(p), "--", color=color)
+            ax_p.plot(p, fit.cond.a + fit.cond.b * np.log(p), "--", color=color,
+                      label=f"{method} ({primal}): {fit.cond.a:.2f} + {fit.cond.b:.3f} log P")
             ax_p.plot(p, fit.limit.a + fit.limit.b / np.sqrt(p), "-", color=color, alpha=0.6,
-                      label=f"{method}: {fit.limit.a:.2f} - {-fit.limit.b:.2f} / sqrt(P) (R^2 {fit.limit.r2:.2f})")
-            ax_p.axhline(fit.limit.a, color=color, lw=0.6, alpha=0.4, label=f"{method}: its limit c_inf")
+                      label=f"{method} ({primal}): {fit.limit.a:.2f} - {-fit.limit.b:.2f} / sqrt(P) "
+                            f"(R^2 {fit.limit.r2:.2f})")
+            ax_p.axhline(fit.limit.a, color=color, lw=0.6, alpha=0.4, label=f"{method} ({primal}): its limit c_inf")
         ax_p.plot(rows["parts"], rows["iterations"] / 10.0, marker=marker, linestyle=":", color=color,
                   alpha=0.5, label=f"{method} ({primal}) iterations / 10")
     ax_p.set_xscale("log", base=2)
@@ -324,25 +326,23 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
         if fit:
             x = np.linspace(rows["one_plus_log"].min(), rows["one_plus_log"].max(), 50)
             poor = not fit.r2 > 0          # a bound C x^2 that the points do not follow: drawn faintly
+            name = f"{method} ({primal})"       # every entry says whose fit it is (a review)
             ax_h.plot(x, fit.C * x ** 2, "--", color=color, alpha=0.3 if poor else 1.0, lw=0.8 if poor else 1.5,
-                      label=f"{fit.C:.3f} x^2 (R^2 {fit.r2:.2f})")
+                      label=f"{name}: {fit.C:.3f} x^2 (R^2 {fit.r2:.2f})")
             ax_h.plot(x, fit.offset.a + fit.offset.b * x ** 2, "-", color=color, alpha=0.6,
-                      label=f"{fit.offset.a:.2f} + {fit.offset.b:.3f} x^2 (R^2 {fit.offset.r2:.2f})")
+                      label=f"{name}: {fit.offset.a:.2f} + {fit.offset.b:.3f} x^2 (R^2 {fit.offset.r2:.2f})")
             ax_h.plot(x, fit.exponent_c * x ** fit.exponent, ":", color=color,
-                      label=f"{fit.exponent_c:.2f} x^{fit.exponent:.2f} (free exponent)")
+                      label=f"{name}: {fit.exponent_c:.2f} x^{fit.exponent:.2f} (free exponent)")
     from matplotlib.ticker import ScalarFormatter
 
-    from matplotlib.ticker import MaxNLocator, NullFormatter
+    from ..report.plots import label_narrow_log_axis
 
     ax_h.set_xscale("log")
     ax_h.set_yscale("log")
-    for axis, (low, high) in ((ax_h.xaxis, ax_h.get_xlim()), (ax_h.yaxis, ax_h.get_ylim())):
-        # a log range within one decade has one decade tick or none: ticks at round values, labelled (the
-        # data between 1.2 and 2.6 had none; a review)
-        if 0 < low and high < 10 * low:
-            axis.set_major_locator(MaxNLocator(7))
-            axis.set_minor_formatter(NullFormatter())
+    for axis in (ax_h.xaxis, ax_h.yaxis):
         axis.set_major_formatter(ScalarFormatter())
+    label_narrow_log_axis(ax_h.xaxis, *ax_h.get_xlim())
+    label_narrow_log_axis(ax_h.yaxis, *ax_h.get_ylim())
     ax_h.set_xlabel("x = 1 + log(H/h),  H/h = sqrt(dofs / P)")
     ax_h.set_ylabel("condition number")
     ax_h.set_title(SWEEP_TITLES["fixed_P"])

@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from ..report.plots import _save
+from ..report.plots import _save, label_narrow_log_axis
 
 #: Columns of the summary, in order.
 SUMMARY_COLUMNS: tuple[str, ...] = (
@@ -107,12 +107,7 @@ def plot_work_precision(df: pd.DataFrame, path: str | os.PathLike | None, *, tim
         ax.grid(True, which="both", alpha=0.3)
     # a ratio range within one decade has one labelled tick or none: label round values (the peers near
     # 1.1-1.3 had no label below 2; a review)
-    low, high = axes[0].get_ylim()
-    if 0 < low and high < 10 * low:
-        from matplotlib.ticker import MaxNLocator, NullFormatter, ScalarFormatter
-        axes[0].yaxis.set_major_locator(MaxNLocator(8))
-        axes[0].yaxis.set_major_formatter(ScalarFormatter())
-        axes[0].yaxis.set_minor_formatter(NullFormatter())
+    label_narrow_log_axis(axes[0].yaxis, *axes[0].get_ylim())
     backend = str(df["direct_backend"].iloc[0]) if "direct_backend" in df and len(df) else "direct"
     axes[0].set_ylabel(ylabel.format(backend=backend))
     handles, labels = axes[1].get_legend_handles_labels()       # below the panels: it covered data (a review)

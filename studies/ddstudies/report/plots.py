@@ -61,6 +61,23 @@ def _save(fig, path) -> Path | None:
         plt.close(fig)
     return path
 
+def label_narrow_log_axis(axis, low: float, high: float) -> None:
+    """Label a log axis whose range ``low``..``high`` spans less than about two decades at round values
+    (1, 1.2, 1.5, 2, 2.5, 3, 4, 5, 6, 8 times a power of ten), where matplotlib labels one decade tick or
+    none (a review: the data between 1.2 and 2.6 of a panel, the ratios below 2 of another, unlabelled)."""
+    from matplotlib.ticker import LogLocator, NullFormatter, NullLocator, ScalarFormatter
+
+    if not (0 < low < high < 100 * low):
+        return
+    subs = (1.0, 1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0) if high < 10 * low else (1.0, 2.0, 5.0)
+    axis.set_major_locator(LogLocator(base=10, subs=subs))
+    formatter = ScalarFormatter()
+    formatter.set_scientific(False)
+    axis.set_major_formatter(formatter)
+    axis.set_minor_locator(NullLocator())
+    axis.set_minor_formatter(NullFormatter())
+
+
 def _finite_pairs(x, y) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(x, dtype=float).ravel()
     y = np.asarray(y, dtype=float).ravel()
