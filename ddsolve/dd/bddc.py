@@ -98,8 +98,7 @@ def solve_bddc(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
     g = gather(schur.harmonic_extension_rhs(f_W))
     setup = time.perf_counter() - t0
     if n_g == 0:            # every interface node primal, or no interface (a tiny mesh): nothing to iterate
-        kr = KrylovResult(x=np.zeros(0), converged=True, reason="no interface unknowns: solved directly",
-                          iterations=0, residuals=np.zeros(1))
+        kr = KrylovResult.solved_directly(0, "interface unknowns")
     else:
         kr = pcg(linear_operator(n_g, S_hat), g, None, rtol=rtol, maxiter=maxiter,
                  M=linear_operator(n_g, M), cond=cond)

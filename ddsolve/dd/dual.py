@@ -142,8 +142,7 @@ def solve_dual(F: Matvec, M: Matvec, d: np.ndarray, G: sp.spmatrix | None, e: np
     """
     n = d.shape[0]
     if n == 0:              # no multipliers (a tiny mesh whose parts share no node): nothing to iterate
-        kr = KrylovResult(x=np.zeros(0), converged=True, reason="no dual interface: solved directly",
-                          iterations=0, residuals=np.zeros(1))
+        kr = KrylovResult.solved_directly()
         k = 0 if G is None else G.shape[1]
         return DualSolution(lam=np.zeros(0), alpha=np.zeros(k) if k else None, krylov=kr)
     sq, F_scaled, M_scaled, d_scaled = q_scaled(F, M, d, q)

@@ -60,8 +60,7 @@ def solve_fetidp(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000,
     d = B @ primal_solver.solve(f_W)
     setup = time.perf_counter() - t0
     if n_lam == 0:          # every interface node primal (a tiny mesh): A~ is the assembled matrix
-        kr = KrylovResult(x=np.zeros(0), converged=True, reason="no dual interface: solved directly",
-                          iterations=0, residuals=np.zeros(1))
+        kr = KrylovResult.solved_directly()
     else:
         kr = pcg(linear_operator(n_lam, F), d, None, rtol=rtol, maxiter=maxiter,
                  M=linear_operator(n_lam, M), cond=cond)

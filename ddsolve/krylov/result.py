@@ -61,3 +61,11 @@ class KrylovResult:
     true_residual: float | None = None
     attained: bool | None = None
     restarts: int = 0
+
+    @classmethod
+    def solved_directly(cls, n: int = 0, what: str = "dual interface") -> "KrylovResult":
+        """The result of a system with nothing to iterate on (no ``what`` unknowns on any rank: a tiny
+        mesh whose interface nodes are all primal, or that has none): x = 0 of length ``n`` (this rank's
+        share), converged at 0 iterations; the caller's direct solves give the answer."""
+        return cls(x=np.zeros(n), converged=True, reason=f"no {what}: solved directly", iterations=0,
+                   residuals=np.zeros(1))

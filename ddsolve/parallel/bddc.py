@@ -73,8 +73,7 @@ def solve_bddc_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     mpi_at_setup = comm.counters.seconds          # the solve's MPI time starts here
     t1 = time.perf_counter()
     if n_interface == 0:    # every interface node primal, or no interface (a tiny mesh): as serial
-        kr = KrylovResult(x=np.zeros(n_g), converged=True, reason="no interface unknowns: solved directly",
-                          iterations=0, residuals=np.zeros(1))
+        kr = KrylovResult.solved_directly(n_g, "interface unknowns")
         per_iteration = (0.0, 0.0, 0.0)
     else:
         kr, per_iteration = distributed_pcg(linear_operator(n_g, S_hat), g, comm=comm, owned=shared.owned,

@@ -134,8 +134,7 @@ def distributed_solve_dual(F: Matvec, M: Matvec, d: np.ndarray, G: sp.spmatrix |
     """
     n = d.shape[0]
     if n_global == 0:       # no multipliers on any rank (a tiny mesh): nothing to iterate
-        kr = KrylovResult(x=np.zeros(n), converged=True, reason="no dual interface: solved directly",
-                          iterations=0, residuals=np.zeros(1))
+        kr = KrylovResult.solved_directly(n)
         k = 0 if G is None else G.shape[1]
         return DistributedDualSolution(lam=np.zeros(n), alpha=np.zeros(k) if k else None, krylov=kr,
                                        per_iteration=(0.0, 0.0, 0.0), krylov_seconds=0.0, coarse_seconds=0.0)

@@ -175,8 +175,7 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     n = shared.n
     t1 = time.perf_counter()
     if n_lam == 0:          # every interface node primal (a tiny mesh): A~ is the assembled matrix, as serial
-        kr = KrylovResult(x=np.zeros(n), converged=True, reason="no dual interface: solved directly",
-                          iterations=0, residuals=np.zeros(1))
+        kr = KrylovResult.solved_directly(n)
         per_iteration = (0.0, 0.0, 0.0)
     else:
         kr, per_iteration = distributed_pcg(linear_operator(n, F), d, comm=comm, owned=shared.owned,
