@@ -158,7 +158,10 @@ def test_more_config_errors_are_one_line(workdir):
              (["--configfile", "config/bench.yaml", "--config", "rtols=[1e-2,nan]"],
               "invalid config: rtols/1: must be a finite number, got nan"),
              (["--configfile", "config/table_4.yaml", "--config", "bodies=5"],
-              "invalid config: bodies: every sweep gives its own bodies")]
+              "invalid config: bodies: every sweep gives its own bodies"),
+             (["--configfile", "nokind.yaml"], "invalid config: kind: a single-study config names its kind and "
+                                                "study (e.g. kind: grid, study: mine); got elements, methods")]
+    (workdir / "nokind.yaml").write_text("methods: [bddc]\nsubdomains: [2]\nelements: [2]\n")
     (workdir / "s1.yaml").write_text("studies: [{name: p, configfile: broken.yaml}]\n")
     (workdir / "s2.yaml").write_text("studies: [{name: p, configfile: list.yaml}]\n")
     for args, message in cases:

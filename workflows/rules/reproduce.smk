@@ -16,6 +16,12 @@ import copy
 import yaml
 from snakemake.utils import update_config
 
+# keys of a single study without `kind` and `study` land here, in the reproduction's config: say what is
+# missing rather than that the studies list has unknown keys (a review)
+_STUDY_KEYS = sorted(set(config) & {"methods", "problem", "subdomains", "elements", "sweeps", "bodies", "method"})
+if _STUDY_KEYS:
+    config_error(f"invalid config: kind: a single-study config names its kind and study (e.g. kind: grid, "
+                 f"study: mine); got {', '.join(_STUDY_KEYS)} without them")
 try:
     validate_config(config, "studies")
 except studies_workflow.ConfigError as err:
