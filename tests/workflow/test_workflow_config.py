@@ -162,6 +162,8 @@ def test_more_config_errors_are_one_line(workdir):
              (["--configfile", "nokind.yaml"], "invalid config: kind: a single-study config names its kind and "
                                                 "study (e.g. kind: grid, study: mine); got elements, methods")]
     (workdir / "nokind.yaml").write_text("methods: [bddc]\nsubdomains: [2]\nelements: [2]\n")
+    cases.append((["--configfile", "mm.yaml"], "ddsolve: error: invalid config: max_memory: must be a finite number"))
+    (workdir / "mm.yaml").write_text("max_memory: .nan\nstudies: [{name: p, configfile: config/poisson.yaml}]\n")
     (workdir / "s1.yaml").write_text("studies: [{name: p, configfile: broken.yaml}]\n")
     (workdir / "s2.yaml").write_text("studies: [{name: p, configfile: list.yaml}]\n")
     for args, message in cases:

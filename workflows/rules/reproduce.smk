@@ -24,6 +24,7 @@ if _STUDY_KEYS:
                  f"study: mine); got {', '.join(_STUDY_KEYS)} without them")
 try:
     validate_config(config, "studies")
+    studies_workflow.check_finite(config)      # its own max_memory: .nan was blamed on the first entry
 except studies_workflow.ConfigError as err:
     config_error(str(err))
 
