@@ -44,7 +44,6 @@ from typing import Any, Mapping
 
 
 from .errors import InputError, brief
-from .io.cleanup import resolved_target
 from .scene_file import MAX_SCENE_BYTES, SceneLoader, read_scene  # noqa: F401  (re-exported)
 from .options import (
     CONTACTS,
@@ -449,7 +448,11 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
             raise InputError("output", f"needs a file name before '.vtu', got {brief(output)}")
         # a symbolic link is written through (ddsolve.io.cleanup.resolved_target): its target's directory
         # must exist (a review: a dangling link to nowhere/x.vtu created the directory nowhere/)
-        parent = os.path.dirname(os.path.abspath(resolved_target(output)))
+        # a symbolic link is written through (ddsolve.io.cleanup.resolved_target): its target's directory
+        # must exist (a review: a dangling link to nowhere/x.vtu created the directory nowhere/); os.path.islink,
+        # not resolved_target, whose Path.is_symlink raises on a name too long (refused below, in one line)
+        target = os.path.realpath(output) if os.path.islink(output) else output
+        parent = os.path.dirname(os.path.abspath(target))
         try:
             name_max = os.pathconf(parent, "PC_NAME_MAX") if os.path.isdir(parent) else 255
         except (OSError, ValueError):
