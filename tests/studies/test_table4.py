@@ -416,6 +416,31 @@ def test_scripts_render_reports_beyond_the_thesis(tmp_path):
     assert "(II) hybrid: a, b = (10.0, 4.0) R2=1.0000" in (tmp_path / "f.log").read_text()
 
 
+def test_tables_without_condition_estimates(tmp_path):
+    """A study with cond: false rendered Table 4.1 and the growth table with cond columns of dashes and no
+    word why (a review): the rule passes the entry without cond (``table_4_params``), the legend says why."""
+    summary = tmp_path / "summary.csv"
+    hbhs_runs().assign(cond=math.nan).to_csv(summary, index=False)
+    thesis = []
+    for name, frame in (("table_4_1", THESIS_4_1), ("table_4_2", THESIS_4_2)):
+        thesis.append(str(tmp_path / f"{name}.csv"))
+        frame.to_csv(thesis[-1], index=False)
+    out = {"md": str(tmp_path / "t.md"), "tex": str(tmp_path / "t.tex")}
+    specs = [({"method": "feti-feti", "quantities": ["iterations"], "cond": False, "title": "T"}, thesis[0]),
+             ({"method": "hybrid", "kind": "growth", "start": 4, "cond": False, "title": "G"}, thesis)]
+    for spec, inputs in specs:
+        run_script("make_table_4.py", wildcards={"study": "s"}, input={"summary": str(summary), "thesis": inputs},
+                   output=out, log=[str(tmp_path / "t.log")],
+                   params={"table": spec, "contacts": ["full", "middle"], "cases": [[2, 2, 2]], "base": [2, 2, 2]})
+        text = Path(out["md"]).read_text()
+        header = next(line for line in text.splitlines() if line.startswith("|"))
+        assert "iter" in header and "cond" not in header, header
+        assert "no condition estimates: the study sets cond: false" in text
+        assert "cond: Lanczos estimate" not in text
+    quantities = {line.split("|")[3].strip() for line in text.splitlines()[-4:]}
+    assert quantities == {"iter"}                                     # the growth rows: iterations only
+
+
 def test_poisson_study_with_several_bodies_is_rejected(workdir):
     from conftest import run_snakemake as snakemake     # not via test_pipeline: this folder runs alone too
 

@@ -156,6 +156,20 @@ def thesis_inputs(entry, default):
     return [thesis_table(name) for name in ([names] if isinstance(names, str) else names)]
 
 
+def table_4_params(name):
+    """The `tables` entry ``name`` as the table_4 script reads it (a params value).
+
+    With ``cond: false`` the study has no condition estimates: ``cond`` leaves the entry's
+    quantities and ``cond: false`` is added, so that the table has no column of dashes and its
+    legend says why (a review). With estimates the entry is unchanged (no rerun of finished tables).
+    """
+    entry = dict(config["tables"][name])
+    if not config.get("cond", True):
+        entry["quantities"] = [q for q in entry.get("quantities", ["cond", "iterations"]) if q != "cond"]
+        entry["cond"] = False
+    return studies_workflow.sorted_keys(entry)
+
+
 def figure_5_2_spec():
     """The ProblemSpec mapping of Figure 5.2: the study's shared keys, the case of `figure_5_2`."""
     spec = shared_spec(config["figure_5_2"]["method"])

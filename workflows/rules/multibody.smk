@@ -16,7 +16,7 @@ rule table_4:
     wildcard_constraints:
         table="|".join(config["tables"]),
     params:
-        table=lambda wc: studies_workflow.sorted_keys(config["tables"][wc.table]),
+        table=lambda wc: table_4_params(wc.table),
         contacts=CONTACTS,
         cases=[list(case) for case in CASES],
         base=list(CASES[0]),

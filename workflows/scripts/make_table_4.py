@@ -30,8 +30,9 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         "elements per subdomain side. Contact (I): continuity on the whole interface between "
         "bodies; (II): only on the middle third of each face between two bodies (cross points "
         "of bodies meeting at a corner inactive). "
-        + ("cond: Lanczos estimate of the condition number; " if "cond" in spec.get("quantities", ["cond"])
-           else "")
+        + ("cond: Lanczos estimate of the condition number; "
+           if spec.get("cond", True) and "cond" in spec.get("quantities", ["cond"]) else "")
+        + ("" if spec.get("cond", True) else "no condition estimates: the study sets cond: false; ")
         + "iter: Krylov iterations (stopping rule ||r_n||/||r_0|| < rtol: PCG for FETI-FETI, in ||.||_2 "
           "with the orthogonal projection under the thesis preset and on the Q-weighted residual of the "
           "projection P_Q under ddsolve's defaults, docs/methods.md; PCR for the hybrid method, in "
@@ -51,7 +52,8 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         df = one_rule_set(df)   # one run per case: the default rule set's (the study may sweep `presets`)
         runs = df[df["method"].isin(["feti-feti", "hybrid"])]
         table = hbhs_sweep_table(df, dict(zip(["feti-feti", "hybrid"], theses)), base=base,
-                                 contacts=sm.params.contacts)
+                                 contacts=sm.params.contacts,
+                                 quantities=None if spec.get("cond", True) else {"feti-feti": ["iterations"]})
         growth = hbhs_growth(df, base=base, contacts=sm.params.contacts, start=int(spec.get("start", 4)))
         shown = growth_table(growth)
         beyond = [int(k) for k in table.index
