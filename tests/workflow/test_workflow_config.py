@@ -271,6 +271,13 @@ def test_cases_are_checked_as_the_solver_checks_them():
     ({"tables": {"table_9": {"method": "feti-feti", "title": "T9"}}},
      "no transcription 'table_9' in 'config/thesis_tables' (it has ['table_4_1'"),
     ({"thesis_tables": "config/nothere"}, "no transcription 'table_4_1' in 'config/nothere' (no such folder)"),
+    # an existing transcription of another chapter failed the report job (KeyError) after the solves
+    ({"tables": {"table_4_1": {"method": "feti-feti", "title": "T", "thesis": "table_5_1"}}},
+     "ddsolve: error: invalid config: thesis: the transcription 'table_5_1' (config/thesis_tables/table_5_1.csv) "
+     "has no column inv_Hb, Hb_over_Hs, Hs_over_h"),
+    ({"figures": {"figure_4_2": {"method": "feti-feti", "x": "subdomains", "y": "cond", "title": "F",
+                               "thesis": "table_6_1"}}},
+     "the transcription 'table_6_1' (config/thesis_tables/table_6_1.csv) has no column inv_Hb"),
 ])
 def test_missing_thesis_transcriptions_are_config_errors(workdir, change, message):
     """A table without a thesis transcription, or a missing folder, ended in Snakemake's MissingInputException."""
@@ -279,7 +286,7 @@ def test_missing_thesis_transcriptions_are_config_errors(workdir, change, messag
         data[key] = {**data[key], **value} if isinstance(value, dict) else value
     (workdir / "t4.yaml").write_text(yaml.safe_dump(data))
     proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "t4.yaml", check=False)
-    assert proc.returncode != 0 and message in proc.stdout + proc.stderr
+    assert proc.returncode == 2 and message in proc.stdout + proc.stderr
 
 
 @pytest.mark.parametrize(("problems", "message"), [

@@ -150,10 +150,27 @@ def thesis_table(name):
     return path
 
 
-def thesis_inputs(entry, default):
-    """The thesis transcriptions of a `tables` / `figures` entry ("thesis": a name or a list)."""
+def thesis_inputs(entry, default, keys=()):
+    """The thesis transcriptions of a `tables` / `figures` entry ("thesis": a name or a list).
+
+    ``keys``: header columns each transcription must have; one without them is a config error
+    while planning (a review: `thesis: table_5_1` for a Chapter 4 table failed its report job
+    with a KeyError after every solve had run).
+    """
     names = entry.get("thesis", default)
-    return [thesis_table(name) for name in ([names] if isinstance(names, str) else names)]
+    paths = [thesis_table(name) for name in ([names] if isinstance(names, str) else names)]
+    for name, path in zip([names] if isinstance(names, str) else names, paths):
+        with open(path, encoding="utf-8", errors="replace") as handle:
+            header = [column.strip() for column in handle.readline().split(",")]
+        missing = [key for key in keys if key not in header]
+        if missing:
+            config_error(f"invalid config: thesis: the transcription {name!r} ({path}) has no column "
+                         f"{', '.join(missing)}: not one of the multibody tables 4.1 / 4.2")
+    return paths
+
+
+#: The row keys of a Chapter 4 transcription (ddstudies.report.tables.THESIS_KEYS).
+MULTIBODY_THESIS_KEYS = ("inv_Hb", "Hb_over_Hs", "Hs_over_h")
 
 
 def table_4_params(name):

@@ -8,7 +8,7 @@
 rule table_4:
     input:
         summary="results/{study}/summary.csv",
-        thesis=lambda wc: thesis_inputs(config["tables"][wc.table], wc.table),
+        thesis=lambda wc: thesis_inputs(config["tables"][wc.table], wc.table, MULTIBODY_THESIS_KEYS),
     output:
         md="reports/{study}/{table}.md",
         md_html=report("reports/{study}/{table}.html", caption="../report/table_4.rst", category="Chapter 4: multibody"),
@@ -36,7 +36,7 @@ rule table_4:
 rule figure_4:
     input:
         summary="results/{study}/summary.csv",
-        thesis=lambda wc: thesis_inputs(config["figures"][wc.figure], None),
+        thesis=lambda wc: thesis_inputs(config["figures"][wc.figure], None, MULTIBODY_THESIS_KEYS),
     output:
         report("reports/{study}/{figure}.png", caption="../report/figure_4.rst", category="Chapter 4: multibody"),
     wildcard_constraints:
