@@ -6,7 +6,7 @@ from ddsolve.io.joblog import job_log  # noqa: E402
 
 with job_log(snakemake.log[0]) as log:  # noqa: F821
     import csv
-    from pathlib import Path
+    import io
 
     from ddstudies.workflow import write_text
     from ddsolve.parallel.model import measured_report, mpi_report
@@ -24,12 +24,11 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         rows += contact_rows
         text += "\n## The active set method (contact problem (3.1))\n\n" + contact_text
     fields = list(dict.fromkeys(key for row in rows for key in row))
-    tmp = Path(sm.output.table + ".tmp")
-    with open(tmp, "w", newline="") as stream:
-        writer = csv.DictWriter(stream, fieldnames=fields)
-        writer.writeheader()
-        writer.writerows(rows)
-    tmp.replace(sm.output.table)
+    table = io.StringIO(newline="")
+    writer = csv.DictWriter(table, fieldnames=fields)
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text(sm.output.table, table.getvalue())
     write_text(sm.output.markdown, text)
     print(text, flush=True)
 
