@@ -19,7 +19,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: SMALBE diagnostics copied into the result (when the solver reports them).
 SMALBE_KEYS = ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty", "rho_bar", "force_error",
-               "polish", "polish_iterations", "acceptance")
+               "polish", "polish_iterations", "acceptance", "verify", "verify_iterations", "verify_lambda_change")
 
 
 def run_contact_method(method: str, problem: ContactProblem, *, rtol: float, maxiter: int,
@@ -111,7 +111,9 @@ def contact_fields(spec: ProblemSpec, sol: ContactSolution, measures: ContactMea
     ``rho_bar``, ``force_error`` = |sum(lambda) - net load| / net load, and
     ``polish`` ("accepted" / "rejected") with ``polish_iterations``, the PCG
     iterations of the FETI-FETI refinement on the active set, not in ``iterations``, and
-    ``kkt_residual_unpolished`` (given), the KKT residual of SMALBE's own iterate before any polish),
+    ``kkt_residual_unpolished`` (given), the KKT residual of SMALBE's own iterate before any polish;
+    without a polish ``verify``, ``verify_iterations`` and ``verify_lambda_change``: the check of a
+    converged SMALBE lambda by the equality solve on its active set),
     ``preset``. The result of the active set method or SMALBE is accepted (``converged``) only if its
     KKT residual is at most min(max(KKT_ACCEPT_FACTOR rtol, KKT_ACCEPT_FLOOR), KKT_ACCEPT_CEILING).
 

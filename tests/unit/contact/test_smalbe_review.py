@@ -107,3 +107,43 @@ def test_direct_accepts_its_answer_at_the_rounding_level(rho, agree):
     other = _smalbe(subdomains=4, elements=4, rho=rho)
     # measured 1.1e-7 / 2.6e-7 (1e6) and 9.2e-6 / 2.2e-5 (1e8, a rounding level of 5e-6)
     assert other.converged and other.error_vs_direct < agree and other.extra["lambda_error_vs_direct"] < 10 * agree
+
+
+def test_thesis_preset_lambda_not_resolved_on_its_active_set_is_not_converged():
+    """--preset thesis (no polish) at checkerboard 1e8, 4 x 4 subdomains, H/h = 8, rtol 1e-6: SMALBE stopped by
+    Section 6.4's rule with KKT residuals of 5e-6 (under the limit 1e-4) and its weighted penetration small,
+    lambda 38% off, and was reported converged. The equality solve on its active set (the default preset's
+    polish, here only a check) moves lambda by as much. The direct solver cycles here; the reference is the
+    active set method, which agrees with the direct solver's last iterate to 1e-10."""
+    from ddsolve.contact.active_set import solve_contact_active_set
+    from ddsolve.contact.problem import kkt_limit
+    from ddsolve.contact.smalbe_dual import solve_contact_smalbe
+    from ddsolve.presets import solver_options
+    from ddsolve.prepared import prepare
+    from ddsolve.spec import ProblemSpec
+
+    fields = dict(problem="contact", method="smalbe", subdomains=4, elements=8, rho="checkerboard:1e8", rtol=1e-6)
+    problem = prepare(ProblemSpec.from_mapping(fields)).contact
+    ref = solve_contact_active_set(problem, rtol=1e-9, pcg_rtol=1e-9)
+    assert ref.converged and problem.kkt(ref.u, ref.lam).max < 1e-8
+    thesis = solver_options("thesis", "contact", "smalbe")
+    assert thesis == {"equality_rule": "section-6.4", "rho_bar": None, "polish": False}
+    res = solve_contact_smalbe(problem, eps=1e-6, **thesis)
+    assert np.abs(res.lam - ref.lam).max() / np.abs(ref.lam).max() > 0.3             # measured 0.38
+    assert problem.kkt(res.u, res.lam).max < kkt_limit(1e-6)        # the KKT residuals alone pass it
+    assert not res.converged and "the equality solve on SMALBE's active set moves lambda by" in res.reason
+    assert res.extra["verify"].startswith("failed: lambda change") and res.extra["verify_lambda_change"] > 0.3
+    cli = solve(dict(fields, preset="thesis"))                      # the same verdict through the CLI's path
+    assert not cli.converged and cli.extra["verify_lambda_change"] > 0.3
+    default = solve_contact_smalbe(problem, eps=1e-6)               # the polish returns the resolved lambda
+    assert default.converged and np.abs(default.lam - ref.lam).max() / np.abs(ref.lam).max() < 1e-6
+
+
+def test_thesis_preset_resolved_lambda_passes_the_check():
+    """The check leaves an accurate thesis-preset answer converged (rho 1, 4 x 4, H/h = 4; the one Table 6.1
+    case that SMALBE alone passes at the thesis's 1e-5): lambda 2.4e-4 of max |lambda| from the equality
+    solve on its active set, under the limit 1e-3."""
+    res = _smalbe(subdomains=4, elements=4, f="dostal", preset="thesis")
+    assert res.converged, res.reason
+    assert res.extra["verify"] == "passed" and 1e-5 < res.extra["verify_lambda_change"] < 1e-3
+    assert res.extra["lambda_error_vs_direct"] < 1e-3
