@@ -86,6 +86,9 @@ def as_matvec(op: Any, n: int | None, name: str) -> tuple[Matvec, int]:
         func = lin.matvec
     if shape[0] != shape[1]:
         raise InputError(name, f"must be square, got shape {tuple(shape)}")
+    dtype = getattr(op, "dtype", None)
+    if dtype is not None and np.issubdtype(np.dtype(dtype), np.complexfloating):
+        raise InputError(name, "complex operators are not supported (real symmetric operators only)")
     if n is not None and shape[0] != n:
         raise InputError(name, f"has shape {tuple(shape)}, expected ({n}, {n})")
     return func, int(shape[0])
@@ -94,6 +97,8 @@ def as_matvec(op: Any, n: int | None, name: str) -> tuple[Matvec, int]:
 def apply(op: Matvec, v: np.ndarray) -> np.ndarray:
     """Apply a matvec and return a writable contiguous float64 1-D array."""
     out = np.asarray(op(v))
+    if np.iscomplexobj(out):
+        raise InputError("A", "the operator returned complex values: complex operators are not supported")
     if out.ndim != 1:
         out = out.reshape(-1)
     if out.dtype != np.float64 or not out.flags.writeable or not out.flags.c_contiguous:
@@ -108,6 +113,8 @@ def _vector(value: Any, name: str, n: int) -> np.ndarray:
     if np.iscomplexobj(arr):
         what = "right-hand sides" if name == "b" else "initial guesses"
         raise InputError(name, f"complex {what} are not supported")
+    if not (arr.ndim <= 1 or (arr.ndim == 2 and 1 in arr.shape)):
+        raise InputError(name, f"has shape {arr.shape}, expected ({n},) or ({n}, 1)")
     out = np.array(arr, dtype=np.float64).reshape(-1)
     if out.size != n:
         extra = f" (operator is {n} x {n})" if name == "b" else ""
@@ -318,7 +325,10 @@ class KrylovSolver:
             Ax0 = apply(self.A, self.x)
             r = self.b - Ax0
             self.matvecs += 1
-            self.x0_floor = X0_ROUNDING_FACTOR * np.finfo(float).eps * (self.l2norm(self.b) + self.l2norm(Ax0))
+            # the backward-error floor must be measured where the residual lives: with a projection
+            # P the part of b (and of A x0) outside range(P) says nothing about P (b - A x0)
+            pb, pax = (self.b, Ax0) if self.P is None else (apply(self.P, self.b), apply(self.P, Ax0))
+            self.x0_floor = X0_ROUNDING_FACTOR * np.finfo(float).eps * (self.l2norm(pb) + self.l2norm(pax))
         else:
             r = self.b.copy()
         if self.P is not None:
@@ -442,7 +452,9 @@ class KrylovSolver:
             matvecs, seconds and the residual histories of all cycles, the last
             cycle's ``x`` and ``true_residual``, ``restarts`` = number of cycles
             - 1, ``converged`` when the last cycle converged with a recomputed
-            residual within ``factor`` of the threshold (then ``attained``).
+            residual within ``factor`` of the threshold (then ``attained``), and
+            Lanczos estimates where the cycles have them (``cond=True``): the
+            smallest ``lambda_min`` and the largest ``lambda_max`` of the cycles.
         """
         cycles: list[KrylovResult] = []
         x = x0
@@ -487,4 +499,18 @@ class KrylovSolver:
             iterations=sum(c.iterations for c in cycles),
             residuals=np.concatenate([cycles[0].residuals] + [c.residuals[1:] for c in cycles[1:]]),
             matvecs=sum(c.matvecs for c in cycles), seconds=sum(c.seconds for c in cycles),
-            true_residual=last.true_residual, attained=ok, restarts=len(cycles) - 1)
+            true_residual=last.true_residual, attained=ok, restarts=len(cycles) - 1,
+            **_merged_estimates(cycles))
+
+
+def _merged_estimates(cycles: list[KrylovResult]) -> dict[str, float]:
+    """The Lanczos estimates of restarted cycles (those that have them): the smallest lambda_min and the
+    largest lambda_max. Each cycle's Ritz values lie inside the spectrum of the same operator, so these
+    are the best inner estimates of its ends (a review: ``restarted(..., cond=True)`` dropped them after
+    one restart)."""
+    lows = [c.lambda_min for c in cycles if c.lambda_min is not None]
+    highs = [c.lambda_max for c in cycles if c.lambda_max is not None]
+    if not lows or not highs:
+        return {}
+    lam_min, lam_max = min(lows), max(highs)
+    return {"lambda_min": lam_min, "lambda_max": lam_max, "cond": lam_max / lam_min if lam_min > 0.0 else math.inf}

@@ -102,6 +102,8 @@ def as_operator(A: Any, shape: tuple[int, int] | None, name: str) -> LinearOpera
         op = aslinearoperator(A)
     except (TypeError, ValueError) as exc:
         raise InputError(name, f"must be an ndarray, sparse matrix or LinearOperator ({exc})") from None
+    if np.issubdtype(np.dtype(op.dtype), np.complexfloating):
+        raise InputError(name, "complex operators are not supported")
     if shape is not None:
         for got, want in zip(op.shape, shape):
             if want >= 0 and got != want:
@@ -130,6 +132,8 @@ def as_vector(v: Any, n: int, name: str, *, allow_scalar: bool = False,
     allow_neg_inf : bool
         Accept ``-inf`` entries (lower bounds); NaN and ``+inf`` are always rejected.
     """
+    if np.iscomplexobj(v):
+        raise InputError(name, "complex values are not supported")
     try:
         arr = np.array(v, dtype=np.float64)
     except (TypeError, ValueError):
@@ -462,6 +466,9 @@ def mprgp(A: Any, b: Any, lb: Any, x0: Any = None, *, Gamma: float = 1.0, alpha:
         raise InputError("rtol", "rtol and atol are both 0: at least one must be positive")
     if tol is not None and not callable(tol) and check_positive("tol", tol, strict=False) == 0.0:
         raise InputError("tol", "must be positive: a zero threshold is met by no rounded gradient")
+    if tol is None and atol == 0.0 and not np.any(b):   # as smalbe: rtol ||b|| = 0 is met by no rounded gradient
+        raise InputError("atol", "b = 0 makes the stopping rule max(rtol ||b||, atol) zero, which is never met: "
+                                 "give atol > 0")
     maxiter = max(100, 10 * n) if maxiter is None else check_count("maxiter", maxiter)
     x = _start_vector(x0, lb, n)
 
@@ -493,6 +500,10 @@ def mprgp(A: Any, b: Any, lb: Any, x0: Any = None, *, Gamma: float = 1.0, alpha:
     b_s, lb_s, x_s = up(b, -sc.e), up(lb, -sc.x), up(x, -sc.x)
     g_s = matvec(x_s) - b_s
     n_hessian += 1
+    if not np.all(np.isfinite(g_s)):
+        return QPResult(x=x, converged=False, reason="breakdown: A returned non-finite values (NaN or Inf) "
+                        "at the initial gradient", iterations=0, n_hessian=n_hessian,
+                        gradient_norms=np.zeros(0), seconds=time.perf_counter() - t0, alpha=alpha)
     core = _mprgp_core(matvec, b_s, lb_s, x_s, g_s, alpha=up(alpha, sc.a), Gamma=Gamma, stop=stop,
                        maxiter=maxiter, halfstep=halfstep, g_exp=sc.e)
     x = up(core.x, sc.x)

@@ -47,14 +47,14 @@ def estimate_norm(A: Any, *, seed: int = 0, tol: float = 1e-4) -> tuple[float, i
     -------
     norm : float
         Estimate of ``||A||_2`` (0.0 for the zero operator).
+    matvecs : int
+        Multiplications by ``A`` performed.
 
     Raises
     ------
     FloatingPointError
         When a product with ``A`` is not finite (the callers name the operator: an
         :class:`~ddsolve.errors.InputError` for a user's, a breakdown for an internal one).
-    matvecs : int
-        Multiplications by ``A`` performed.
     """
     op = aslinearoperator(A)
     n = op.shape[1]

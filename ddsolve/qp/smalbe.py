@@ -152,6 +152,10 @@ def smalbe(A: Any, b: Any, lb: Any, BE: Any, c: Any = None, x0: Any = None, *,
     b = as_vector(b, n, "b")
     opA = as_operator(A, (n, n), "A")
     opB = as_operator(BE, (-1, n), "BE")
+    try:                                   # SMALBE needs BE^T (a LinearOperator may define matvec only)
+        opB.rmatvec(np.zeros(opB.shape[0]))
+    except NotImplementedError:
+        raise InputError("BE", "the operator has no transpose (rmatvec): SMALBE applies BE^T") from None
     m = opB.shape[0]
     if m == 0:
         raise InputError("BE", "must have at least one row")

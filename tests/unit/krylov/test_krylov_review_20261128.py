@@ -1,0 +1,71 @@
+"""Krylov-layer defects a black-box review (2026-11-28) reproduced on users' own operators."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ddsolve.errors import InputError
+from ddsolve.krylov import PCG, pcg, pcr
+
+
+def test_x0_with_a_projection_is_judged_by_the_projected_residual():
+    """With P, b large outside range(P) and tiny inside it, x0 = 0 (100% wrong) was accepted as 'x0 solves the
+    system to rounding' after 0 iterations: the rounding floor used the unprojected b."""
+    rng = np.random.default_rng(0)
+    n = 6
+    Q = rng.standard_normal((n, n))
+    A = Q @ Q.T + n * np.eye(n)
+    P = np.diag([0.0] + [1.0] * (n - 1))
+    b = np.r_[1e6, 1e-9 * rng.standard_normal(n - 1)]
+    Z = np.eye(n)[:, 1:]
+    exact = Z @ np.linalg.solve(Z.T @ A @ Z, Z.T @ b)
+    for solver in (pcg, pcr):
+        res = solver(A, b, np.zeros(n), P=P, rtol=1e-8)
+        assert res.converged and res.iterations > 0, res.reason
+        assert np.linalg.norm(res.x - exact) <= 1e-8 * np.linalg.norm(exact)
+
+
+@pytest.mark.parametrize("solver", [pcg, pcr])
+def test_complex_operators_are_refused(solver):
+    """A complex Hermitian A (or M) was cast to real with a ComplexWarning and reported converged, 30% off."""
+    rng = np.random.default_rng(1)
+    n = 8
+    Z = rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n))
+    H = Z @ Z.conj().T + n * np.eye(n)
+    b = rng.standard_normal(n)
+    with pytest.raises(InputError, match="^A: complex operators are not supported"):
+        solver(H, b)
+    with pytest.raises(InputError, match="^M: complex operators are not supported"):
+        solver(2.0 * np.eye(n), b, M=np.eye(n) * (1 + 1j))
+
+
+def test_an_operator_returning_complex_values_is_refused():
+    from scipy.sparse.linalg import LinearOperator
+
+    n = 4
+    op = LinearOperator((n, n), matvec=lambda v: (1 + 1j) * v, dtype=float)     # declares float, returns complex
+    with pytest.raises(InputError, match="returned complex values"):
+        pcg(op, np.ones(n))
+
+
+def test_vectors_of_another_shape_are_refused():
+    """b of shape (2, 5) for a 10 x 10 operator was flattened and solved (scipy's cg refuses it)."""
+    A = np.diag(np.arange(1.0, 11.0))
+    with pytest.raises(InputError, match=r"^b: has shape \(2, 5\), expected \(10,\) or \(10, 1\)"):
+        pcg(A, np.ones((2, 5)))
+    assert pcg(A, np.ones((10, 1))).converged
+
+
+def test_restarted_pcg_keeps_its_lanczos_estimates():
+    """After a restart the merged result had no cond, lambda_min, lambda_max; now the cycles' extreme Ritz
+    values (inner estimates of the spectrum [1, 20])."""
+    A = np.diag(np.arange(1.0, 21.0))
+    res = PCG.restarted(A, np.ones(20), rtol=1e-10, maxiter=200, restart=5, cond=True)
+    assert res.converged and res.restarts > 0
+    assert 1.0 - 1e-12 <= res.lambda_min < 2.0 and 15.0 < res.lambda_max <= 20.0 + 1e-12
+    assert res.cond == pytest.approx(res.lambda_max / res.lambda_min)
+
+
+def test_a_diverging_inconsistent_system_does_not_blame_a_missing_preconditioner():
+    res = pcg(np.diag([1.0, 2.0, 0.0]), np.ones(3))
+    assert not res.converged and "the iterates diverge" in res.reason and "preconditioner" not in res.reason
