@@ -13,8 +13,8 @@ A field whose value is its default is always accepted. A *non-default* value
 for a field that the chosen problem or method does not use is an error, never
 silently ignored:
 
-- ``contact`` (active area): problem ``multibody`` only;
-- ``rho: body-checkerboard:V``: problems with several bodies (``multibody``, ``contact``);
+- ``contact`` (active area): problem ``multibody`` only, with at least two bodies (or a ``mesh_file``);
+- ``rho: body-checkerboard:V``: problems with several bodies (``multibody`` with ``bodies >= 2`` or a ``mesh_file``, ``contact``);
 - ``f: dostal[:F1,F2]``: problem ``contact`` only;
 - ``cond``: the Krylov methods of poisson and multibody (:data:`COND_METHODS`; the
   hybrid method's PCR has no Lanczos estimate and reports none);
@@ -300,6 +300,12 @@ def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
     contact = _choice("contact", raw["contact"], CONTACTS, what="contact area")
     if contact != CONTACTS[0] and problem != "multibody":
         raise _inapplicable("contact", contact, f"the active area is a field of problem 'multibody', not {problem!r}")
+    if problem == "multibody" and bodies == 1 and raw.get("mesh_file") in (None, ""):
+        # one body: no inter-body interface (both were ignored; poisson refuses body-checkerboard already)
+        if contact != CONTACTS[0]:
+            raise _inapplicable("contact", contact, "one body has no inter-body interface (use bodies >= 2)")
+        if rho_kind == "body-checkerboard":
+            raise _inapplicable("rho", rho, "one body has nothing to alternate with (use checkerboard:V)")
     direct = method == "direct"
     scaling = _choice("scaling", raw["scaling"], SCALINGS)
     if scaling != SCALINGS[0] and direct:

@@ -112,6 +112,14 @@ class FetiFetiSolver:
         if self.floating.size:
             G = (B @ self.R).tocsc()
             e = self.R.T @ sub.f_W
+            # G^T lambda = e must be solvable: every floating body tied to a clamped one through the active
+            # pairs, as the hybrid method checks (HybridSolver.active_set). solve_dual's sparse LU does not
+            # check it (a review: four floating bodies tied only to each other gave converged=True with
+            # G^T lambda - e 25% of ||e||; no active pair at all, "Factor is exactly singular").
+            ev = np.linalg.eigvalsh((G.T @ G).toarray())        # k x k, k = floating bodies
+            if not ev.min() > 1e-10 * max(ev.max(), 1.0):
+                raise InputError("active", "G^T G is singular: some floating body is not tied to a clamped "
+                                           "body by active multipliers")
         q = projection_weights(B_D, sub.rho[sub.sub_of_W], sub.scaling, projection)
         setup = time.perf_counter() - t0
         if lam0 is not None and np.shape(lam0) != (B.shape[0],):

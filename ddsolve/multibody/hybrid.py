@@ -49,7 +49,7 @@ from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, PairJump, PrimalConstrainedSolver, linear_operator, scaled_jump
 from ..dd.projection import Projection
 from ..dd.substructure import Substructures
-from ..errors import InputError, check_tolerance
+from ..errors import InputError, check_flag, check_tolerance
 from ..krylov import PCR
 from ..krylov.pcr import NORMS
 from ..krylov.result import KrylovResult
@@ -504,6 +504,10 @@ class HybridSolver:
         if s_ol not in S_OL_FORMS:
             raise ValueError(f"unknown s_ol {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
         rtol = check_tolerance("rtol", rtol)
+        if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
+            raise InputError("maxiter", f"must be an integer >= 1, got {maxiter!r}")
+        if check is not None:
+            check = check_flag("check", check)
         if isinstance(restart, bool) or not isinstance(restart, (int, np.integer)) or restart < 1:
             raise InputError("restart", f"must be an integer >= 1, got {restart!r}")
         t0 = time.perf_counter()
