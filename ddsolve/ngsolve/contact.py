@@ -200,8 +200,14 @@ def _element_loads(f: Any, mesh: Any, elements: np.ndarray) -> np.ndarray:
     cf = _load_cf(f)
     fes = ngsolve.H1(mesh, order=1)
     v = ngsolve.Discontinuous(fes).TestFunction()
-    lf = ngsolve.LinearForm(cf * v * ngsolve.dx(bonus_intorder=1)).Assemble()
-    b = np.array(lf.vec.FV().NumPy()).reshape(-1, 3)       # element by element, in element_dofs order
+    try:
+        lf = ngsolve.LinearForm(cf * v * ngsolve.dx(bonus_intorder=1)).Assemble()
+    except Exception as exc:           # cf * v simplified away: a load NGSolve knows to be zero (0 * x, CF(0))
+        if "TestFunction" not in str(exc):
+            raise
+        lf = None
+    b = (np.zeros((len(elements), 3)) if lf is None
+         else np.array(lf.vec.FV().NumPy()).reshape(-1, 3))       # element by element, in element_dofs order
     T = element_dofs(fes)                                  # order 1: the vertex numbers
     if not np.array_equal(np.sort(T, axis=1), np.sort(elements, axis=1)):
         raise RuntimeError("the mesh's element vertices differ from netgen's element table")
@@ -235,7 +241,8 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
         Coefficient per body (a dict maps body names, "body1"/"body2" for two meshes).
     f : float, dict, pair, ngsolve.CoefficientFunction or callable
         Load: a number or one per body, or a real scalar CoefficientFunction on
-        ``mesh`` (any: of ``x``, ``y``, ``MaterialCF``, a GridFunction), or
+        ``mesh`` (any: of ``x``, ``y``, ``MaterialCF``, a GridFunction; with two meshes the function is
+        integrated on each, so it must be defined on both: a GridFunction of one mesh is refused), or
         ``f(x, y)`` called with NGSolve's coordinate functions ``ngsolve.x``, ``ngsolve.y``
         (CoefficientFunctions, not arrays: write ``IfPos(x - 1, a, b)``, not
         ``np.where(x > 1, a, b)``). A function is
@@ -283,6 +290,9 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
         if isinstance(m, ngsolve.Mesh) and m.GetCurveOrder() > 1:    # the scene has straight triangles
             raise InputError("mesh", f"curved elements (mesh.Curve({m.GetCurveOrder()})) are not supported: "
                                      "the bodies are solved on straight P1 triangles; pass the uncurved mesh")
+        if isinstance(m, ngsolve.Mesh) and m.deformation is not None:   # the scene reads the undeformed vertices
+            raise InputError("mesh", "a mesh with SetDeformation is not supported: the bodies are solved on the "
+                                     "undeformed vertices; call mesh.UnsetDeformation() or move the vertices")
     iterative = method != "direct"      # the spec refuses rtol/maxiter for a direct solve
     spec = ProblemSpec.from_mapping({"problem": "contact", "mesh": "unstructured", "method": method,
                                      "parts": int(parts), "rtol": rtol if iterative else None,
@@ -326,6 +336,12 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
         scene.f = f_b[el_body]
     elif isinstance(f, ngsolve.CoefficientFunction) or callable(f):
         if two:
+            if isinstance(f, ngsolve.GridFunction):     # NGSolve reads a GridFunction as 0 on another mesh
+                other = [i + 1 for i, m in enumerate(meshes) if f.space.mesh is not m]
+                if other:
+                    raise InputError("f", f"a GridFunction lives on one mesh, and NGSolve reads it as 0 on body "
+                                          f"{other[0]}'s mesh; give a CoefficientFunction of x, y, a number per "
+                                          f"body, or the bodies as one mesh")
             scene.f = np.concatenate([_element_loads(f, m, els) for m, els in zip(meshes, originals)])
         else:
             scene.f = _element_loads(f, mesh, data.elements)

@@ -466,9 +466,6 @@ def mprgp(A: Any, b: Any, lb: Any, x0: Any = None, *, Gamma: float = 1.0, alpha:
         raise InputError("rtol", "rtol and atol are both 0: at least one must be positive")
     if tol is not None and not callable(tol) and check_positive("tol", tol, strict=False) == 0.0:
         raise InputError("tol", "must be positive: a zero threshold is met by no rounded gradient")
-    if tol is None and atol == 0.0 and not np.any(b):   # as smalbe: rtol ||b|| = 0 is met by no rounded gradient
-        raise InputError("atol", "b = 0 makes the stopping rule max(rtol ||b||, atol) zero, which is never met: "
-                                 "give atol > 0")
     maxiter = max(100, 10 * n) if maxiter is None else check_count("maxiter", maxiter)
     x = _start_vector(x0, lb, n)
 
@@ -504,6 +501,14 @@ def mprgp(A: Any, b: Any, lb: Any, x0: Any = None, *, Gamma: float = 1.0, alpha:
         return QPResult(x=x, converged=False, reason="breakdown: A returned non-finite values (NaN or Inf) "
                         "at the initial gradient", iterations=0, n_hessian=n_hessian,
                         gradient_norms=np.zeros(0), seconds=time.perf_counter() - t0, alpha=alpha)
+    if tol is None and atol == 0.0 and not np.any(b):
+        # the rule max(rtol ||b||, atol) is 0: met by a start whose projected gradient is exactly 0 (x0 = 0 with
+        # lb <= 0: the active set method's projection at a zero load), by no rounded iterate otherwise (a review:
+        # the exact answer read as a breakdown); smalbe refuses b = 0 without atol as well
+        free = x_s > lb_s
+        if np.any(np.where(free, g_s, np.minimum(g_s, 0.0))):
+            raise InputError("atol", "b = 0 makes the stopping rule max(rtol ||b||, atol) zero, which no "
+                                     "rounded iterate meets: give atol > 0")
     core = _mprgp_core(matvec, b_s, lb_s, x_s, g_s, alpha=up(alpha, sc.a), Gamma=Gamma, stop=stop,
                        maxiter=maxiter, halfstep=halfstep, g_exp=sc.e)
     x = up(core.x, sc.x)

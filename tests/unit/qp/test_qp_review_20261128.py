@@ -29,6 +29,8 @@ def test_mprgp_with_zero_b_and_no_atol_is_refused():
     lb = np.r_[1.0, np.full(n - 1, -np.inf)]
     with pytest.raises(InputError, match="^atol: b = 0 makes the stopping rule"):
         mprgp(A, np.zeros(n), lb)
+    start = mprgp(A, np.zeros(n), 0.0)          # lb = 0: the start x = 0 is the solution, its gradient exactly 0
+    assert start.converged and start.iterations == 0 and not start.x.any()   # (the active set method's zero load)
     res = mprgp(A, np.zeros(n), lb, atol=1e-12)
     g = A @ res.x
     assert res.converged and res.x[0] == pytest.approx(1.0) and g[0] >= 0 and np.abs(g[1:]).max() < 1e-10
