@@ -245,6 +245,10 @@ def _print_result(result, as_json: bool) -> None:
         print(json.dumps(summary) if as_json else _human(summary), flush=True)
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except OSError as exc:                  # e.g. > /dev/full, a full disk: one line, not a traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        sys.stderr.write(f"ddsolve: error: output: could not write the result to stdout: {exc.strerror or exc}\n")
+        raise SystemExit(EXIT_INPUT) from None
 
 
 if __name__ == "__main__":  # pragma: no cover

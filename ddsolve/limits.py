@@ -50,7 +50,7 @@ geometry: :data:`GEOMETRY_AREA`; a mesh file: its size in bytes over
 ``parts x bodies``, and :data:`BYTES_PER_UNSTRUCTURED_NODE` per node (netgen and
 NGSolve meshes, the broken assembly, W, the batched sparse local factors; no
 dense blocks: unstructured subdomains are factored as one sparse block
-diagonal). Calibration (peak RSS by ``/usr/bin/time -v``, poisson fetidp on the
+diagonal) plus :data:`BYTES_PER_UNSTRUCTURED_PART` per subdomain. Calibration (peak RSS by ``/usr/bin/time -v``, poisson fetidp on the
 square; measured / estimated MiB)::
 
     maxh 0.02            parts 16   ndof 2798     169 / 170
@@ -97,6 +97,10 @@ GEOMETRY_AREA = {"square": 1.0, "lshape": 0.75, "hole": 1.0 - math.pi / 16.0, "m
 MESH_FILE_BYTES_PER_TRIANGLE = 60.0
 #: Peak bytes per node of an unstructured solve (meshes, assembly, W, batched sparse local factors).
 BYTES_PER_UNSTRUCTURED_NODE = 3000.0
+#: Peak bytes per METIS part of an unstructured solve (per-part index arrays, coarse space, METIS itself);
+#: measured 28 kB: maxh 0.005 (46k nodes), 100 / 2,000 / 8,000 parts: 303 / 363 / 524 MB (a review: 10,000 parts
+#: used 616 MB against an estimate of 308 MB without this term).
+BYTES_PER_UNSTRUCTURED_PART = 32e3
 #: Share of the available memory a solve may plan to use.
 MEMORY_FRACTION = 0.9
 
@@ -163,7 +167,7 @@ def _estimate_unstructured(spec: "ProblemSpec") -> Estimate:
     nodes = 0.5 * triangles + 1.0
     bodies = 2 if spec.problem == "contact" else (int(spec.bodies) ** 2 if not spec.mesh_file else 1)
     n_sub = int(spec.parts) * bodies
-    memory = BASE_BYTES + BYTES_PER_UNSTRUCTURED_NODE * nodes
+    memory = BASE_BYTES + BYTES_PER_UNSTRUCTURED_NODE * nodes + BYTES_PER_UNSTRUCTURED_PART * n_sub
     if spec.method == "direct":
         memory += BYTES_PER_DIRECT_DOF * nodes
     seconds = SECONDS_PER_SUBDOMAIN * n_sub + SECONDS_PER_W_DOF * nodes

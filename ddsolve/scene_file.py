@@ -87,7 +87,8 @@ class SceneLoader(yaml.SafeLoader):
         return construct(self, node) if pattern.fullmatch(text.strip()) else text
 
     def construct_strict_int(self, node: Any) -> Any:
-        return self._strict_number(node, _PLAIN_INT, yaml.SafeLoader.construct_yaml_int)
+        # int(text), not construct_yaml_int: YAML 1.1 reads 010 as octal 8, the flag --subdomains 010 is 10
+        return self._strict_number(node, _PLAIN_INT, lambda loader, n: int(loader.construct_scalar(n).strip()))
 
     def construct_strict_float(self, node: Any) -> Any:
         return self._strict_number(node, _PLAIN_FLOAT, yaml.SafeLoader.construct_yaml_float)

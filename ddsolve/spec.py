@@ -312,7 +312,7 @@ def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
         raise _inapplicable("scaling", scaling, "method 'direct' has no interface scaling")
     gamma = _as_positive_float("gamma", raw["gamma"])
     if gamma < 0.5:
-        raise InputError("gamma", f"must be >= 1/2 (Section 2.3), got {gamma:g}")
+        raise InputError("gamma", f"must be >= 1/2 (Section 2.3), got {gamma!r}")
     if gamma != 1.0 and (direct or scaling != "rho"):
         raise _inapplicable("gamma", gamma, "it is the exponent of the rho-scaling" if not direct
                             else "method 'direct' has no interface scaling")
@@ -325,7 +325,7 @@ def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
     default_rtol = DEFAULT_RTOL.get(problem, 1e-6)
     rtol = default_rtol if raw["rtol"] is None else _as_positive_float("rtol", raw["rtol"])
     if rtol >= 1:
-        raise InputError("rtol", f"must be in (0, 1), got {rtol:g}")
+        raise InputError("rtol", f"must be in (0, 1), got {rtol!r}")
     if rtol != default_rtol and direct:
         raise _inapplicable("rtol", rtol, "method 'direct' does not iterate")
     maxiter = _as_int("maxiter", raw["maxiter"], 1)
@@ -458,6 +458,9 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
         # must exist (a review: a dangling link to nowhere/x.vtu created the directory nowhere/); os.path.islink,
         # not resolved_target, whose Path.is_symlink raises on a name too long (refused below, in one line)
         target = os.path.realpath(output) if os.path.islink(output) else output
+        if target is not output and not target.lower().endswith(".vtu"):
+            raise InputError("output", f"{brief(output)} is a symbolic link to {brief(target)}, which is not a "
+                                       f".vtu file (the link is written through)")
         parent = os.path.dirname(os.path.abspath(target))
         try:
             name_max = os.pathconf(parent, "PC_NAME_MAX") if os.path.isdir(parent) else 255

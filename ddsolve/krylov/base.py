@@ -486,7 +486,11 @@ class KrylovSolver:
         # reached: ... > 2.9e-14" for --maxiter 1000 and rtol 1e-6): restate the last one for the whole solve
         rnorm0, rnorm = float(cycles[0].residuals[0]), float(last.residuals[-1])
         done = f"after {len(cycles) - 1} restart(s) of at most {max(int(restart), 1)} iterations"
-        if solver.outcome in (CONVERGED, MAXITER) and rnorm0 > 0 and last.reason.startswith(("converged", "maxiter")):
+        if solver.outcome == CONVERGED and not ok:
+            # the last cycle stopped on a rule that is not the tolerance (its x0 solves its system to rounding)
+            reason = (f"tolerance not attained: recomputed residual {last.true_residual:.1e} > {factor:g} x the "
+                      f"target {threshold:.1e} (rtol below the attainable accuracy) {done}")
+        elif solver.outcome in (CONVERGED, MAXITER) and rnorm0 > 0 and last.reason.startswith(("converged", "maxiter")):
             head = "converged" if solver.outcome == CONVERGED else f"maxiter {maxiter} reached"
             relation = "<=" if solver.outcome == CONVERGED else ">"
             reason = solver.label(f"{head}: ||r||/||r0|| = {rnorm / rnorm0:.1e} {relation} {threshold / rnorm0:.1e} "
