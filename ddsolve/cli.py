@@ -71,6 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="compute the Lanczos condition estimate (feti, fetidp, bddc, feti-feti; hybrid reports none)")
     s.add_argument("--check", action="store_const", const=True,
                    help="also solve directly and report the error (iterative methods)")
+    # a scene file's cond: true / check: true turned off from the command line (flags override the file)
+    s.add_argument("--no-cond", dest="cond", action="store_const", const=False, help="no condition estimate")
+    s.add_argument("--no-check", dest="check", action="store_const", const=False, help="no direct reference solve")
     s.add_argument("--preset", help="rule set: default (the project's improved rules) or thesis (the thesis's "
                                     "rules as printed: FETI/FETI-FETI orthogonal projection, active set and "
                                     "SMALBE stopping, start and removal rules; docs/methods.md)")

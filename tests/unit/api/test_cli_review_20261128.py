@@ -70,3 +70,17 @@ def test_the_memory_estimate_counts_the_metis_parts():
 
     for parts, measured in ((100, 303), (2000, 363), (8000, 524)):
         assert measured <= mb(parts) <= 1.4 * measured
+
+
+def test_flags_turn_off_a_scene_files_cond_and_check(tmp_path, capsys):
+    """cond: true and check: true in a scene file could not be turned off from the command line."""
+    import json
+
+    scene = tmp_path / "s.yaml"
+    scene.write_text("cond: true\ncheck: true\nsubdomains: 2\nelements: 2\n")
+    assert main(["solve", str(scene), "--json"]) == 0
+    on = json.loads(capsys.readouterr().out)
+    assert on["cond"] is not None and on["error_vs_direct"] is not None
+    assert main(["solve", str(scene), "--no-cond", "--no-check", "--json"]) == 0
+    off = json.loads(capsys.readouterr().out)
+    assert off["cond"] is None and off["error_vs_direct"] is None
