@@ -51,12 +51,18 @@ def energy_error(A, u: np.ndarray, u_ref: np.ndarray) -> float:
     data = getattr(A, "data", None)
     scale_a = float(np.max(np.abs(data))) if data is not None and np.size(data) else 1.0
     scale_a = math.ldexp(1.0, -math.frexp(scale_a)[1]) if scale_a > 0 else 1.0
-    e = (u - u_ref) / scale_u
+    As = A * scale_a                     # scale A before the products (A @ e underflowed at rho ~ 1e-307)
     ref_vec = u_ref / scale_u
-    ref = float(ref_vec @ (A @ ref_vec)) * scale_a
+    ref = float(ref_vec @ (As @ ref_vec))
+    e = u - u_ref
+    scale_e = float(np.max(np.abs(e))) if e.size else 0.0
+    if scale_e == 0.0:
+        return 0.0
+    scale_e = math.ldexp(1.0, math.frexp(scale_e)[1])
+    e = e / scale_e                      # the error gets its own power of two; the ratio carries it back
     if ref <= 0:
-        return float(np.linalg.norm(e) / np.linalg.norm(ref_vec))
-    return float(np.sqrt(max(float(e @ (A @ e)) * scale_a, 0.0) / ref))
+        return float(np.linalg.norm(e) / np.linalg.norm(ref_vec) * (scale_e / scale_u))
+    return float(np.sqrt(max(float(e @ (As @ e)), 0.0) / ref) * (scale_e / scale_u))
 
 
 def checked_error(A, u: np.ndarray, reference: MethodOutput) -> tuple[float | None, str]:

@@ -27,18 +27,26 @@ __all__ = ["absolute_product", "energy_error_estimate", "error_check", "judge_ou
 EPS = float(np.finfo(float).eps)
 
 
-def needs_check(rho: np.ndarray, structured: bool = True) -> bool:
+def needs_check(rho: np.ndarray, structured: bool = True, rtol: float | None = None) -> bool:
     """Whether the final error check runs: where the coefficient varies between subdomains, or the mesh
     is not the thesis's uniform structured grid (``structured=False``: a METIS partition of a netgen mesh
-    or a mesh file).
+    or a mesh file), or at a loose ``rtol`` (:func:`loose_tolerance`).
 
     On the structured grids with one coefficient cond <= C (1 + log H/h)^2 and the dual rule bounds the
-    error (the estimate stays orders of magnitude below its limit of 100 rtol), so the check is skipped
-    there. A general mesh can hide what a coefficient jump does: stretched elements (a mesh scaled by 1e-3
+    error (the estimate stays orders of magnitude below its limit of 100 rtol, for rtol up to 1e-3), so the
+    check is skipped there. A general mesh can hide what a coefficient jump does: stretched elements (a mesh scaled by 1e-3
     in y) made FETI stop with errors of 0.57 to 3e5 and FETI-DP with 7.7e-3 at rtol 1e-6, reported
     converged (a review of 2026-11-27)."""
     rho = np.asarray(rho, dtype=float)
-    return not structured or bool(rho.size and np.ptp(rho) > 0)
+    return not structured or bool(rho.size and np.ptp(rho) > 0) or loose_tolerance(rtol)
+
+
+def loose_tolerance(rtol: float | None) -> bool:
+    """Whether ``rtol`` is above ERROR_CAP / ERROR_FACTOR (1e-3), where the error limit is capped at ERROR_CAP
+    (0.1) rather than ERROR_FACTOR rtol: there the dual rule no longer keeps the error of u under the limit
+    (a review: rtol 0.5 on a constant coefficient, FETI converged with error 0.377, FETI-DP 0.336; the check
+    had been skipped)."""
+    return rtol is not None and rtol * ERROR_FACTOR > ERROR_CAP
 
 
 def rounding_signs(dofs: np.ndarray) -> np.ndarray:

@@ -54,7 +54,17 @@ def projection_weights(B_D: sp.spmatrix, rho_W: np.ndarray, scaling: str, projec
         raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(DUAL_PROJECTIONS)})")
     if projection == "orthogonal" or scaling == "multiplicity":
         return None
-    return B_D.multiply(B_D) @ rho_W
+    q = B_D.multiply(B_D) @ rho_W
+    # squares of tiny delta-dagger weights (large gamma; cross points of soft subdomains among stiff ones at
+    # contrasts beyond ~1e154) underflow to q = 0, and the scaled dual problem divides by sqrt(q): 'breakdown:
+    # <r, M r> = nan at iteration 0' (a review). Any positive diagonal Q gives a valid projection: the entries
+    # that underflowed to 0 get the smallest positive one; the others are left as they are.
+    small = ~(q > 0.0)
+    if small.any():
+        if small.all():
+            return None
+        q = np.where(small, q[~small].min(), q)
+    return q
 
 
 def dual_operators(B: sp.spmatrix, B_D: sp.spmatrix, primal_solve: Matvec,

@@ -91,7 +91,7 @@ def solve_feti(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000, c
         u_W = u_W + R @ sol.alpha
     u = sub.average(u_W)
     extra = {"n_floating": int(sub.floating_sub.sum())}
-    if kr.converged and needs_check(sub.rho, sub.templates):    # the dual rule bounds the jump B u, not the error of u
+    if kr.converged and needs_check(sub.rho, sub.templates, rtol):    # the dual rule bounds the jump B u, not the error of u
         primal_solver = PrimalConstrainedSolver(sub, sub.vertex, cache)     # one more factorization
         extra["error_estimate"] = energy_error_estimate(sub, u, primal_solver, schur)
         n_fact += primal_solver.n_factorizations

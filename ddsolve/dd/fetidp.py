@@ -67,7 +67,7 @@ def solve_fetidp(sub: Substructures, *, rtol: float = 1e-6, maxiter: int = 1000,
     u_W = space.from_primal(primal_solver.solve(f_W - B.T @ kr.x))
     u = sub.average(u_W)
     extra = {"n_primal": primal_solver.n_primal}
-    if kr.converged and needs_check(sub.rho, sub.templates):    # the dual rule bounds the jump B u, not the error of u
+    if kr.converged and needs_check(sub.rho, sub.templates, rtol):    # the dual rule bounds the jump B u, not the error of u
         extra["error_estimate"] = energy_error_estimate(sub, u, primal_solver, schur, space)
     return judge_output(MethodOutput(u=u, krylov=kr, nlambda=n_lam,
                                      n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,

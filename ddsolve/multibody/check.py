@@ -217,7 +217,7 @@ def checked_output(out: MethodOutput, gi: GlobalInterface, active: np.ndarray, r
     """
     sub = gi.sub
     if check is None:
-        check = needs_check(sub.rho, sub.templates)
+        check = needs_check(sub.rho, sub.templates, rtol)
     if not check or out.krylov is None or not out.krylov.converged:
         return out
     out.extra["error_estimate"], n_fact = multibody_error_estimate(sub, gi, active, out.u)

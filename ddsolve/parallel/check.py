@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from ..dd.bddc import InterfaceMap
-from ..dd.check import EPS, absolute_product, rounding_signs
+from ..dd.check import EPS, absolute_product, loose_tolerance, rounding_signs
 from ..dd.operators import DirichletSchur
 from ..multibody.check import floating_shifts, tied_nodes, tied_scene
 from .coarse import DistributedPrimalSolver
@@ -26,10 +26,10 @@ __all__ = ["distributed_error_estimate", "distributed_needs_check", "interface_p
            "distributed_multibody_estimate"]
 
 
-def distributed_needs_check(sub, comm: CountingComm) -> bool:
+def distributed_needs_check(sub, comm: CountingComm, rtol: float | None = None) -> bool:
     """:func:`ddsolve.dd.check.needs_check` over the subdomains of all ranks (two Allreduces; none for a
-    general mesh, ``sub.templates`` False on every rank alike)."""
-    if not sub.templates:
+    general mesh, ``sub.templates`` False on every rank alike, or a loose ``rtol``, the same on every rank)."""
+    if not sub.templates or loose_tolerance(rtol):
         return True
     rho = np.asarray(sub.rho, dtype=float)
     high = comm.allreduce_scalar(float(rho.max()) if rho.size else -math.inf, op="max")

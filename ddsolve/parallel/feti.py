@@ -120,7 +120,7 @@ def solve_feti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 1000
     u = gather_solution(prob, u_W) if gather else None
     extra = {"n_floating": k}
     # as serial: the dual rule bounds the jump B u, not the error of u (FETI: one more factorization)
-    if kr.converged and distributed_needs_check(sub, comm):
+    if kr.converged and distributed_needs_check(sub, comm, rtol):
         primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs)
         extra["error_estimate"] = distributed_error_estimate(sub, u_W, primal_solver, schur, comm, prob.pieces)
         n_fact += primal_solver.n_factorizations

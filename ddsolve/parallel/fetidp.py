@@ -185,7 +185,7 @@ def solve_fetidp_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
     u = gather_solution(prob, u_W) if gather else None
     extra = {"n_primal": primal_solver.n_primal}
     # as serial: the dual rule bounds the jump B u, not the error of u (ddsolve.dd.check)
-    if kr.converged and distributed_needs_check(sub, comm):
+    if kr.converged and distributed_needs_check(sub, comm, rtol):
         extra["error_estimate"] = distributed_error_estimate(sub, u_W, primal_solver, schur, comm, prob.pieces)
     out = MethodOutput(u=u, krylov=kr, nlambda=n_lam,
                        n_factorizations=primal_solver.n_factorizations + schur.II.n_new_factorizations,

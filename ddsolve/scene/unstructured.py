@@ -667,8 +667,8 @@ def scene_from_mesh(path_or_mesh: str | os.PathLike | Any, *, bodies: Sequence[s
     _check_positive("refine", refine, integer=True, allow_zero=True)
     if isinstance(path_or_mesh, (str, os.PathLike)):     # the geometry part only where Refine() needs it
         ngmesh = load_netgen_mesh(path_or_mesh, geometry=int(refine) > 0)
-    else:
-        ngmesh = path_or_mesh
+    else:   # Refine() works in place: refine a copy, never the caller's mesh
+        ngmesh = path_or_mesh.Copy() if int(refine) > 0 else path_or_mesh
     for _ in range(int(refine)):
         ngmesh.Refine()
     data = netgen_arrays(ngmesh)
@@ -680,6 +680,9 @@ def scene_from_mesh(path_or_mesh: str | os.PathLike | Any, *, bodies: Sequence[s
                 order.append(name)
         bodies = order
     bodies = list(bodies)
+    twice = [b for i, b in enumerate(bodies) if b in bodies[:i]]
+    if twice:           # index() took the first: m1,m2,m1 was 2 bodies (a review)
+        raise InputError("bodies", f"material {twice[0]!r} is listed twice: each material is one body")
     missing = [b for b in bodies if b not in names]
     if missing:
         raise InputError("bodies", f"the mesh has no material named {missing[0]!r}; it has {sorted(set(names))}")
