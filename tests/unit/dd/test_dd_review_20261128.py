@@ -9,11 +9,11 @@ from ddsolve.errors import InputError
 
 
 @pytest.mark.parametrize("fields", [dict(gamma=40, rho="checkerboard:1e6"), dict(gamma=400, rho="checkerboard:1e3"),
-                                    dict(rho="checkerboard:1e200")])
+                                    dict(rho="checkerboard:1e200"), dict(rho="checkerboard:1e-160"),
+                                    dict(rho="checkerboard:1e-200")])
 def test_feti_solves_weights_whose_squares_underflow(fields):
     """q = (B_D .* B_D) rho underflowed to 0 at cross points and the scaled dual problem divided by sqrt(q):
-    'breakdown: <r, M r> = nan at iteration 0', errors 1.6-4.7. FETI-DP solved the same inputs. (checkerboard
-    1e-160 or 1e-200 on 3 x 3 still breaks down later, reported not converged: docs/methods.md.)"""
+    'breakdown: <r, M r> = nan at iteration 0', errors 1.6-4.7. FETI-DP solved the same inputs."""
     res = solve(dict(method="feti", subdomains=3, elements=3, check=True, **fields))
     assert res.converged, res.reason
     assert res.error_vs_direct < 1e-6
