@@ -88,10 +88,14 @@ def cluster():
     running = subprocess.run(["sinfo", "-h", "-o", "%t"], capture_output=True, text=True, timeout=30)
     already = running.returncode == 0 and re.search(r"^(idle|mix|alloc)", running.stdout, re.MULTILINE)
     if not already:
+        # OMP_NUM_THREADS=1, as a test process may have set it (ddstudies.ngsolve_bench does): the node got the
+        # CPUs of nproc, which reads it, and a 2-task job pended forever on a 1-CPU node (PartitionConfig)
         start = subprocess.run([str(ROOT / "tools" / "slurm-local.sh"), "start"], capture_output=True, text=True,
-                               timeout=120)
+                               timeout=120, env=dict(os.environ, OMP_NUM_THREADS="1"))
         if start.returncode != 0:
             pytest.skip(f"tools/slurm-local.sh start failed: {start.stderr.strip()[-300:]}")
+        node = subprocess.run(["scontrol", "show", "node"], capture_output=True, text=True, timeout=30).stdout
+        assert f"CPUTot={len(os.sched_getaffinity(0))}" in node, node
     yield
     if not already:
         subprocess.run([str(ROOT / "tools" / "slurm-local.sh"), "stop"], capture_output=True, timeout=60)
