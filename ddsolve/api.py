@@ -37,10 +37,10 @@ build_scene = scene_from_spec
 def energy_error(A, u: np.ndarray, u_ref: np.ndarray) -> float:
     """Relative energy-norm error ||u - u_ref||_A / ||u_ref||_A (l2 if u_ref has zero energy).
 
-    Both vectors are scaled by the same power of two (max |u_ref|) and ``A`` by
-    the power of two nearest its largest entry, so the quadratic forms neither
-    underflow nor overflow for solutions or coefficients anywhere in the double
-    range (the ratio is unchanged, exactly).
+    ``u_ref`` is scaled by the power of two of max |u_ref|, the error u - u_ref by its own
+    (max |u - u_ref|), and ``A`` by the power of two nearest its largest entry before the products,
+    so the quadratic forms neither underflow nor overflow for solutions, errors or coefficients
+    anywhere in the double range (the ratio is carried back exactly).
     """
     u = np.asarray(u, dtype=float)
     u_ref = np.asarray(u_ref, dtype=float)

@@ -458,7 +458,7 @@ def _validated_mesh(raw: Mapping[str, Any], problem: str) -> dict[str, Any]:
         # must exist (a review: a dangling link to nowhere/x.vtu created the directory nowhere/); os.path.islink,
         # not resolved_target, whose Path.is_symlink raises on a name too long (refused below, in one line)
         target = os.path.realpath(output) if os.path.islink(output) else output
-        if target is not output and not target.lower().endswith(".vtu"):
+        if os.path.islink(output) and not target.lower().endswith(".vtu"):
             raise InputError("output", f"{brief(output)} is a symbolic link to {brief(target)}, which is not a "
                                        f".vtu file (the link is written through)")
         parent = os.path.dirname(os.path.abspath(target))

@@ -20,7 +20,7 @@ from .bddc import InterfaceMap
 from .operators import DirichletSchur, PrimalConstrainedSolver
 from .substructure import Substructures
 
-__all__ = ["absolute_product", "energy_error_estimate", "error_check", "judge_output", "judged", "needs_check",
+__all__ = ["absolute_product", "energy_error_estimate", "error_check", "judge_output", "judged", "loose_tolerance", "needs_check",
            "rounding_signs"]
 
 #: Unit roundoff of the residual's evaluation (the rounding floor of :func:`energy_error_estimate`).

@@ -54,17 +54,24 @@ def projection_weights(B_D: sp.spmatrix, rho_W: np.ndarray, scaling: str, projec
         raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(DUAL_PROJECTIONS)})")
     if projection == "orthogonal" or scaling == "multiplicity":
         return None
-    q = B_D.multiply(B_D) @ rho_W
-    # squares of tiny delta-dagger weights (large gamma; cross points of soft subdomains among stiff ones at
-    # contrasts beyond ~1e154) underflow to q = 0, and the scaled dual problem divides by sqrt(q): 'breakdown:
-    # <r, M r> = nan at iteration 0' (a review). Any positive diagonal Q gives a valid projection: the entries
-    # that underflowed to 0 get the smallest positive one; the others are left as they are.
+    return floored_weights(B_D.multiply(B_D) @ rho_W)
+
+
+def floored_weights(q: np.ndarray) -> np.ndarray | None:
+    """The diagonal q of Q with its entries that underflowed to 0 raised to the smallest positive one (None,
+    Q = I, when all did); the others are left as they are. Every global q goes through here, serial and
+    distributed (:mod:`ddsolve.parallel.feti`, :mod:`ddsolve.parallel.fetifeti` form it on rank 0).
+
+    Squares of tiny delta-dagger weights (large gamma; cross points of soft subdomains among stiff ones at
+    contrasts beyond ~1e154) underflow to q = 0, and the scaled dual problem divides by sqrt(q): 'breakdown:
+    <r, M r> = nan at iteration 0' (a review). Any positive diagonal Q gives a valid projection.
+    """
     small = ~(q > 0.0)
-    if small.any():
-        if small.all():
-            return None
-        q = np.where(small, q[~small].min(), q)
-    return q
+    if not small.any():
+        return q
+    if small.all():
+        return None
+    return np.where(small, q[~small].min(), q)
 
 
 def dual_operators(B: sp.spmatrix, B_D: sp.spmatrix, primal_solve: Matvec,

@@ -94,11 +94,13 @@ def as_matvec(op: Any, n: int | None, name: str) -> tuple[Matvec, int]:
     return func, int(shape[0])
 
 
-def apply(op: Matvec, v: np.ndarray) -> np.ndarray:
-    """Apply a matvec and return a writable contiguous float64 1-D array."""
+def apply(op: Matvec, v: np.ndarray, name: str = "A") -> np.ndarray:
+    """Apply a matvec and return a writable contiguous float64 1-D array (``name``: the operator, for errors)."""
     out = np.asarray(op(v))
     if np.iscomplexobj(out):
-        raise InputError("A", "the operator returned complex values: complex operators are not supported")
+        if np.any(out.imag):
+            raise InputError(name, "the operator returned complex values: complex operators are not supported")
+        out = out.real             # e.g. an FFT preconditioner: complex type, real values
     if out.ndim != 1:
         out = out.reshape(-1)
     if out.dtype != np.float64 or not out.flags.writeable or not out.flags.c_contiguous:
@@ -114,7 +116,7 @@ def _vector(value: Any, name: str, n: int) -> np.ndarray:
         what = "right-hand sides" if name == "b" else "initial guesses"
         raise InputError(name, f"complex {what} are not supported")
     if not (arr.ndim <= 1 or (arr.ndim == 2 and 1 in arr.shape)):
-        raise InputError(name, f"has shape {arr.shape}, expected ({n},) or ({n}, 1)")
+        raise InputError(name, f"has shape {arr.shape}, expected ({n},), ({n}, 1) or (1, {n})")
     out = np.array(arr, dtype=np.float64).reshape(-1)
     if out.size != n:
         extra = f" (operator is {n} x {n})" if name == "b" else ""
@@ -227,12 +229,12 @@ class KrylovSolver:
         """``P A v`` (counts one operator application)."""
         self.matvecs += 1
         w = apply(self.A, v)
-        return w if self.P is None else apply(self.P, w)
+        return w if self.P is None else apply(self.P, w, "P")
 
     def precondition(self, v: np.ndarray) -> np.ndarray:
         """``P M v`` (a fresh array; ``P v`` without ``M``)."""
-        z = v.copy() if self.M is None else apply(self.M, v)
-        return z if self.P is None else apply(self.P, z)
+        z = v.copy() if self.M is None else apply(self.M, v, "M")
+        return z if self.P is None else apply(self.P, z, "P")
 
     def advance(self, rnorm: float) -> str | None:
         """Record one finished iteration with residual norm ``rnorm``; call back; stop test.
@@ -305,7 +307,7 @@ class KrylovSolver:
         """``||P (b - A x)||_2`` recomputed from ``x`` (one operator application)."""
         r = self.b - apply(self.A, x)
         if self.P is not None:
-            r = apply(self.P, r)
+            r = apply(self.P, r, "P")
         return self.l2norm(r)
 
     def result_fields(self) -> dict[str, Any]:
@@ -321,18 +323,19 @@ class KrylovSolver:
     # ----------------------------------------------------------------- solve
     def _initial_residual(self) -> np.ndarray:
         """``r_0 = P (b - A x_0)`` (no operator application when ``x0`` is None)."""
-        if self.x0_given:
+        # a zero x0 is no start (r_0 = P b exactly, no subtraction to round): iterate as for x0 = None. With a
+        # projection, b large outside range(P) made the floor below accept x0 = 0, 100% wrong, as "solved to
+        # rounding" (a review). l2norm is a global reduction under MPI: every rank decides alike.
+        if self.x0_given and self.l2norm(self.x) > 0.0:
             Ax0 = apply(self.A, self.x)
             r = self.b - Ax0
             self.matvecs += 1
-            # the backward-error floor must be measured where the residual lives: with a projection
-            # P the part of b (and of A x0) outside range(P) says nothing about P (b - A x0)
-            pb, pax = (self.b, Ax0) if self.P is None else (apply(self.P, self.b), apply(self.P, Ax0))
-            self.x0_floor = X0_ROUNDING_FACTOR * np.finfo(float).eps * (self.l2norm(pb) + self.l2norm(pax))
+            # the rounding of b - A x0 in every component; a non-diagonal P carries it into range(P)
+            self.x0_floor = X0_ROUNDING_FACTOR * np.finfo(float).eps * (self.l2norm(self.b) + self.l2norm(Ax0))
         else:
             r = self.b.copy()
         if self.P is not None:
-            r = apply(self.P, r)
+            r = apply(self.P, r, "P")
         return r
 
     def _rescale(self, r: np.ndarray) -> None:

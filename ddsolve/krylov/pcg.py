@@ -68,8 +68,12 @@ class PCG(KrylovSolver):
             z = precondition(r)
             rho_new = self.inner(r, z)
             if not (rho_new > 0.0 and math.isfinite(rho_new)):
-                why = ("preconditioner not positive definite or NaN/inf" if self.M is not None else
-                       "NaN/inf: the iterates diverge, as for a singular A and b outside its range")
+                if self.M is not None:
+                    why = "preconditioner not positive definite or NaN/inf"
+                elif not math.isfinite(rho_new):
+                    why = "NaN/inf: the iterates diverge, as for a singular A and b outside its range"
+                else:       # <r, r> of a projected residual that rounding left of non-positive norm
+                    why = "the projected residual is lost to rounding"
                 return self.breakdown(f"breakdown: <r, M r> = {rho_new:.3e} at iteration {k} ({why})")
             beta = rho_new / rho
             if betas is not None:

@@ -142,7 +142,7 @@ class PCR(KrylovSolver):
             return super().true_residual(x)
         r = self.b - apply(self.A, x)
         if self.P is not None:
-            r = apply(self.P, r)
+            r = apply(self.P, r, "P")
         return _m_norm(r, self.precondition(r), inner=self.inner, norm=self.l2norm)
 
     def label(self, reason: str) -> str:

@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..dd.common import MethodOutput
+from ..dd.dual import floored_weights
 from ..dd.feti import pinned_entries
 from ..dd.local import BatchedSolver
 from ..dd.operators import DirichletSchur
@@ -50,7 +51,7 @@ def distribute_feti(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> list
     pa, pb = jump_pairs(topo, np.ones(topo.n_W, dtype=bool))
     delta, rho = topo.delta, topo.rho
     sa, sb = topo.sub_of_W[pa], topo.sub_of_W[pb]
-    q = None if topo.scaling == "multiplicity" else delta[pb] ** 2 * rho[sa] + delta[pa] ** 2 * rho[sb]
+    q = None if topo.scaling == "multiplicity" else floored_weights(delta[pb] ** 2 * rho[sa] + delta[pa] ** 2 * rho[sb])
     sub_size = np.diff(topo.offsets).astype(float)
     floating = np.asarray(topo.floating_sub)
     out = []

@@ -47,7 +47,7 @@ import scipy.sparse as sp
 
 from ..dd.check import needs_check
 from ..dd.common import MethodOutput
-from ..dd.dual import DUAL_PROJECTIONS
+from ..dd.dual import DUAL_PROJECTIONS, floored_weights
 from ..dd.operators import DirichletSchur
 from .check import distributed_multibody_estimate, tied_pieces
 from .coarse import DistributedPrimalSolver, pinned_vertices
@@ -157,15 +157,16 @@ def distribute_fetifeti(topo, rank_of_sub: np.ndarray, size: int, spec) -> list[
     pa, pb = np.r_[la, ga], np.r_[lb, gb]
     coef_a, coef_b = np.r_[delta[lb], w[gb]], np.r_[-delta[la], -w[ga]]
     sa, sb = topo.sub_of_W[pa], topo.sub_of_W[pb]
-    q = None if topo.scaling == "multiplicity" else coef_a ** 2 * topo.rho[sa] + coef_b ** 2 * topo.rho[sb]
+    q = (None if topo.scaling == "multiplicity"
+         else floored_weights(coef_a ** 2 * topo.rho[sa] + coef_b ** 2 * topo.rho[sb]))
     body_col = np.full(topo.scene.n_bodies, -1)
     body_col[floating] = np.arange(floating.size)
     col_a, col_b = body_col[topo.body_of_sub[sa]], body_col[topo.body_of_sub[sb]]
     tilde = tilde_pieces(topo, topo.vertex & gi.mask, rank_of_sub, size)
     # the final error check (ddsolve.multibody.check) where the coefficient varies between subdomains or the mesh
     # is unstructured (ddsolve.dd.check.needs_check, as serial)
-    tied = (tied_pieces(topo, gi, active, rank_of_sub, size) if needs_check(topo.rho, spec.mesh != "unstructured")
-            else [None] * size)
+    tied = (tied_pieces(topo, gi, active, rank_of_sub, size)
+            if needs_check(topo.rho, spec.mesh != "unstructured", spec.rtol) else [None] * size)
     out = []
     for r, rows in enumerate(jump_rows(pa, pb, coef_a, coef_b, rank_of_sub[sa], rank_of_sub[sb], size)):
         lo, hi = owned_range(topo.n_sub, size, r)

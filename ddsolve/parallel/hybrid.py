@@ -139,7 +139,7 @@ def distribute_hybrid(topo, rank_of_sub: np.ndarray, size: int, spec=None) -> li
               "gamma_dofs": np.unique(topo.l2g[gamma_mask]) if spec is not None and spec.problem == "contact"
               else None}
     tied = [None] * size              # the final error check of a multibody solve (ddsolve.multibody.check)
-    if common["contact_mask"] is not None and needs_check(topo.rho, spec.mesh != "unstructured"):
+    if common["contact_mask"] is not None and needs_check(topo.rho, spec.mesh != "unstructured", spec.rtol):
         tied = tied_pieces(topo, gi, common["contact_mask"], rank_of_sub, size)
     out = []
     for r in range(size):

@@ -367,6 +367,13 @@ def test_tiny_multibody_study_end_to_end(workdir):
     assert rows[2][5] == rows[3][5] == "2.5536"   # each rule set beside the thesis's value
     assert "2.5536" in table and "Rule sets:" in table   # the computed closer-to-the-thesis note
 
+    # cond: false (common.smk table_4_params): Table 4.1 without its cond columns, and the legend says why
+    snakemake(workdir, "--cores", "2", *both, "--config", "cond=false")
+    table = (reports / "table_4_1.md").read_text()
+    header = next(line for line in table.splitlines() if line.startswith("|"))
+    assert "no condition estimates: the study sets cond: false" in table
+    assert "(I) iter" in header and "cond" not in header, header
+
 
 def run_script(name: str, **attrs) -> None:
     """Run a workflow script in-process with a stand-in ``snakemake`` object (fast; the rule

@@ -158,8 +158,9 @@ def thesis_inputs(entry, default, keys=()):
     with a KeyError after every solve had run).
     """
     names = entry.get("thesis", default)
-    paths = [thesis_table(name) for name in ([names] if isinstance(names, str) else names)]
-    for name, path in zip([names] if isinstance(names, str) else names, paths):
+    names = [names] if isinstance(names, str) else list(names)
+    paths = [thesis_table(name) for name in names]
+    for name, path in zip(names, paths):
         with open(path, encoding="utf-8", errors="replace") as handle:
             header = [column.strip() for column in handle.readline().split(",")]
         missing = [key for key in keys if key not in header]
@@ -246,10 +247,10 @@ if KIND in GRID_KINDS:
     CONTACTS = list(config.get("contacts", [])) if MULTIBODY else []
     if MULTIBODY:        # the thesis transcriptions that the tables and figures name exist (multibody.smk's inputs)
         for _table, _entry in config["tables"].items():
-            thesis_inputs(_entry, _table)
+            thesis_inputs(_entry, _table, MULTIBODY_THESIS_KEYS)
         for _entry in config["figures"].values():
             if "thesis" in _entry:
-                thesis_inputs(_entry, None)
+                thesis_inputs(_entry, None, MULTIBODY_THESIS_KEYS)
     # Every case is a valid ProblemSpec that fits the machine, before any job runs.
     CASE_SIZES = checked_cases(_case_specs())
     if CONTACT:

@@ -51,7 +51,7 @@ def test_an_operator_returning_complex_values_is_refused():
 def test_vectors_of_another_shape_are_refused():
     """b of shape (2, 5) for a 10 x 10 operator was flattened and solved (scipy's cg refuses it)."""
     A = np.diag(np.arange(1.0, 11.0))
-    with pytest.raises(InputError, match=r"^b: has shape \(2, 5\), expected \(10,\) or \(10, 1\)"):
+    with pytest.raises(InputError, match=r"^b: has shape \(2, 5\), expected \(10,\), \(10, 1\) or \(1, 10\)"):
         pcg(A, np.ones((2, 5)))
     assert pcg(A, np.ones((10, 1))).converged
 
@@ -69,3 +69,33 @@ def test_restarted_pcg_keeps_its_lanczos_estimates():
 def test_a_diverging_inconsistent_system_does_not_blame_a_missing_preconditioner():
     res = pcg(np.diag([1.0, 2.0, 0.0]), np.ones(3))
     assert not res.converged and "the iterates diverge" in res.reason and "preconditioner" not in res.reason
+
+
+@pytest.mark.parametrize("solver", [pcg, pcr])
+def test_an_exact_x0_with_a_rotated_projection_is_accepted(solver):
+    """A floor from ||P b|| + ||P A x0|| (a first fix of the x0 = 0 case) turned an exact x0 into a breakdown when P
+    is not diagonal: the rounding of b - A x0, eps ||b||, reaches range(P). The floor is eps (||b|| + ||A x0||)
+    again, and a zero x0 iterates as x0 = None (a review of the fix)."""
+    rng = np.random.default_rng(0)
+    n = 6
+    Q = rng.standard_normal((n, n))
+    A = Q @ Q.T + n * np.eye(n)
+    V, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    Z = V[:, 1:]
+    P = Z @ Z.T
+    b = 1e6 * V[:, 0] + Z @ rng.standard_normal(n - 1)
+    exact = Z @ np.linalg.solve(Z.T @ A @ Z, Z.T @ b)
+    res = solver(A, b, exact, P=P, rtol=1e-8)
+    assert res.converged and res.iterations == 0 and "x0 solves the system to rounding" in res.reason
+
+
+def test_a_complex_preconditioner_is_named_and_real_values_of_complex_type_pass():
+    from scipy.sparse.linalg import LinearOperator
+
+    n = 4
+    A = np.diag(np.arange(1.0, n + 1))
+    M = LinearOperator((n, n), matvec=lambda v: (1 + 1j) * v, dtype=float)
+    with pytest.raises(InputError, match="^M: the operator returned complex values"):
+        pcg(A, np.ones(n), M=M)
+    real_values = LinearOperator((n, n), matvec=lambda v: (v + 0j), dtype=float)     # an FFT-style M
+    assert pcg(A, np.ones(n), M=real_values).converged
