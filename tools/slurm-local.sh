@@ -27,9 +27,9 @@ start() {
     chmod 0400 /etc/munge/munge.key
     pgrep -x munged >/dev/null || su -s /bin/sh munge -c munged 2>/dev/null || munged --force
     host=$(hostname -s)
-    # not plain nproc: it reads OMP_NUM_THREADS, and a test process that had set it to 1 got a 1-CPU node on
-    # which a 2-task MPI job waited forever (PartitionConfig); the node's processors are what SLURM schedules
-    cpus=$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)
+    # the online processors, not nproc: it reads OMP_NUM_THREADS and the affinity mask, and a test process
+    # with OMP_NUM_THREADS=1 got a 1-CPU node on which a 2-task MPI job waited forever (PartitionConfig)
+    cpus=$(getconf _NPROCESSORS_ONLN)
     mem=$(awk '/MemTotal/ {print int($2 / 1024 * 0.9)}' /proc/meminfo)
     if [ -e "$CONF" ] && ! grep -q "$MARK" "$CONF"; then
         echo "slurm-local: $CONF exists and was not written by this script; not touching it" >&2; exit 3

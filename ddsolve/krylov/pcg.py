@@ -72,8 +72,9 @@ class PCG(KrylovSolver):
                     why = "preconditioner not positive definite or NaN/inf"
                 elif not math.isfinite(rho_new):
                     why = "NaN/inf: the iterates diverge, as for a singular A and b outside its range"
-                else:       # <r, r> of a projected residual that rounding left of non-positive norm
-                    why = "the projected residual is lost to rounding"
+                else:       # <r, P r> <= 0: rounding of a vanishing residual, or a P that is not a projection
+                    why = ("the residual is lost to rounding" if self.P is None else
+                           "the projected residual is lost to rounding, or P is not an orthogonal projection")
                 return self.breakdown(f"breakdown: <r, M r> = {rho_new:.3e} at iteration {k} ({why})")
             beta = rho_new / rho
             if betas is not None:

@@ -116,7 +116,7 @@ class PCR(KrylovSolver):
         if 0.0 < amax < math.inf and not -64 <= math.frexp(amax)[1] <= 64:
             scale = math.ldexp(1.0, max(-1000, min(1000, -math.frexp(amax)[1])))
         bs = b * scale if scale != 1.0 else b
-        bb = float(np.dot(bs, apply(matvec, bs)))
+        bb = float(np.dot(bs, apply(matvec, bs, "M")))
         return float(np.sqrt(abs(bb))) / scale   # a negative <F, B^{-1} F> breaks down in pcr
 
     # ------------------------------------------------------------ hooks

@@ -81,24 +81,39 @@ def _cluster_missing() -> str | None:
 @pytest.fixture(scope="module")
 def cluster():
     """A single-node SLURM cluster (tools/slurm-local.sh), started once for the module (a start right after a
-    stop could hang for minutes); stopped afterwards if this fixture started it."""
+    stop could hang for minutes); stopped afterwards if this fixture started it.
+
+    The node must have the machine's processors: ``nproc`` reads OMP_NUM_THREADS, and a test process that had
+    set it to 1 (ddstudies.ngsolve_bench does) got a 1-CPU node on which a 2-task job pended forever
+    (PartitionConfig). The start runs with OMP_NUM_THREADS=1 to keep that covered, and a running cluster of
+    another size (left by an interrupted run) is restarted."""
     reason = _cluster_missing()
     if reason:
         pytest.skip(f"no local SLURM cluster: {reason}")
+    script = str(ROOT / "tools" / "slurm-local.sh")
     running = subprocess.run(["sinfo", "-h", "-o", "%t"], capture_output=True, text=True, timeout=30)
-    already = running.returncode == 0 and re.search(r"^(idle|mix|alloc)", running.stdout, re.MULTILINE)
+    already = bool(running.returncode == 0 and re.search(r"^(idle|mix|alloc)", running.stdout, re.MULTILINE))
+    if already and _node_cpus() != os.cpu_count():
+        subprocess.run([script, "stop"], capture_output=True, timeout=60)
+        already = False
     if not already:
-        # OMP_NUM_THREADS=1, as a test process may have set it (ddstudies.ngsolve_bench does): the node got the
-        # CPUs of nproc, which reads it, and a 2-task job pended forever on a 1-CPU node (PartitionConfig)
-        start = subprocess.run([str(ROOT / "tools" / "slurm-local.sh"), "start"], capture_output=True, text=True,
-                               timeout=120, env=dict(os.environ, OMP_NUM_THREADS="1"))
+        start = subprocess.run([script, "start"], capture_output=True, text=True, timeout=120,
+                               env=dict(os.environ, OMP_NUM_THREADS="1"))
         if start.returncode != 0:
             pytest.skip(f"tools/slurm-local.sh start failed: {start.stderr.strip()[-300:]}")
-        node = subprocess.run(["scontrol", "show", "node"], capture_output=True, text=True, timeout=30).stdout
-        assert f"CPUTot={len(os.sched_getaffinity(0))}" in node, node
-    yield
-    if not already:
-        subprocess.run([str(ROOT / "tools" / "slurm-local.sh"), "stop"], capture_output=True, timeout=60)
+    try:
+        assert _node_cpus() == os.cpu_count()
+        yield
+    finally:
+        if not already:
+            subprocess.run([script, "stop"], capture_output=True, timeout=60)
+
+
+def _node_cpus() -> int | None:
+    """CPUTot of the local cluster's node (None if scontrol does not say)."""
+    node = subprocess.run(["scontrol", "show", "node"], capture_output=True, text=True, timeout=30).stdout
+    match = re.search(r"\bCPUTot=(\d+)\b", node)
+    return int(match.group(1)) if match else None
 
 
 @pytest.mark.slow

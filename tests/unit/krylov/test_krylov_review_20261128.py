@@ -99,3 +99,28 @@ def test_a_complex_preconditioner_is_named_and_real_values_of_complex_type_pass(
         pcg(A, np.ones(n), M=M)
     real_values = LinearOperator((n, n), matvec=lambda v: (v + 0j), dtype=float)     # an FFT-style M
     assert pcg(A, np.ones(n), M=real_values).converged
+
+
+@pytest.mark.parametrize("solver", [pcg, pcr])
+def test_a_nan_x0_fails_at_once(solver):
+    """The zero-x0 test read NaN > 0 as false and iterated from b with the NaN left in x (40 iterations, then
+    'non-finite iterate'); a NaN start fails at once, as before and as under MPI."""
+    n = 5
+    x0 = np.ones(n)
+    x0[2] = np.nan
+    res = solver(np.diag(np.arange(1.0, n + 1)), np.ones(n), x0)
+    assert not res.converged and res.iterations == 0 and "non-finite initial residual" in res.reason
+
+
+def test_an_fft_preconditioner_with_rounding_in_its_imaginary_part_passes():
+    """An exact circulant inverse by numpy.fft has imaginary parts of about 1e-17: real values, accepted."""
+    from scipy.sparse.linalg import LinearOperator
+
+    n = 16
+    c = np.zeros(n)
+    c[[0, 1, -1]] = [2.5, -1.0, -1.0]                  # a circulant SPD matrix
+    A = np.array([np.roll(c, k) for k in range(n)])
+    eig = np.fft.fft(c)
+    M = LinearOperator((n, n), matvec=lambda v: np.fft.ifft(np.fft.fft(v) / eig), dtype=float)
+    res = pcg(A, np.arange(1.0, n + 1), M=M, rtol=1e-12)
+    assert res.converged and res.iterations <= 2
