@@ -40,8 +40,17 @@ TOLERANCE = 1e-8
 
 
 def _differ(y: np.ndarray, z: np.ndarray) -> float:
-    scale = max(float(np.linalg.norm(y)), float(np.linalg.norm(z)))
-    return float(np.linalg.norm(y - z)) / scale if scale > 0 else 0.0
+    """||y - z|| / max(||y||, ||z||), on vectors scaled by their largest entry first (entries above 1e154
+    overflowed the norms to inf, the ratio read NaN and every check passed; a review). Non-finite entries
+    read 0 here: the NaN and Inf checks of the element matrices refuse them with their own message."""
+    y, z = np.asarray(y, dtype=float), np.asarray(z, dtype=float)
+    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
+        return 0.0
+    top = max(float(np.abs(y).max(initial=0.0)), float(np.abs(z).max(initial=0.0)))
+    if top == 0.0:
+        return 0.0
+    y, z = y / top, z / top
+    return float(np.linalg.norm(y - z)) / max(float(np.linalg.norm(y)), float(np.linalg.norm(z)))
 
 
 #: Seconds a probe of :func:`has_trial_function` may take before it is given up (then assumed True).

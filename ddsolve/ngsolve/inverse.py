@@ -592,7 +592,9 @@ class DDInverse(ngsolve.BaseMatrix):
             u_W, kr = self._fetidp.solve(f_W, self.rtol, self.maxiter, self.want_cond)
         else:
             u_W, kr = self._feti.solve(f_W, self.rtol, self.maxiter, self.want_cond)
-        self.iterations, self.residuals, self.cond = kr.iterations, kr.residuals, kr.cond
+        # the residuals of f itself (absolute, as documented): those of f / 2^e times 2^e (a review: they were
+        # the rescaled problem's, ~12 whatever the size of the load)
+        self.iterations, self.residuals, self.cond = kr.iterations, np.ldexp(kr.residuals, exponent), kr.cond
         self.converged, self.reason = kr.converged, kr.reason
         # the checks below read every free dof: with condense=True the cell dofs are solved for too (as
         # skeleton nodes where a dropped or fixed cell dof kept them from being condensed), zeroed only after
