@@ -343,6 +343,10 @@ def test_tiny_multibody_study_end_to_end(workdir):
 
     again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "tiny.yaml")
     assert "Nothing to be done" in again.stdout + again.stderr
+    # ProblemSpec's defaults written out are no change (they reran every finished case: a review)
+    again = snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "tiny.yaml",
+                      "--config", "norm=l2", "projection=orthogonal", "preset=default")
+    assert "Nothing to be done" in again.stdout + again.stderr
     (workdir / "more.yaml").write_text("sweeps: [{bodies: 2, subdomains: 2, elements: [2, 4]}]\n")
     more = planned(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "tiny.yaml", "more.yaml"))
     assert more["solve_case"] == 2  # only the new case, both contacts

@@ -204,6 +204,17 @@ def test_evidence_reports_only_for_the_thesis_coefficient(workdir, extra):
     assert ("contact_work_precision" in text) == (extra == "")
 
 
+@pytest.mark.parametrize("extra, made", [("", True), ("norm: M\n", False), ("projection: lumped\n", False)])
+def test_table_4_evidence_reports_only_for_the_thesis_rules(workdir, extra, made):
+    """The Table 4.2 evidence report solves with norm l2 and the orthogonal projection: a study with norm: M got
+    it under its own name, with counts of another norm than its table's (a review)."""
+    (workdir / "t4.yaml").write_text("methods: [hybrid]\nsweeps: [{bodies: 2, subdomains: 2, elements: 2}]\n"
+                                     + extra)
+    text = "".join(snakemake(workdir, "-n", "--cores", "1", "--configfile", "config/table_4.yaml", "t4.yaml").stdout)
+    assert "table_4_2.md" in text
+    assert ("table_4_2_optimal" in text) == made
+
+
 def test_figure_fit_model_is_checked():
     """An unknown fit model was accepted and failed the figure job (ValueError) after every solve had run."""
     data = yaml.safe_load((ROOT / "config" / "table_4.yaml").read_text())
