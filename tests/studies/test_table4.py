@@ -452,6 +452,21 @@ def test_tables_without_condition_estimates(tmp_path):
     assert quantities == {"iter"}                                     # the growth rows: iterations only
 
 
+def test_the_legend_names_the_hybrid_norm_used(tmp_path):
+    """Table 4.2's legend said ||.||_2 whatever the study's norm (a review: a norm: M study)."""
+    summary = tmp_path / "summary.csv"
+    hbhs_runs().assign(norm="M", projection="lumped").to_csv(summary, index=False)
+    thesis = tmp_path / "table_4_2.csv"
+    THESIS_4_2.to_csv(thesis, index=False)
+    out = {"md": str(tmp_path / "t.md"), "tex": str(tmp_path / "t.tex")}
+    run_script("make_table_4.py", wildcards={"study": "s"}, input={"summary": str(summary), "thesis": str(thesis)},
+               output=out, log=[str(tmp_path / "t.log")],
+               params={"table": {"method": "hybrid", "quantities": ["iterations"], "title": "T"},
+                       "contacts": ["full"], "cases": [[2, 2, 2]], "base": [2, 2, 2]})
+    text = Path(out["md"]).read_text()
+    assert "PCR for the hybrid method, in ||.||_M, projection lumped)" in text
+
+
 def test_poisson_study_with_several_bodies_is_rejected(workdir):
     from conftest import run_snakemake as snakemake     # not via test_pipeline: this folder runs alone too
 

@@ -25,6 +25,17 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     thesis_paths = [sm.input.thesis] if isinstance(sm.input.thesis, str) else list(sm.input.thesis)
     theses = [pd.read_csv(path) for path in thesis_paths]
     names = ", ".join(Path(path).name for path in thesis_paths)
+    # the hybrid method's stopping norm and projection as the runs used them (a review: a norm: M study's
+    # table said ||.||_2)
+    hybrid_runs = df[df["method"] == "hybrid"] if "method" in df.columns else df.iloc[0:0]
+
+    def _used(column: str, default: str) -> str:
+        values = sorted({str(v) for v in hybrid_runs[column].dropna()}) if column in hybrid_runs.columns else []
+        return ", ".join(values) if values else default
+
+    hybrid_norm = {"l2": "||.||_2", "M": "||.||_M"}.get(_used("norm", "l2"), _used("norm", "l2"))
+    projection = _used("projection", "orthogonal")
+    hybrid_projection = "" if projection == "orthogonal" else f", projection {projection}"
     legend = (
         "Problem (4.32): 1/H_b bodies per side, H_b/H_s subdomains per body side, H_s/h "
         "elements per subdomain side. Contact (I): continuity on the whole interface between "
@@ -36,7 +47,7 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
         + "iter: Krylov iterations (stopping rule ||r_n||/||r_0|| < rtol: PCG for FETI-FETI, in ||.||_2 "
           "with the orthogonal projection under the thesis preset and on the Q-weighted residual of the "
           "projection P_Q under ddsolve's defaults, docs/methods.md; PCR for the hybrid method, in "
-          "||.||_2); "
+          f"{hybrid_norm}{hybrid_projection}); "
           f"thesis: the value printed in the thesis ({names})"
         + ("; rule set default: ddsolve's rules, thesis: the --preset thesis rules" if len(rule_sets(df)) > 1
            else ""))
