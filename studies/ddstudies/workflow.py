@@ -432,6 +432,19 @@ def read_job_results(paths: Iterable[str | os.PathLike]) -> list[Any]:
     return out
 
 
+def with_html_twins(outputs: Iterable[str | os.PathLike]) -> list[str]:
+    """``outputs`` and, for each ``.md`` or ``.csv`` among them, its HTML copy for the report (``<stem>.html``,
+    :func:`ddstudies.report.html.write_twins`): a stale copy outlived its table when a result was deleted
+    (a review)."""
+    out: list[str] = []
+    for path in map(os.fspath, outputs):
+        out.append(path)
+        stem, ext = os.path.splitext(path)
+        if ext in (".md", ".csv") and stem + ".html" not in out:
+            out.append(stem + ".html")
+    return out
+
+
 def rebuild_below_missing(paths: Iterable[str | os.PathLike], outputs: Iterable[str | os.PathLike],
                           log=None) -> list[str]:
     """Remove ``outputs`` when one of the job results ``paths`` they are made from is missing; the removed.
@@ -444,7 +457,7 @@ def rebuild_below_missing(paths: Iterable[str | os.PathLike], outputs: Iterable[
     missing = [os.fspath(p) for p in paths if not os.path.exists(p)]
     removed = []
     if missing:
-        for out in outputs:
+        for out in with_html_twins(outputs):
             if os.path.exists(out):
                 os.remove(out)
                 removed.append(os.fspath(out))
@@ -579,7 +592,7 @@ def check_results(paths: Iterable[str | os.PathLike], summary: str | os.PathLike
     results = [path for path in recorded if path != summary_key] or summarized_files(summary)
     gone = [path for path in results if not os.path.exists(path)]
     if gone or rewritten or altered:
-        for consumer in [summary, *([manifest] if manifest else []), *consumers]:
+        for consumer in [summary, *([manifest] if manifest else []), *with_html_twins(consumers)]:
             if os.path.exists(consumer):
                 os.unlink(consumer)
                 removed.append(os.fspath(consumer))

@@ -395,6 +395,14 @@ def test_a_deleted_json_or_csv_result_removes_what_was_made_from_it(tmp_path):
     assert rebuild_below_missing(results, reports, log=lines.append) == [str(p) for p in reports]
     assert not any(p.exists() for p in reports) and results[0].exists()
     assert lines == [f"{results[1]} is missing: removed {reports[0]}, {reports[1]} to rebuild them"]
+    # the HTML copy of a table for the report goes with it (a stale table.html outlived its table: a review)
+    results[1].write_text("{}")
+    twin = tmp_path / "mpi.html"
+    for path in reports + [twin]:
+        path.write_text("{}")
+    results[1].unlink()
+    assert rebuild_below_missing(results, reports) == [str(reports[0]), str(twin), str(reports[1])]
+    assert not twin.exists()
 
 
 @pytest.mark.parametrize("change, expected", [
