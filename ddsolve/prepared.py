@@ -319,8 +319,9 @@ def prepare(spec: ProblemSpec | dict[str, Any], scene: "Scene | None" = None) ->
                              "partition": LAST_TIMINGS.get("split", 0.0) + LAST_TIMINGS.get("partition", 0.0)}
     check_scene_decomposition(spec, scene)
     rho = np.asarray(scene.rho, dtype=float)
-    if not np.all(np.isfinite(rho) & (rho > 0.0)):     # a user's scene (a spec's rho is validated)
-        bad = int(np.flatnonzero(~(np.isfinite(rho) & (rho > 0.0)))[0])
+    wrong = ~(np.isfinite(rho) & (rho > 0.0))          # a user's scene (a spec's rho is validated)
+    if wrong.any():
+        bad = int(np.flatnonzero(wrong)[0])
         raise InputError("rho", f"the scene's coefficient of subdomain {bad} is {float(rho[bad])!r}: every subdomain "
                                 f"needs a positive finite rho")
     t1 = time.perf_counter()

@@ -26,7 +26,7 @@ from ..dd.operators import DirichletSchur, PrimalConstrainedSolver
 from ..dd.substructure import Substructures
 from ..errors import InputError, check_flag, check_tolerance
 from .check import checked_output
-from .interface import GlobalInterface
+from .interface import UNTIED_MESSAGE, UNTIED_TOL, GlobalInterface
 
 
 class FetiFetiSolver:
@@ -117,9 +117,8 @@ class FetiFetiSolver:
             # check it (a review: four floating bodies tied only to each other gave converged=True with
             # G^T lambda - e 25% of ||e||; no active pair at all, "Factor is exactly singular").
             ev = np.linalg.eigvalsh((G.T @ G).toarray())        # k x k, k = floating bodies
-            if not ev.min() > 1e-10 * max(ev.max(), 1.0):
-                raise InputError("active", "G^T G is singular: some floating body is not tied to a clamped "
-                                           "body by active multipliers")
+            if not ev.min() > UNTIED_TOL * max(ev.max(), 1.0):
+                raise InputError("active", UNTIED_MESSAGE)
         q = projection_weights(B_D, sub.rho[sub.sub_of_W], sub.scaling, projection)
         setup = time.perf_counter() - t0
         if lam0 is not None and np.shape(lam0) != (B.shape[0],):

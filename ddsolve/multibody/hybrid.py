@@ -54,7 +54,7 @@ from ..krylov import PCR
 from ..krylov.pcr import NORMS
 from ..krylov.result import KrylovResult
 from .check import checked_output
-from .interface import GlobalInterface
+from .interface import UNTIED_MESSAGE, UNTIED_TOL, GlobalInterface
 from .kernel import FloatingSums
 from .spaces import ActiveSet, InterfaceSpace
 
@@ -330,9 +330,7 @@ class HybridSolver:
         cols = np.r_[column_first[column_first >= 0], column_second[column_second >= 0]]
         vals = np.r_[np.ones(int((column_first >= 0).sum())), -np.ones(int((column_second >= 0).sum()))]
         G = sp.csr_matrix((vals, (rows, cols)), shape=(n_act, n_float))
-        projection = Projection(G, singular_tol=1e-10,
-                                singular_message="G^T G is singular: some floating body is not tied to a "
-                                                 "clamped body by active multipliers")
+        projection = Projection(G, singular_tol=UNTIED_TOL, singular_message=UNTIED_MESSAGE)
         n_gamma, n_global = self.gamma_space.n, self.global_space.n
         aset = ActiveSet(
             active=active.copy(),

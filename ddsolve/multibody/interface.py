@@ -21,6 +21,12 @@ from ..scene.scene import unique_row_labels
 #: Contact areas of problem (4.32).
 from ..options import CONTACTS  # noqa: E402
 
+#: The solvability check of G^T lambda = e (G = Z B R, one column per floating body): G^T G must be regular,
+#: its smallest eigenvalue above UNTIED_TOL times max(largest, 1); the one message of the methods that check it
+#: (the hybrid method, FETI-FETI, the distributed active set method).
+UNTIED_TOL = 1e-10
+UNTIED_MESSAGE = "G^T G is singular: some floating body is not tied to a clamped body by active multipliers"
+
 
 class GlobalInterface:
     """Inter-body multipliers of a multibody :class:`Substructures`.

@@ -37,6 +37,7 @@ from ..contact.direct import ContactSolution
 from ..contact.run import ContactMeasures
 from ..dd.common import MethodOutput
 from ..dd.projection import Projection
+from ..multibody.interface import UNTIED_MESSAGE, UNTIED_TOL
 from .hybrid import DistributedHybrid
 from .kkt import distributed_kkt
 from .setup import RankProblem
@@ -110,9 +111,7 @@ class ReplicatedHybrid:
             G = sp.csr_matrix((np.r_[np.ones(int((c1 >= 0).sum())), -np.ones(int((c2 >= 0).sum()))],
                                (np.r_[r[c1 >= 0], r[c2 >= 0]], np.r_[c1[c1 >= 0], c2[c2 >= 0]])),
                               shape=(first.size, k))
-            projection = Projection(G, singular_tol=1e-10,
-                                    singular_message="G^T G is singular: some floating body is not tied to a "
-                                                     "clamped body by active multipliers")
+            projection = Projection(G, singular_tol=UNTIED_TOL, singular_message=UNTIED_MESSAGE)
         return _ReplicatedPairs(first, second, self.n_gamma, projection)
 
     def jump(self, a: _ReplicatedPairs, u: np.ndarray) -> np.ndarray:
