@@ -145,9 +145,11 @@ def _multibody_runner(method: str) -> Runner:
             from .multibody.fetifeti import FetiFetiSolver
             out = FetiFetiSolver(sub, gi).solve(active, rtol=spec.rtol, maxiter=spec.maxiter, cond=spec.cond,
                                                 **options)
-        else:  # hybrid: PCR has no Lanczos estimate, so cond stays None
+        else:  # hybrid: PCR has no Lanczos estimate, so cond stays None (said in the log)
             from .multibody.fallback import with_s_ol_fallback
-            from .multibody.hybrid import HybridSolver
+            from .multibody.hybrid import NO_COND_MESSAGE, HybridSolver
+            if spec.cond:
+                log.warning(NO_COND_MESSAGE)
             solver = HybridSolver(sub, gi)
             fallback = options.pop("s_ol_fallback", True)
             out = with_s_ol_fallback(lambda s_ol: solver.solve(active, rtol=spec.rtol, maxiter=spec.maxiter,

@@ -72,7 +72,8 @@ DEFAULT_PARTS = 4
 MAX_REFINE = 12
 #: Longest file path accepted (mesh_file, output).
 _MAX_PATH = 4096
-#: Methods that compute a Lanczos condition estimate when ``cond`` is set (hybrid: accepted, reports none).
+#: Methods that accept ``cond`` (hybrid: accepted, since the Chapter 4 studies set it for both methods; it
+#: reports none and logs a warning).
 COND_METHODS: tuple[str, ...] = ("feti", "fetidp", "bddc", "feti-feti", "hybrid")
 
 #: A decimal number: optional sign, digits with an optional point, optional exponent (no '_', no hex).

@@ -62,6 +62,10 @@ log = logging.getLogger(__name__)
 
 __all__ = ["ActiveSet", "HybridSolver", "InterfaceSpace", "PROJECTIONS", "NORMS", "RTOL_RULES", "S_OL_FORMS"]
 
+#: Logged when a hybrid solve is asked for a condition estimate (``cond=True``): it has none.
+NO_COND_MESSAGE = ("cond: the hybrid method's PCR computes no Lanczos estimate (Section 1.3), so cond stays None; "
+                   "FETI-FETI (--method feti-feti) has one")
+
 #: Stopping rules of a face solve: ||r_n|| <= rtol max(||r_0||, ||F_k||) (default) or rtol ||r_0|| (Section 4.4).
 RTOL_RULES: tuple[str, ...] = ("max", "initial")
 #: Forms of the inexact body Schur complement S~_OL in M_D^{-1} of (4.11): ``"thesis"``

@@ -28,6 +28,7 @@ distributed; ``projection="dirichlet"``/``"lumped"`` are refused under mpiexec.
 """
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -40,7 +41,7 @@ from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, linear_operator
 from ..krylov.result import KrylovResult
 from ..multibody.fallback import with_s_ol_fallback
-from ..multibody.hybrid import S_OL_FORMS, InterfaceSpace
+from ..multibody.hybrid import NO_COND_MESSAGE, S_OL_FORMS, InterfaceSpace
 from ..multibody.kernel import FloatingSums
 from .check import distributed_multibody_estimate, tied_pieces
 from .coarse import DistributedPrimalSolver, pinned_vertices
@@ -49,6 +50,8 @@ from .distribute import owned_range
 from .dual import DistributedProjection
 from .krylov import DistributedPCR, IterationCounter, Reductions
 from .setup import RankProblem, gather_solution
+
+log = logging.getLogger(__name__)
 
 __all__ = ["DistributedActiveSet", "DistributedHybrid", "DistributedSpace", "distribute_hybrid", "solve_hybrid_mpi"]
 
@@ -496,12 +499,14 @@ def solve_hybrid_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 10
                      restart: int = 100, rtol_rule: str = "max", s_ol_fallback: bool = True) -> tuple[MethodOutput, dict]:
     """The hybrid method on the ranks of ``prob.comm`` for the active set of ``prob.spec.contact``.
 
-    ``cond`` is ignored (PCR has no Lanczos estimate, as in serial). Only ``projection="orthogonal"``.
+    ``cond`` is ignored (PCR has no Lanczos estimate, as in serial; logged). Only ``projection="orthogonal"``.
     ``s_ol_fallback``: as serial (:func:`~ddsolve.multibody.fallback.with_s_ol_fallback`; every rank sees the
     same breakdown, the reductions being replicated).
     """
     if projection != "orthogonal":
         raise ValueError(f"projection {projection!r} is not distributed (only 'orthogonal')")
+    if cond:
+        log.warning(NO_COND_MESSAGE)
     hyb = DistributedHybrid(prob)
     out, info = with_s_ol_fallback(lambda s_ol: hyb.solve(hyb.contact_mask, rtol=rtol, maxiter=maxiter,
                                                           restart=restart, norm=norm, rtol_rule=rtol_rule,

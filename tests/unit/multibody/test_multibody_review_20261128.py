@@ -60,3 +60,17 @@ def test_hybrid_solve_checks_maxiter_and_check(four_by_four):
             solver.solve(active, maxiter=value)
     with pytest.raises(InputError, match="^check: must be True or False"):
         solver.solve(active, check="no")
+
+
+@pytest.mark.parametrize("method, warned", [("hybrid", True), ("feti-feti", False)])
+def test_cond_without_an_estimate_is_said(method, warned, caplog):
+    """cond=True with the hybrid method (PCR, no Lanczos estimate) returned cond None in silence; it is logged.
+    FETI-FETI computes the estimate and logs nothing of the kind."""
+    with caplog.at_level("WARNING"):
+        result = solve(ProblemSpec(problem="multibody", method=method, bodies=2, subdomains=2, elements=3, cond=True))
+    assert result.converged
+    said = [r for r in caplog.records if "computes no Lanczos estimate" in r.getMessage()]
+    assert len(said) == int(warned)
+    assert (result.cond is None) == warned
+    if not warned:
+        assert result.cond > 1.0
