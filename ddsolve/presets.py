@@ -21,8 +21,11 @@ method, and :mod:`ddsolve.api`'s runners pass them on.
       per outer iteration (default: all negative multipliers at once, ``removal="blocking"``),
       face solves stopped in the plain ||.||_2 of Section 4.4 (default: the gaps weighted
       by max rho, invariant under rho -> s rho and equal to it for rho = 1, ``face_norm="l2"``),
-      and no redo of a face solve that broke down on the indefinite S~_OL of (4.9)-(4.10)
-      (default: redone with the PSD energy form, ``s_ol_fallback=False``);
+      no redo of a face solve that broke down on the indefinite S~_OL of (4.9)-(4.10)
+      (default: redone with the PSD energy form, ``s_ol_fallback=False``), and the sign test
+      for penetration relative to ||u||_inf alone (default: also as a force, weighted by the
+      stiffness, ``sign_test="plain"``). The acceptance rule (KKT residuals, also weighted by the
+      stiffness) is the same under both presets;
     - SMALBE (Section 6.4): the stopping rule ||g^P|| <= eps ||b||, ||G lambda|| <= eps ||b||
       (default: ||G lambda|| <= eps min(||b||, ||e||), ``equality_rule="section-6.4"``),
       rho_bar = ||P F P|| (default 1, ``rho_bar=None``), no FETI-FETI polish
@@ -49,7 +52,8 @@ THESIS_OPTIONS: dict[tuple[str, str], dict[str, Any]] = {
     ("poisson", "feti"): {"projection": "orthogonal"},
     ("multibody", "feti-feti"): {"projection": "orthogonal"},
     ("contact", "active-set"): {"face_rtol_rule": "initial", "initial_active": "positive",
-                                "removal": "blocking", "face_norm": "l2", "s_ol_fallback": False},
+                                "removal": "blocking", "face_norm": "l2", "s_ol_fallback": False,
+                                "sign_test": "plain"},
     ("contact", "smalbe"): {"equality_rule": "section-6.4", "rho_bar": None, "polish": False},
     ("multibody", "hybrid"): {"s_ol_fallback": False},
 }

@@ -66,12 +66,16 @@ from ..multibody.hybrid import RTOL_RULES, S_OL_FORMS, HybridSolver
 from ..qp import mprgp
 from ..qp.result import QPResult
 from .direct import ContactSolution
-from .problem import ContactProblem, kkt_verdict
+from .problem import ContactProblem, kkt_verdict, series_stiffness
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ActiveSetHybrid", "solve_contact_active_set", "INITIAL_ACTIVE", "REMOVALS", "FACE_NORMS"]
+__all__ = ["ActiveSetHybrid", "solve_contact_active_set", "INITIAL_ACTIVE", "REMOVALS", "FACE_NORMS", "SIGN_TESTS"]
 
+#: Sign tests for penetration: ``"weighted"`` (default) (B u)_i > tol ||u||_inf or, as a force,
+#: (B u)_i w_i > tol ||D u_Gamma||_inf (D = diag K, w the pair's two sides in series); ``"plain"`` the
+#: first alone (Chapter 5 as printed).
+SIGN_TESTS: tuple[str, ...] = ("weighted", "plain")
 #: Initial active sets: {lambda^ > feasibility_tol max lambda^} (default) or {lambda^ > 0} (Chapter 5).
 INITIAL_ACTIVE: tuple[str, ...] = ("relative", "positive")
 #: Stopping norms of the face solves: l2 with the gaps weighted by max rho (default), Section 4.4's
@@ -147,6 +151,17 @@ class ActiveSetHybrid:
         c = self.coefficient_scale()
         return {"norm": "l2", "multiplier_weight": c if c > 0.0 and np.isfinite(c) else 1.0}
 
+    def gamma_stiffness(self) -> np.ndarray:
+        """|diag K| on the u_Gamma dofs, shape (n_gamma,) (replicated under mpiexec): the weights of the
+        sign test ``sign_test="weighted"``."""
+        return self.problem.stiffness()[self.hybrid.gamma_space.dofs]
+
+    def pair_stiffness(self, d_gamma: np.ndarray) -> np.ndarray:
+        """:func:`~ddsolve.contact.problem.series_stiffness` of every contact pair, shape (n_c,), from
+        ``d_gamma`` = :meth:`gamma_stiffness`."""
+        pair = self.hybrid._pair_gamma
+        return series_stiffness(d_gamma[pair[:, 0]], d_gamma[pair[:, 1]])
+
     def coefficient_scale(self) -> float:
         """max_i rho_i over all subdomains (1 without subdomains): c of ``face_norm="scaled"``."""
         rho = np.asarray(self.problem.sub.rho, dtype=float)
@@ -192,7 +207,7 @@ class ActiveSetHybrid:
               feasibility_tol: float | None = None, removal: str = "all",
               forcing: float | None = None, face_rtol_rule: str = "max",
               initial_active: str = "relative", face_norm: str = "scaled",
-              s_ol: str = "thesis", s_ol_fallback: bool = True) -> ContactSolution:
+              s_ol: str = "thesis", s_ol_fallback: bool = True, sign_test: str = "weighted") -> ContactSolution:
         """Run the active set method.
 
         Parameters
@@ -253,6 +268,14 @@ class ActiveSetHybrid:
             form for the remaining faces; ``extra["s_ol_fallback"]`` lists the face
             solves (1-based) redone. True by default; False (the thesis preset):
             the breakdown ends the run with ``converged=False``.
+        sign_test : {"weighted", "plain"}
+            The test for penetrating pairs outside the active set (:data:`SIGN_TESTS`):
+            ``"plain"`` (B u)_i > feasibility_tol ||u_Gamma||_inf (Chapter 5 as printed, the
+            thesis preset); ``"weighted"`` (default) also (B u)_i w_i > feasibility_tol
+            ||D u_Gamma||_inf, the penetration as a force (D = diag K, w_i the pair's two
+            sides in series). Under coefficient jumps a stiff pair's penetration is small
+            against the soft bodies' displacements: the plain test stopped at checkerboards
+            of 1e12 with lambda 27-150% off (a review).
 
         Returns
         -------
@@ -279,6 +302,10 @@ class ActiveSetHybrid:
             raise ValueError(f"face_norm must be one of {', '.join(FACE_NORMS)}, got {face_norm!r}")
         if s_ol not in S_OL_FORMS:
             raise ValueError(f"s_ol must be one of {', '.join(S_OL_FORMS)}, got {s_ol!r}")
+        if sign_test not in SIGN_TESTS:
+            raise ValueError(f"sign_test must be one of {', '.join(SIGN_TESTS)}, got {sign_test!r}")
+        d_gamma = self.gamma_stiffness() if sign_test == "weighted" else None
+        w_pair = self.pair_stiffness(d_gamma) if d_gamma is not None else None
         fallback_faces: list[int] = []
         broken_iterations: list[int] = []
         face_norm_options = self.face_norm_options(face_norm)
@@ -351,6 +378,10 @@ class ActiveSetHybrid:
                 u_k = u_y
                 gap = self.B(u_y)
                 penetrating = ~active & (gap > sign_tol * max(float(np.abs(u_y).max()), 1e-300))
+                if w_pair is not None:      # the penetration as a force (sign_test="weighted")
+                    force_scale = float(np.abs(d_gamma * u_y).max(initial=0.0))
+                    if force_scale > 0.0:
+                        penetrating |= ~active & (gap * w_pair > sign_tol * force_scale)
                 if not penetrating.any() and loose:
                     loose = False                   # solve this face again to rtol (warm started)
                     continue
@@ -384,12 +415,12 @@ def solve_contact_active_set(problem: ContactProblem, *, rtol: float = 1e-5, pcg
                              solver: ActiveSetHybrid | None = None, removal: str = "all",
                              face_rtol_rule: str = "max", initial_active: str = "relative",
                              face_norm: str = "scaled", s_ol: str = "thesis",
-                             s_ol_fallback: bool = True) -> ContactSolution:
+                             s_ol_fallback: bool = True, sign_test: str = "weighted") -> ContactSolution:
     """Solve (3.1) by the active set method with the hybrid method (Chapter 5).
 
     See :meth:`ActiveSetHybrid.solve` (``removal``, ``face_rtol_rule``, ``initial_active``,
-    ``s_ol_fallback``: the defaults are the project's rules, the thesis preset passes "blocking",
-    "initial", "positive", False); ``solver`` reuses its factorizations. The solution's ``seconds``
+    ``s_ol_fallback``, ``sign_test``: the defaults are the project's rules, the thesis preset passes
+    "blocking", "initial", "positive", False, "plain"); ``solver`` reuses its factorizations. The solution's ``seconds``
     include building the solver here, and ``extra["setup_seconds"]`` is that part (0 for a given
     ``solver``), so that ``seconds - setup_seconds`` is the solve phase.
     """
@@ -400,13 +431,15 @@ def solve_contact_active_set(problem: ContactProblem, *, rtol: float = 1e-5, pcg
         setup = time.perf_counter() - t0
     sol = solver.solve(rtol=rtol, pcg_rtol=pcg_rtol, maxiter=maxiter, max_outer=max_outer, removal=removal,
                        face_rtol_rule=face_rtol_rule, initial_active=initial_active, face_norm=face_norm,
-                       s_ol=s_ol, s_ol_fallback=s_ol_fallback)
+                       s_ol=s_ol, s_ol_fallback=s_ol_fallback, sign_test=sign_test)
     # seconds and extra["setup_seconds"] as every contact solver reports them: the total of this call,
     # of which the setup (the hybrid's factorizations, when built here; 0 when a built solver is reused)
     sol.seconds += setup
     sol.extra["setup_seconds"] = setup
     # the face-solve rules bound residuals, not the KKT conditions (5.5): the acceptance rule of every
     # iterative contact solve (rtol 0.5 returned a KKT residual of 0.42, lambda 200% off, "converged")
+    # and, weighted by the stiffness, pairs in the wrong set under a coefficient jump (both sign tests)
     sol.kkt = problem.kkt(sol.u, sol.lam)
-    sol.converged, sol.reason = kkt_verdict(sol.converged, sol.reason, sol.kkt.max, rtol)
+    sol.extra["kkt_weighted"] = problem.weighted_kkt(sol.u, sol.lam)
+    sol.converged, sol.reason = kkt_verdict(sol.converged, sol.reason, sol.kkt.max, rtol, sol.extra["kkt_weighted"])
     return sol

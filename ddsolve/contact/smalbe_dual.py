@@ -60,7 +60,7 @@ floating body: |sum(lam) - net| <= 10 eps net (``FORCE_FACTOR``), net =
 stationarity of :meth:`ContactProblem.kkt` of at most 100 eps
 (``STATIONARITY_FACTOR``; 1..7 eps on the Table 6.1 grids, but up to ~1e6 eps
 with coefficient jumps, since the dual rule is relative to ||b||) and a
-penetration weighted by the stiffness (:meth:`ContactProblem.weighted_feasibility`)
+penetration and complementarity weighted by the stiffness (:meth:`ContactProblem.weighted_kkt`)
 of at most :func:`~ddsolve.contact.problem.kkt_limit` (eps). The
 stopping rule guarantees the force balance (force error <= eps) for a
 converged run; failing either check turns converged into False with the
@@ -402,9 +402,9 @@ def _judge(problem: ContactProblem, res: QPResult, rec: RecoveredSolution, enfor
 
 
 def _residual(problem: ContactProblem, u: np.ndarray, lam: np.ndarray) -> float:
-    """The larger of the KKT residual (5.5) and the stiffness-weighted penetration of a pair: what the
+    """The larger of the KKT residual (5.5) and the stiffness-weighted KKT violation of a pair: what the
     polish must lower to be kept."""
-    return max(problem.kkt(u, lam).max, problem.weighted_feasibility(u))
+    return max(problem.kkt(u, lam).max, problem.weighted_kkt(u, lam))
 
 
 def _accept(problem: ContactProblem, u: np.ndarray, lam: np.ndarray, net: float, eps: float,
@@ -433,13 +433,15 @@ def _accept(problem: ContactProblem, u: np.ndarray, lam: np.ndarray, net: float,
     if not kkt.stationarity <= STATIONARITY_FACTOR * eps:
         return False, (f"KKT stationarity ||Ku - f + B^T lambda|| / (||f|| + ||B^T lambda||) = "
                        f"{kkt.stationarity:.1e} > {STATIONARITY_FACTOR:g} eps = {STATIONARITY_FACTOR * eps:.1e}")
-    # the penetration as a force (ContactProblem.weighted_feasibility): under coefficient jumps SMALBE can
-    # stop with pairs in the wrong set whose penetration the KKT feasibility, relative to ||u||_inf, misses
-    weighted = problem.weighted_feasibility(u)
-    extra["weighted_feasibility"] = weighted
+    # penetration and complementarity as forces (ContactProblem.weighted_kkt): under coefficient jumps SMALBE
+    # can stop with pairs in the wrong set whose penetration or opening the KKT residuals, relative to
+    # ||u||_inf, miss
+    weighted = problem.weighted_kkt(u, lam)
+    extra["kkt_weighted"] = weighted
     if not weighted <= kkt_limit(eps):
-        return False, (f"penetration weighted by the stiffness max (B u)_+ diag(K) / ||diag(K) u||_inf = "
-                       f"{weighted:.1e} > {kkt_limit(eps):.1e} (pairs in the wrong set under a coefficient jump?)")
+        return False, (f"KKT conditions weighted by the stiffness (max (B u)_+ w and max lambda_+ |B u| w / "
+                       f"||lambda||_inf, over ||diag(K) u||_inf) = {weighted:.1e} > {kkt_limit(eps):.1e} "
+                       f"(pairs in the wrong set under a coefficient jump?)")
     return True, ""
 
 

@@ -185,6 +185,13 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
         """
         return distributed_kkt(self.dh, self.hybrid.last_u_gamma, sol.lam)
 
+    def gamma_stiffness(self) -> np.ndarray:
+        """|diag K| on the u_Gamma dofs, replicated: the subdomains' diagonals summed on this rank's
+        u_Gamma dofs (one neighbour sum), then made replicated (one Allreduce of n_Gamma doubles)."""
+        dh = self.dh
+        d_W = np.abs(dh.prob.sub.K_W.diagonal())
+        return self.hybrid.to_global(dh.gamma.exchange.sum(dh.gamma.space.gather(d_W, None)))
+
     def coefficient_scale(self) -> float:
         """max_i rho_i over the subdomains of all ranks (one Allreduce)."""
         rho = np.asarray(self.dh.prob.sub.rho, dtype=float)

@@ -28,7 +28,11 @@ replicated contact-size arrays (lambda, n_c doubles):
   its 2-norm and ||f||_2 over the entries each rank owns
   (:class:`~ddsolve.parallel.krylov.Reductions`, scaled when the squares
   would under/overflow);
-* J(u) = sum_i (1/2 u_i^T K_i u_i - f_i^T u_i): one Allreduce of two doubles.
+* J(u) = sum_i (1/2 u_i^T K_i u_i - f_i^T u_i): one Allreduce of two doubles;
+* the KKT violation weighted by the stiffness
+  (:meth:`~ddsolve.contact.problem.ContactProblem.weighted_kkt`): |diag K| summed on u_Gamma as
+  u, ||D u||_inf in the same Allreduce(MAX) as ||u||_inf and the pairs' diagonal entries in the
+  same Allreduce as their u.
 
 Stationarity and energy differ from the serial values of the same (u, lambda)
 by the summation order of K u only (tests/unit/parallel/test_kkt_mpi.py,
@@ -44,7 +48,7 @@ import math
 
 import numpy as np
 
-from ..contact.problem import KKTResiduals
+from ..contact.problem import KKTResiduals, series_stiffness, weighted_violations
 from ..contact.run import ContactMeasures
 from ..krylov.convergence import norm2
 from .krylov import Reductions
@@ -90,22 +94,31 @@ def distributed_kkt(dh, u_gamma: np.ndarray | None, lam: np.ndarray) -> ContactM
     u_W = np.where(on_gamma, g.space.scatter(u_g), u_W)         # u_i = R_i u, consistent copies
     interior = ~on_gamma
 
-    # ||u||_inf (NaN anywhere: NaN, as np.abs(u).max() in serial), one Allreduce(MAX)
+    # |diag K| of the assembled K: summed copies on u_Gamma, one copy elsewhere (for kkt_weighted)
+    d_W = np.abs(sub.K_W.diagonal())
+    d_g = _assembled_gamma(dh, d_W, None)
+    d_W = np.where(on_gamma, g.space.scatter(d_g), d_W)
+
+    # ||u||_inf (NaN anywhere: NaN, as np.abs(u).max() in serial) and ||D u||_inf, one Allreduce(MAX)
     absu = np.abs(u_W)
     bad = bool(np.isnan(absu).any())
     local_max = float(np.max(absu, initial=0.0, where=~np.isnan(absu)))
-    both = np.empty(2)
-    comm.comm.Allreduce(np.array([local_max, float(bad)]), both, op=comm.MPI.MAX)
+    force_max = float(np.max(d_W * absu, initial=0.0, where=~np.isnan(absu)))
+    both = np.empty(3)
+    comm.comm.Allreduce(np.array([local_max, float(bad), force_max]), both, op=comm.MPI.MAX)
     comm.counters.allreduces += 1
     u_inf = math.nan if both[1] > 0.0 else max(float(both[0]), 1e-300)
+    force_scale = math.nan if both[1] > 0.0 else float(both[2])
 
-    # the gap B u = u^1 - u^2 at the pairs: each dof from the rank owning it, one Allreduce of 2 n_c
-    pair_u = np.zeros(dh.pair_dofs.shape)
+    # the gap B u = u^1 - u^2 at the pairs and the pairs' |diag K|: each dof from the rank owning it,
+    # one Allreduce of 4 n_c
+    pair_u = np.zeros((2,) + dh.pair_dofs.shape)
     pos = g.local_index(dh.pair_dofs)
     mine = pos >= 0
     mine[mine] = g.owned[pos[mine]]
-    pair_u[mine] = u_g[pos[mine]]
-    pair_u = comm.allreduce_sum(pair_u.ravel()).reshape(dh.pair_dofs.shape)
+    pair_u[0][mine] = u_g[pos[mine]]
+    pair_u[1][mine] = d_g[pos[mine]]
+    pair_u, pair_d = comm.allreduce_sum(pair_u.ravel()).reshape((2,) + dh.pair_dofs.shape)
     gap = pair_u[:, 0] - pair_u[:, 1]
 
     l_inf = float(np.abs(lam).max()) if lam.size else 0.0
@@ -136,5 +149,7 @@ def distributed_kkt(dh, u_gamma: np.ndarray | None, lam: np.ndarray) -> ContactM
 
     sums = comm.allreduce_sum(np.array([float(u_W @ Ku_W), float(sub.f_W @ u_W)]))
     energy = float(0.5 * sums[0] - sums[1])
+    weighted = (math.nan if math.isnan(force_scale) else
+                max(weighted_violations(gap, lam, series_stiffness(pair_d[:, 0], pair_d[:, 1]), force_scale)))
     return ContactMeasures(kkt=KKTResiduals(feas, dual, comp, stat), energy=energy,
-                           n_contact=int(dh.pair_dofs.shape[0]))
+                           n_contact=int(dh.pair_dofs.shape[0]), kkt_weighted=weighted)

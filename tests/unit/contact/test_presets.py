@@ -156,7 +156,7 @@ def test_solver_options_of_the_presets():
         assert solver_options("default", "contact", method) == {}
     assert solver_options("thesis", "contact", "active-set") == {
         "face_rtol_rule": "initial", "initial_active": "positive", "removal": "blocking", "face_norm": "l2",
-        "s_ol_fallback": False}
+        "s_ol_fallback": False, "sign_test": "plain"}
     assert solver_options("thesis", "contact", "smalbe") == {
         "equality_rule": "section-6.4", "rho_bar": None, "polish": False}
     assert solver_options("thesis", "contact", "direct") == {}

@@ -58,7 +58,8 @@ def main(kind: str, check: bool, out: str) -> None:
              result=np.array([e[k] for k in KEYS] + [e["energy"]]), n_contact=[dist.n_contact, ser.n_contact],
              prepare_calls=np.array(n_calls), result_converged=result.converged, u=sol.u, lam=sol.lam,
              bare_u_is_none=bare.u is None, bare_result=np.array([bare.extra[k] for k in KEYS] + [bare.extra["energy"]]),
-             bare_iterations=[bare.iterations, result.iterations])
+             bare_iterations=[bare.iterations, result.iterations],
+             weighted=[dist.kkt_weighted, ser.kkt_weighted, e["kkt_weighted"]])
 
 
 def _row(m: ContactMeasures) -> np.ndarray:

@@ -1,0 +1,103 @@
+"""Contact defects a black-box review (2026-11-28, second) reproduced: pairs of stiff subdomains in the
+wrong set under coefficient jumps, read through KKT residuals relative to ||u||_inf; the direct reference
+cycling under jumps. The reference of the review was a primal-dual active set solve refined in 50-digit
+arithmetic; here it is the direct solver (which agrees with it) and the active set method at rtol 1e-10."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ddsolve import ProblemSpec, prepare, solve
+from ddsolve.contact.active_set import solve_contact_active_set
+from ddsolve.contact.direct import KKT_TOL, solve_contact_direct
+from ddsolve.contact.problem import kkt_limit
+from ddsolve.contact.smalbe_dual import solve_contact_smalbe
+
+
+def _problem(subdomains: int, elements: int, rho: str):
+    return prepare(ProblemSpec(problem="contact", method="direct", subdomains=subdomains, elements=elements,
+                               rho=rho)).contact
+
+
+def _rel(x: np.ndarray, ref: np.ndarray) -> float:
+    return float(np.linalg.norm(x - ref) / np.linalg.norm(ref))
+
+
+@pytest.fixture(scope="module")
+def stiff_pair_case():
+    """4 x 4 subdomains, H/h = 2, checkerboard 1e12: the pair at y = 0.25 (both sides stiff, diag K 7e11)
+    belongs to the active set with lambda 0.124; the plain sign test left it out (penetration 1.3e-12,
+    2e-11 of ||u||_inf), lambda 110% off with a KKT residual of 8e-8, reported converged."""
+    problem = _problem(4, 2, "checkerboard:1e12")
+    ref = solve_contact_direct(problem)
+    check = solve_contact_active_set(problem, rtol=1e-10, pcg_rtol=1e-10)
+    assert ref.converged and check.converged and _rel(check.lam, ref.lam) < 1e-10     # measured 1.4e-13
+    return problem, ref
+
+
+def test_the_weighted_sign_test_finds_the_stiff_pair(stiff_pair_case):
+    problem, ref = stiff_pair_case
+    sol = solve_contact_active_set(problem, rtol=1e-5, pcg_rtol=1e-5)
+    assert sol.converged and _rel(sol.lam, ref.lam) < 1e-8                            # measured 2.1e-11
+    assert sol.extra["kkt_weighted"] <= kkt_limit(1e-5)
+
+
+def test_the_plain_sign_test_is_not_called_converged(stiff_pair_case):
+    """sign_test="plain" (the thesis preset's) stops on the wrong face; its KKT residuals relative to
+    ||u||_inf pass, the stiffness-weighted ones do not."""
+    problem, ref = stiff_pair_case
+    sol = solve_contact_active_set(problem, rtol=1e-5, pcg_rtol=1e-5, sign_test="plain")
+    assert _rel(sol.lam, ref.lam) > 0.5                                                # measured 1.1
+    assert problem.kkt(sol.u, sol.lam).max <= kkt_limit(1e-5)
+    assert not sol.converged and "weighted by the stiffness" in sol.reason
+    assert sol.extra["kkt_weighted"] > 10 * kkt_limit(1e-5)                            # measured 0.048
+
+
+def test_thesis_preset_through_the_command_line_path():
+    res = solve(dict(problem="contact", method="active-set", preset="thesis", subdomains=4, elements=2,
+                     rho="checkerboard:1e12"))
+    assert not res.converged and "weighted by the stiffness" in res.reason
+    default = solve(dict(problem="contact", method="active-set", subdomains=4, elements=2, rho="checkerboard:1e12"))
+    assert default.converged and default.extra["kkt_weighted"] <= kkt_limit(ProblemSpec(problem="contact").rtol)
+
+
+def test_unknown_sign_test_is_refused(stiff_pair_case):
+    with pytest.raises(ValueError, match="sign_test must be one of weighted, plain"):
+        solve_contact_active_set(stiff_pair_case[0], sign_test="force")
+
+
+def test_smalbe_open_stiff_pairs_under_pressure_are_not_converged():
+    """4 x 4 subdomains, H/h = 2, checkerboard 1e12, SMALBE without the polish: lambda 41% off with every KKT
+    residual relative to ||u||_inf near 1e-5 (stiff pairs open under pressure); the weighted complementarity
+    finds them."""
+    problem = _problem(4, 2, "checkerboard:1e12")
+    ref = solve_contact_direct(problem)
+    sol = solve_contact_smalbe(problem, eps=1e-5, polish=False)
+    assert _rel(sol.lam, ref.lam) > 0.2                                                 # measured 0.41
+    assert not sol.converged and "weighted by the stiffness" in sol.reason
+    polished = solve_contact_smalbe(problem, eps=1e-5)
+    assert polished.converged and _rel(polished.lam, ref.lam) < 1e-5                    # measured 5.7e-7
+
+
+@pytest.mark.parametrize("subdomains, elements, rho, faces", [
+    (2, 4, "checkerboard:1e-8", 1), (3, 4, "checkerboard:1e-6", 1), (3, 4, "checkerboard:1e8", 2),
+    (8, 2, "checkerboard:1e8", 4), (8, 4, "checkerboard:1e-8", 2)])
+def test_direct_reference_no_longer_cycles_under_jumps(subdomains, elements, rho, faces):
+    """With one constant c = mean diag K the primal-dual active set method cycled on these (answers right,
+    KKT 3e-14, reported not converged); with c per pair (its stiffness in series) it settles."""
+    problem = _problem(subdomains, elements, rho)
+    ref = solve_contact_direct(problem)
+    assert ref.converged and ref.outer_iterations == faces, ref.reason
+    assert problem.kkt(ref.u, ref.lam).max <= KKT_TOL and problem.weighted_kkt(ref.u, ref.lam) <= KKT_TOL
+    other = solve_contact_active_set(problem, rtol=1e-10, pcg_rtol=1e-10)
+    assert other.converged and _rel(ref.lam, other.lam) < 1e-8
+
+
+def test_direct_cycle_is_accepted_only_on_a_kkt_face():
+    """3 x 4 subdomains, H/h = 4, checkerboard 1e12: the scores of stiff pairs are rounding and the active set
+    cycles; its last face holds the KKT conditions and agrees with the active set method."""
+    problem = _problem(3, 4, "checkerboard:1e12")
+    ref = solve_contact_direct(problem)
+    assert ref.converged and "cycles" in ref.reason and "holds the KKT conditions" in ref.reason
+    other = solve_contact_active_set(problem, rtol=1e-10, pcg_rtol=1e-10)
+    assert other.converged and _rel(ref.lam, other.lam) < 1e-8                          # measured 6.8e-12
