@@ -267,6 +267,13 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
     Returns
     -------
     SolveResult on rank 0 (``extra`` holds ``n_ranks`` and ``comm``), None on the other ranks.
+
+    Raises
+    ------
+    InputError
+        On every rank, before any communication: what :func:`check_supported` refuses (a method that
+        is not distributed, ``primal="vertices+edges"``, a projection other than the orthogonal one
+        for the hybrid method, fewer subdomains than ranks).
     """
     from threadpoolctl import threadpool_limits
 
@@ -283,6 +290,9 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         comm = MPI.COMM_WORLD
     if not isinstance(comm, CountingComm):
         comm = CountingComm(comm)
+    # the command line's checks, the same on every rank (no collective): a method that is not distributed
+    # made rank 0 raise while the others waited in a broadcast forever (a review)
+    check_supported(spec, comm.size)
     with threadpool_limits(limits=1, user_api="blas"):
         t0 = time.perf_counter()
         prob = _prepare_agreed(spec, comm, scene)

@@ -1,0 +1,20 @@
+"""ddsolve.parallel.solve refuses what the command line refuses under mpiexec, on every rank and before any
+communication (a review: a method that is not distributed made rank 0 raise KeyError while rank 1 waited in
+a broadcast until killed; primal="vertices+edges" was ignored, giving the vertices-only cond)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from launch import HERE, MPI_MARKS, mpiexec  # noqa: E402
+
+pytestmark = MPI_MARKS
+
+
+def test_library_refuses_on_every_rank():
+    names = {"direct": "method", "smalbe": "method", "edges": "primal", "lumped": "projection", "one": "subdomains"}
+    proc = mpiexec(2, [str(HERE / "refusal_case.py"), *names])
+    assert proc.returncode == 0, proc.stderr
+    expected = sorted(f"{name} {rank} {field}" for name, field in names.items() for rank in (0, 1))
+    assert sorted(proc.stdout.strip().splitlines()) == expected        # one InputError per spec and rank
