@@ -657,6 +657,8 @@ class HybridSolver:
             ``restarts`` the number of restarts.
         """
         atol = rtol * PCR.rhs_norm(b, M, norm) if relative_to_rhs else 0.0
+        if not math.isfinite(atol):      # b beyond the double range (rho 1e-20, f 1e300): PCR reports the
+            atol = 0.0                   # non-finite residual as a breakdown; an inf atol was an input error
         return PCR.restarted(A, b, x0, rtol=rtol, atol=atol, maxiter=maxiter, restart=restart,
                              M=M, norm=norm)
 

@@ -456,6 +456,8 @@ class DistributedHybrid:
         t1 = time.perf_counter()
         reductions = Reductions(self.comm, owned)
         atol = rtol * _rhs_norm(b, M.matvec, norm, reductions) if rtol_rule == "max" else 0.0
+        if not math.isfinite(atol):      # as serial: b beyond the double range is PCR's breakdown (a global
+            atol = 0.0                   # norm: the same on every rank), not an input error
         counter = IterationCounter(self.comm)
         kr: KrylovResult = DistributedPCR.restarted(A, b, xs, rtol=rtol, atol=atol, maxiter=maxiter,
                                                     restart=restart, M=M, norm=norm, comm=self.comm, owned=owned,

@@ -74,3 +74,14 @@ def test_cond_without_an_estimate_is_said(method, warned, caplog):
     assert (result.cond is None) == warned
     if not warned:
         assert result.cond > 1.0
+
+
+def test_hybrid_load_beyond_the_double_range_is_a_breakdown():
+    """rho 1e-20 and f 1e300 (u ~ 1e320): the hybrid method's atol = rtol ||F|| was inf, an input error
+    'atol' for a field the user never gave (exit 2). It is PCR's breakdown on the non-finite residual."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # the local solves overflow
+        res = solve(ProblemSpec(problem="multibody", method="hybrid", rho="1e-20", f="1e300"))
+    assert not res.converged and res.reason.startswith("breakdown: non-finite initial residual")

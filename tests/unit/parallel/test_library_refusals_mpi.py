@@ -18,3 +18,15 @@ def test_library_refuses_on_every_rank():
     assert proc.returncode == 0, proc.stderr
     expected = sorted(f"{name} {rank} {field}" for name, field in names.items() for rank in (0, 1))
     assert sorted(proc.stdout.strip().splitlines()) == expected        # one InputError per spec and rank
+
+
+def test_hybrid_load_beyond_the_double_range_is_a_breakdown_on_every_rank():
+    """As serial (tests/unit/multibody/test_multibody_review_20261128.py): converged false, exit 0; under
+    mpiexec it was an abort with 'InputError: atol' on every rank."""
+    import json
+
+    proc = mpiexec(2, ["-m", "ddsolve", "solve", "--problem", "multibody", "--method", "hybrid", "--rho", "1e-20",
+                       "--f", "1e300", "--json"])
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout)
+    assert not result["converged"] and result["reason"].startswith("breakdown: non-finite initial residual")
