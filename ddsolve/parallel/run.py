@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
 import sys
 import time
 from typing import Any, NoReturn
@@ -416,6 +417,11 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int | None:
         root.setLevel(max(root.getEffectiveLevel(), logging.ERROR))
     try:
         result = solve(spec, comm=comm, gather=spec.check)
+        if comm.Get_rank() != 0:
+            # done: rank 0 alone goes on (--check, --output). A Ctrl-C now is rank 0's to report (130);
+            # one that killed this rank while it exited made the job's status that of the signal, 2, the
+            # status of an input error (a review)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         if comm.Get_rank() == 0:
             summary = result.to_dict()
             print(json.dumps(summary) if as_json else human(summary), flush=True)

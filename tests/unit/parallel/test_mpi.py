@@ -214,6 +214,33 @@ def test_interrupt_on_one_rank_ends_the_job():
     assert "ddsolve: error" not in proc.stderr and proc.stdout.strip() == ""
 
 
+def test_ctrl_c_while_rank_0_alone_checks_ends_with_130(tmp_path):
+    """SIGINT to mpiexec after the distributed solve, while rank 0 alone runs the --check reference: the job
+    ended with status 2 (the other rank, exiting, died of the signal; 2 is an input error's status) and at
+    times without the line (a review). The other ranks ignore SIGINT once done; rank 0 reports it."""
+    import signal
+    import subprocess
+    import time
+
+    from launch import MPIEXEC, ROOT, mpi_env
+
+    log = tmp_path / "stderr.txt"
+    with open(log, "w") as err:
+        proc = subprocess.Popen([MPIEXEC, "-n", "2", sys.executable, "-m", "ddsolve", "-v", "solve", "--problem",
+                                 "contact", "--subdomains", "8", "--elements", "24", "--check", "--json"],
+                                stdout=subprocess.DEVNULL, stderr=err, env=mpi_env(), cwd=ROOT)
+        deadline = time.monotonic() + 100
+        # rank 0 assembles the serial problem of the reference only after the distributed solve (-v logs it)
+        while "assembled 128 subdomains" not in log.read_text() and time.monotonic() < deadline:
+            assert proc.poll() is None, log.read_text()
+            time.sleep(0.005)
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=60)
+    text = log.read_text()
+    assert code == 130, text
+    assert text.count("ddsolve: interrupted (rank 0)") == 1, text
+
+
 @pytest.mark.parametrize("kind", ["", ":input"])
 def test_an_error_on_every_rank_is_reported_once_per_rank(kind):
     """An error raised on every rank at once: MPICH may let MPI_Abort return on some ranks, which then
