@@ -420,8 +420,10 @@ def main(spec: ProblemSpec, as_json: bool, human) -> int | None:
         if comm.Get_rank() != 0:
             # done: rank 0 alone goes on (--check, --output). A Ctrl-C now is rank 0's to report (130);
             # one that killed this rank while it exited made the job's status that of the signal, 2, the
-            # status of an input error (a review)
+            # status of an input error; a SIGTERM that ended this rank at once made the launcher kill
+            # rank 0 inside its --output write, before its handler removed the temporary file (a review)
             signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
         if comm.Get_rank() == 0:
             summary = result.to_dict()
             print(json.dumps(summary) if as_json else human(summary), flush=True)

@@ -241,6 +241,29 @@ def test_ctrl_c_while_rank_0_alone_checks_ends_with_130(tmp_path):
     assert text.count("ddsolve: interrupted (rank 0)") == 1, text
 
 
+def test_sigterm_during_output_leaves_no_temporary_file(tmp_path):
+    """SIGTERM to mpiexec while rank 0 writes --output: the temporary file was left in 5 of 5 runs with P = 2
+    (the other rank ended at once and the launcher killed rank 0 before its handler ran; a review)."""
+    import signal
+    import subprocess
+    import time
+
+    from launch import MPIEXEC, ROOT, mpi_env
+
+    out = tmp_path / "out"
+    out.mkdir()
+    proc = subprocess.Popen([MPIEXEC, "-n", "2", sys.executable, "-m", "ddsolve", "solve", "--subdomains", "16",
+                             "--elements", "24", "--output", str(out / "big.vtu"), "--json"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=mpi_env(), cwd=ROOT)
+    deadline = time.monotonic() + 100
+    while not list(out.glob(".big.*.tmp*")) and time.monotonic() < deadline:
+        assert proc.poll() is None
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=60)
+    assert list(out.iterdir()) == []                 # neither the temporary file nor a partial target
+
+
 @pytest.mark.parametrize("kind", ["", ":input"])
 def test_an_error_on_every_rank_is_reported_once_per_rank(kind):
     """An error raised on every rank at once: MPICH may let MPI_Abort return on some ranks, which then
