@@ -237,6 +237,9 @@ def parse_f(value: Any) -> tuple[str, Any]:
             return "random", _as_int("f", (seed or "0").strip(), 0)
         match = _DOSTAL.fullmatch(text)
         if match:
+            if match["rest"] is not None and not match["rest"].strip():    # 'dostal:' read as 'dostal' (a review)
+                raise InputError("f", f"'dostal:F1,F2' needs two finite numbers after the colon, got {brief(value)}"
+                                      " (plain 'dostal': the benchmark's -3, -1)")
             return "dostal", parse_dostal(match["rest"] or "")
     out = _number("f", value, "a number, 'random:SEED' or 'dostal:F1,F2'")
     if not math.isfinite(out):

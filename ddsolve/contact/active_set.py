@@ -64,6 +64,7 @@ from ..krylov.result import KrylovResult
 from ..multibody.fallback import broke_down_on_s_ol
 from ..multibody.hybrid import RTOL_RULES, S_OL_FORMS, HybridSolver
 from ..qp import mprgp
+from ..qp.mprgp import check_positive
 from ..qp.result import QPResult
 from .direct import ContactSolution
 from .problem import ContactProblem, kkt_verdict, series_stiffness
@@ -292,18 +293,14 @@ class ActiveSetHybrid:
         rtol, pcg_rtol = check_tolerance("rtol", rtol), check_tolerance("pcg_rtol", pcg_rtol)
         if forcing is not None:
             forcing = check_tolerance("forcing", forcing)
-        if removal not in ("all", "blocking"):
-            raise ValueError(f"removal must be 'all' or 'blocking', got {removal!r}")
-        if face_rtol_rule not in RTOL_RULES:
-            raise ValueError(f"face_rtol_rule must be one of {', '.join(RTOL_RULES)}, got {face_rtol_rule!r}")
-        if initial_active not in INITIAL_ACTIVE:
-            raise ValueError(f"initial_active must be one of {', '.join(INITIAL_ACTIVE)}, got {initial_active!r}")
-        if face_norm not in FACE_NORMS:
-            raise ValueError(f"face_norm must be one of {', '.join(FACE_NORMS)}, got {face_norm!r}")
-        if s_ol not in S_OL_FORMS:
-            raise ValueError(f"s_ol must be one of {', '.join(S_OL_FORMS)}, got {s_ol!r}")
-        if sign_test not in SIGN_TESTS:
-            raise ValueError(f"sign_test must be one of {', '.join(SIGN_TESTS)}, got {sign_test!r}")
+        for name, value, allowed in (("removal", removal, REMOVALS), ("face_rtol_rule", face_rtol_rule, RTOL_RULES),
+                                     ("initial_active", initial_active, INITIAL_ACTIVE),
+                                     ("face_norm", face_norm, FACE_NORMS), ("s_ol", s_ol, S_OL_FORMS),
+                                     ("sign_test", sign_test, SIGN_TESTS)):
+            if not isinstance(value, str) or value not in allowed:      # InputError (a ValueError), naming it
+                raise InputError(name, f"must be one of {', '.join(allowed)}, got {value!r}")
+        if feasibility_tol is not None:
+            feasibility_tol = check_positive("feasibility_tol", feasibility_tol, strict=False)
         d_gamma = self.gamma_stiffness() if sign_test == "weighted" else None
         w_pair = self.pair_stiffness(d_gamma) if d_gamma is not None else None
         fallback_faces: list[int] = []

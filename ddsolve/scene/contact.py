@@ -99,9 +99,10 @@ def two_membranes(subdomains: int, elements: int, *, f: float | np.ndarray | Non
         raise InputError("f", f"the load's integral over Omega^2 overflows (|f| up to "
                               f"{float(np.abs(loads).max()):.3g}); scale the load down (the solution scales with it)")
     if not integral < -NET_LOAD_FLOOR * magnitude:
+        need = (f"need < -{NET_LOAD_FLOOR:g} x integral of |f| = {-NET_LOAD_FLOOR * magnitude:.3g}" if magnitude > 0
+                else "the load is zero there")           # not "need < ... = -0"
         raise InputError("f", f"the floating membrane Omega^2 needs a load with negative integral "
-                              f"(got {integral:.6g}, need < -{NET_LOAD_FLOOR:g} x integral of |f| = "
-                              f"{-NET_LOAD_FLOOR * magnitude:.3g}); otherwise it is not pressed onto Omega^1 "
+                              f"(got {integral + 0.0:.6g}, {need}); otherwise it is not pressed onto Omega^1 "
                               f"(or only by a round-off-sized force) and (3.1) has no unique solution")
     scene.f = loads
     return scene

@@ -61,9 +61,37 @@ def test_thesis_preset_through_the_command_line_path():
     assert default.converged and default.extra["kkt_weighted"] <= kkt_limit(ProblemSpec(problem="contact").rtol)
 
 
-def test_unknown_sign_test_is_refused(stiff_pair_case):
-    with pytest.raises(ValueError, match="sign_test must be one of weighted, plain"):
-        solve_contact_active_set(stiff_pair_case[0], sign_test="force")
+@pytest.mark.parametrize("option, value", [("sign_test", "force"), ("removal", "x"), ("face_norm", "L2"),
+                                           ("initial_active", 1), ("face_rtol_rule", "y"), ("s_ol", "x")])
+def test_unknown_option_values_are_input_errors(stiff_pair_case, option, value):
+    """Plain ValueErrors before (a review): an InputError naming the option, as the other parameters."""
+    from ddsolve.errors import InputError
+    with pytest.raises(InputError, match=f"^{option}: must be one of "):
+        solve_contact_active_set(stiff_pair_case[0], **{option: value})
+
+
+@pytest.mark.parametrize("tol", [-1.0, float("nan"), float("inf")])
+def test_a_negative_or_non_finite_feasibility_tol_is_refused(stiff_pair_case, tol):
+    """feasibility_tol = -1 was accepted and ran 50 outer iterations to 'not settled' (a review)."""
+    from ddsolve.contact.active_set import ActiveSetHybrid
+    from ddsolve.errors import InputError
+    with pytest.raises(InputError, match="^feasibility_tol: must be a finite number >= 0"):
+        ActiveSetHybrid(stiff_pair_case[0]).solve(feasibility_tol=tol)
+
+
+@pytest.mark.parametrize("f", ["dostal:", "dostal: "])
+def test_dostal_with_an_empty_tail_is_refused(f):
+    """'dostal:' was read as plain 'dostal' (the benchmark's -3, -1; a review)."""
+    from ddsolve.errors import InputError
+    with pytest.raises(InputError, match="^f: 'dostal:F1,F2' needs two finite numbers after the colon"):
+        ProblemSpec(problem="contact", f=f)
+    assert ProblemSpec(problem="contact", f="dostal").f == "dostal"
+
+
+def test_zero_load_on_the_floating_membrane_names_no_minus_zero():
+    from ddsolve.errors import InputError
+    with pytest.raises(InputError, match=r"got 0, the load is zero there\)"):
+        prepare(ProblemSpec(problem="contact", method="direct", subdomains=2, elements=2, f="dostal:-1,0"))
 
 
 def test_smalbe_open_stiff_pairs_under_pressure_are_not_converged():

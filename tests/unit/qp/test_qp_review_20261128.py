@@ -58,3 +58,14 @@ def test_smalbe_names_an_operator_without_a_transpose():
     BE = LinearOperator((1, n), matvec=lambda v: np.array([v.sum()]), dtype=float)
     with pytest.raises(InputError, match=r"^BE: the operator has no transpose \(rmatvec\)"):
         smalbe(np.diag([1.0, 2, 3, 4]), np.ones(n), 0.0, BE, np.array([1.0]))
+
+
+@pytest.mark.parametrize("eps", [1.0, 2.0, 0.0, float("nan")])
+def test_smalbe_eps_outside_0_1_is_refused(eps):
+    """eps = 2 met the rule ||g^P|| <= eps ||b|| at the start and reported converged with x 15% off (a second
+    review of 2026-11-28); eps must lie in (0, 1) as every relative tolerance of ddsolve."""
+    n = 6
+    A = np.diag(np.arange(1.0, n + 1))
+    with pytest.raises(InputError, match="^eps: must be in \\(0, 1\\)"):
+        smalbe(A, np.ones(n), 0.0, np.ones((1, n)), np.array([1.0]), eps=eps)
+    assert smalbe(A, np.ones(n), 0.0, np.ones((1, n)), np.array([1.0]), eps=0.5).iterations >= 1
