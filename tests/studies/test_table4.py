@@ -226,6 +226,9 @@ def test_hbhs_growth_laws_ratios_and_crossing():
     text = tables.to_markdown(tables.growth_table(growth))
     assert "4 → 24" in text and "7.00 → 57.00" in text and "a + b·√(H_b/H_s)" in text
     assert "a + b·log(H_b/h)" in text and f"{x:.0f}" in text and "×8.14" in text
+    # the LaTeX twin is ASCII (pdflatex's utf8 input has no glyph for → √ ² × ·; a review)
+    tex = tables.to_latex(tables.growth_table(growth))
+    assert tex.isascii() and "4 $\\to$ 24" in tex and "$\\surd$" in tex and "$\\times$8.14" in tex
 
 
 def test_hbhs_sweep_table_marks_rows_beyond_the_thesis():

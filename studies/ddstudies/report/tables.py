@@ -608,7 +608,11 @@ def to_markdown(table: pd.DataFrame, *, digits: int = 4, missing: str = "-") -> 
 
 _LATEX_ESCAPES = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
                   "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\^{}",
-                  "†": r"\textdagger{}", "‡": r"\textdaggerdbl{}", "|": r"\textbar{}"}   # OT1 has no | nor †
+                  "†": r"\textdagger{}", "‡": r"\textdaggerdbl{}", "|": r"\textbar{}",   # OT1 has no | nor †
+                  # pdflatex's utf8 input has no glyph for these (the growth table used them; a review)
+                  "→": r"$\to$", "√": r"$\surd$", "²": r"\textsuperscript{2}", "³": r"\textsuperscript{3}",
+                  "×": r"$\times$", "·": r"$\cdot$", "≤": r"$\le$", "≥": r"$\ge$", "≈": r"$\approx$",
+                  "ρ": r"$\rho$", "λ": r"$\lambda$", "κ": r"$\kappa$", "−": "-", "–": "--"}
 
 
 def latex_escape(text: str) -> str:
