@@ -250,6 +250,9 @@ def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: 
                   result: SolveResult | None = None) -> None:
     """Write ``spec.output`` (a .vtu file for ParaView, :mod:`ddsolve.io.vtk`) if it is set.
 
+    With ``result``, the cell field ``converged`` (1 or 0 on every element) records its verdict, and a
+    result that did not converge is written with a warning (it replaces a previous file all the same).
+
     A write that fails (no space, a file size limit, a name the file system refuses) raises
     :class:`~ddsolve.errors.OutputError` carrying ``result``, the existing file kept."""
     if not spec.output or u is None:
@@ -260,6 +263,12 @@ def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: 
         return
     from .io.vtk import solution_fields, write_vtu
     nodal, cellwise = solution_fields(prep, u, lam)
+    if result is not None:
+        # the file replaces a previous one whatever the verdict: say which it holds (a cell field for ParaView)
+        cellwise["converged"] = np.full(next(iter(cellwise.values())).shape, float(bool(result.converged)))
+        if not result.converged:
+            log.warning("writing %s with the last iterate of a solve that did not converge (%s); its cell "
+                        "field 'converged' is 0", spec.output, result.reason)
     try:
         write_vtu(spec.output, prep.scene, nodal, cellwise)
     except OSError as exc:

@@ -200,3 +200,23 @@ def test_a_dangling_link_does_not_create_its_directory(tmp_path):
     with pytest.raises(InputError, match=r"^output: directory .*nowhere' does not exist"):
         solve(ProblemSpec(subdomains=2, elements=2, output=str(link)))
     assert not (tmp_path / "nowhere").exists()
+
+
+@pytest.mark.parametrize("maxiter, converged", [(1, 0.0), (1000, 1.0)])
+def test_the_file_says_whether_the_solve_converged(tmp_path, caplog, maxiter, converged):
+    """A solve that did not converge replaced an existing file with its last iterate and nothing in the file
+    said so (a review): the cell field 'converged' is 0 then, and a warning names the file."""
+    import base64
+    import re
+
+    import numpy as np
+
+    target = tmp_path / "u.vtu"
+    with caplog.at_level("WARNING"):
+        res = solve(ProblemSpec(subdomains=4, elements=8, maxiter=maxiter, output=str(target)))
+    assert res.converged is bool(converged)
+    blob = re.search(r'Name="converged"[^>]*>\s*(\S+)\s*<', target.read_text()).group(1)
+    values = np.frombuffer(base64.b64decode(blob)[4:], dtype=np.float64)
+    assert values.size == 1024 * 4 and set(values.tolist()) == {converged}      # 4 x 4 x 8 x 8 cells
+    warned = [r for r in caplog.records if "did not converge" in r.getMessage() and "u.vtu" in r.getMessage()]
+    assert len(warned) == int(not converged)
