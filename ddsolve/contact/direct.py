@@ -231,11 +231,12 @@ def solve_contact_direct(problem: ContactProblem, *, maxiter: int = 100,
 
 def _kkt_check(problem: ContactProblem, u: np.ndarray, lam: np.ndarray, reason: str) -> tuple[bool, str]:
     """Accept the last face only if u, lambda are finite and satisfy (5.5) to :data:`KKT_TOL`, also weighted
-    by the stiffness (:meth:`ContactProblem.weighted_kkt`: a pair of a stiff subdomain in the wrong set)."""
+    by the penetration weighted by the stiffness (:meth:`ContactProblem.weighted_feasibility`: a penetrating pair
+    of a stiff subdomain)."""
     if not (np.all(np.isfinite(u)) and np.all(np.isfinite(lam))):
         return False, f"non-finite u or lambda at the last face ({reason})"
     kkt = problem.kkt(u, lam)
-    weighted = problem.weighted_kkt(u, lam)
+    weighted = problem.weighted_feasibility(u)
     # the stationarity cannot be computed below its rounding level, which exceeds KKT_TOL at large
     # coefficient jumps (body jumps of 1e6: 5e-8): there the tolerance is ROUNDING_FACTOR times that level
     stat_tol = max(KKT_TOL, ROUNDING_FACTOR * problem.stationarity_floor(u, lam))
@@ -244,5 +245,5 @@ def _kkt_check(problem: ContactProblem, u: np.ndarray, lam: np.ndarray, reason: 
         return True, reason
     parts = ", ".join(f"{k[4:]} {v:.1e}" for k, v in kkt.as_dict().items() if k != "kkt_residual")
     return False, (f"KKT conditions (5.5) not met at the last face ({reason}): relative residuals {parts}, "
-                   f"weighted by the stiffness {weighted:.1e} (> {KKT_TOL:.0e}; stationarity > {stat_tol:.1e}, "
+                   f"penetration weighted by the stiffness {weighted:.1e} (> {KKT_TOL:.0e}; stationarity > {stat_tol:.1e}, "
                    f"its rounding level times {ROUNDING_FACTOR:g} where larger)")

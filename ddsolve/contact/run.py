@@ -19,7 +19,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: SMALBE diagnostics copied into the result (when the solver reports them).
 SMALBE_KEYS = ("n_hessian", "n_cg", "n_expansion", "n_proportioning", "penalty", "rho_bar", "force_error",
-               "polish", "polish_iterations", "acceptance", "verify", "verify_iterations", "verify_lambda_change")
+               "polish", "polish_iterations", "polish_lambda_change", "acceptance", "verify", "verify_iterations",
+               "verify_lambda_change")
 
 
 def run_contact_method(method: str, problem: ContactProblem, *, rtol: float, maxiter: int,
@@ -70,22 +71,22 @@ class ContactMeasures:
         1/2 u^T K u - f^T u.
     n_contact : int
         Number of contact pairs n_c.
-    kkt_weighted : float or None
-        The KKT violation weighted by the stiffness (:meth:`ContactProblem.weighted_kkt`).
+    weighted_feasibility : float or None
+        The penetration weighted by the stiffness (:meth:`ContactProblem.weighted_feasibility`).
     """
 
     kkt: KKTResiduals
     energy: float
     n_contact: int
-    kkt_weighted: float | None = None
+    weighted_feasibility: float | None = None
 
     @classmethod
     def of(cls, problem: ContactProblem, u: np.ndarray, lam: np.ndarray,
-           kkt: KKTResiduals | None = None, kkt_weighted: float | None = None) -> ContactMeasures:
-        """From the assembled problem (serial); ``kkt``, ``kkt_weighted``: those of (u, lam) if already computed."""
+           kkt: KKTResiduals | None = None, weighted: float | None = None) -> ContactMeasures:
+        """From the assembled problem (serial); ``kkt``, ``weighted``: those of (u, lam) if already computed."""
         return cls(kkt=problem.kkt(u, lam) if kkt is None else kkt, energy=problem.energy(u),
                    n_contact=int(problem.n_contact),
-                   kkt_weighted=problem.weighted_kkt(u, lam) if kkt_weighted is None else kkt_weighted)
+                   weighted_feasibility=problem.weighted_feasibility(u) if weighted is None else weighted)
 
 
 def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: ContactSolution) -> dict[str, Any]:
@@ -97,7 +98,7 @@ def contact_result_fields(spec: ProblemSpec, problem: ContactProblem, sol: Conta
     unpolished = None
     if "lambda_unpolished" in sol.extra:
         unpolished = problem.kkt(sol.extra["u_unpolished"], sol.extra["lambda_unpolished"]).max
-    measures = ContactMeasures.of(problem, sol.u, sol.lam, sol.kkt, sol.extra.get("kkt_weighted"))
+    measures = ContactMeasures.of(problem, sol.u, sol.lam, sol.kkt, sol.extra.get("kkt_weighted_feasibility"))
     fields = contact_fields(spec, sol, measures, kkt_unpolished=unpolished)
     if spec.check:
         check_fields(spec, problem, sol, fields)
@@ -119,9 +120,9 @@ def contact_fields(spec: ProblemSpec, sol: ContactSolution, measures: ContactMea
     ``kkt_residual_unpolished`` (given), the KKT residual of SMALBE's own iterate before any polish;
     without a polish ``verify``, ``verify_iterations`` and ``verify_lambda_change``: the check of a
     converged SMALBE lambda by the equality solve on its active set),
-    ``preset``, ``kkt_weighted`` (the KKT violation weighted by the stiffness). The result of the active
-    set method or SMALBE is accepted (``converged``) only if its KKT residual and ``kkt_weighted`` are at
-    most min(max(KKT_ACCEPT_FACTOR rtol, KKT_ACCEPT_FLOOR), KKT_ACCEPT_CEILING).
+    ``preset``, ``kkt_weighted_feasibility`` (the penetration weighted by the stiffness). The result of the
+    active set method or SMALBE is accepted (``converged``) only if its KKT residual and
+    ``kkt_weighted_feasibility`` are at most min(max(KKT_ACCEPT_FACTOR rtol, KKT_ACCEPT_FLOOR), KKT_ACCEPT_CEILING).
 
     Parameters
     ----------
@@ -145,14 +146,14 @@ def contact_fields(spec: ProblemSpec, sol: ContactSolution, measures: ContactMea
         **kkt.as_dict(),
         "preset": spec.preset,
     }
-    if measures.kkt_weighted is not None:
-        extra["kkt_weighted"] = measures.kkt_weighted
+    if measures.weighted_feasibility is not None:
+        extra["kkt_weighted_feasibility"] = measures.weighted_feasibility
     extra.update({key: sol.extra[key] for key in SMALBE_KEYS if key in sol.extra})
     if kkt_unpolished is not None:
         extra["kkt_residual_unpolished"] = kkt_unpolished
     converged, reason = bool(sol.converged), sol.reason
     if spec.method in ("active-set", "smalbe"):     # serial: already judged by the solver; MPI: judged here
-        converged, reason = kkt_verdict(converged, reason, kkt.max, spec.rtol, measures.kkt_weighted)
+        converged, reason = kkt_verdict(converged, reason, kkt.max, spec.rtol, measures.weighted_feasibility)
     return dict(
         u=sol.u, converged=converged, reason=reason, iterations=sol.total_iterations,
         nlambda=int(sol.extra.get("nlambda", measures.n_contact)), n_factorizations=int(sol.n_factorizations),

@@ -29,8 +29,8 @@ replicated contact-size arrays (lambda, n_c doubles):
   (:class:`~ddsolve.parallel.krylov.Reductions`, scaled when the squares
   would under/overflow);
 * J(u) = sum_i (1/2 u_i^T K_i u_i - f_i^T u_i): one Allreduce of two doubles;
-* the KKT violation weighted by the stiffness
-  (:meth:`~ddsolve.contact.problem.ContactProblem.weighted_kkt`): |diag K| summed on u_Gamma as
+* the penetration weighted by the stiffness
+  (:meth:`~ddsolve.contact.problem.ContactProblem.weighted_feasibility`): |diag K| summed on u_Gamma as
   u, ||D u||_inf in the same Allreduce(MAX) as ||u||_inf and the pairs' diagonal entries in the
   same Allreduce as their u.
 
@@ -48,7 +48,7 @@ import math
 
 import numpy as np
 
-from ..contact.problem import KKTResiduals, series_stiffness, weighted_violations
+from ..contact.problem import KKTResiduals, series_stiffness, weighted_penetration
 from ..contact.run import ContactMeasures
 from ..krylov.convergence import norm2
 from .krylov import Reductions
@@ -94,7 +94,7 @@ def distributed_kkt(dh, u_gamma: np.ndarray | None, lam: np.ndarray) -> ContactM
     u_W = np.where(on_gamma, g.space.scatter(u_g), u_W)         # u_i = R_i u, consistent copies
     interior = ~on_gamma
 
-    # |diag K| of the assembled K: summed copies on u_Gamma, one copy elsewhere (for kkt_weighted)
+    # |diag K| of the assembled K: summed copies on u_Gamma, one copy elsewhere (the weighted feasibility)
     d_W = np.abs(sub.K_W.diagonal())
     d_g = _assembled_gamma(dh, d_W, None)
     d_W = np.where(on_gamma, g.space.scatter(d_g), d_W)
@@ -149,7 +149,9 @@ def distributed_kkt(dh, u_gamma: np.ndarray | None, lam: np.ndarray) -> ContactM
 
     sums = comm.allreduce_sum(np.array([float(u_W @ Ku_W), float(sub.f_W @ u_W)]))
     energy = float(0.5 * sums[0] - sums[1])
-    weighted = (math.nan if math.isnan(force_scale) else
-                max(weighted_violations(gap, lam, series_stiffness(pair_d[:, 0], pair_d[:, 1]), force_scale)))
-    return ContactMeasures(kkt=KKTResiduals(feas, dual, comp, stat), energy=energy,
-                           n_contact=int(dh.pair_dofs.shape[0]), kkt_weighted=weighted)
+    weighted = weighted_penetration(gap, series_stiffness(pair_d[:, 0], pair_d[:, 1]), force_scale)
+    kkt = KKTResiduals(feas, dual, comp, stat)
+    if both[1] > 0.0 or not np.all(np.isfinite(lam)):    # as serial: non-finite u or lambda is no solution (both
+        kkt = KKTResiduals(math.nan, math.nan, math.nan, math.nan)     # global: u's flag reduced, lambda replicated)
+    return ContactMeasures(kkt=kkt, energy=energy,
+                           n_contact=int(dh.pair_dofs.shape[0]), weighted_feasibility=weighted)

@@ -61,8 +61,12 @@ def mpi_world_size(environ: dict | None = None) -> int | None:
     return None
 
 
-def check_supported(spec: ProblemSpec, size: int) -> None:
+def check_supported(spec: ProblemSpec, size: int, *, decomposition: bool = True) -> None:
     """Reject what the distributed solvers do not do, identically on every rank (before any MPI call).
+
+    ``decomposition=False``: not the checks of the spec's decomposition (its subdomain count against the
+    method and the ranks), for a caller that passes its own scene (whose parts decide; checked as the
+    scene is cut).
 
     Raises
     ------
@@ -77,11 +81,13 @@ def check_supported(spec: ProblemSpec, size: int) -> None:
     if spec.method == "hybrid" and spec.projection != "orthogonal":
         raise InputError("projection", f"{spec.projection!r} is not distributed for the hybrid method "
                                        f"(under mpiexec only 'orthogonal', the default)")
-    from ..prepared import check_decomposition
-    check_decomposition(spec)
     if spec.primal != "vertices":
         raise InputError("primal", f"{spec.primal!r}: edge averages have no distributed (mpiexec) implementation "
                                    f"(run without mpiexec, or use 'vertices')")
+    if not decomposition:
+        return
+    from ..prepared import check_decomposition
+    check_decomposition(spec)
     bodies = {"multibody": spec.bodies ** 2, "contact": 2}.get(spec.problem, 1)      # as the scene builds them
     n_sub = bodies * (spec.parts if spec.mesh == "unstructured" else spec.subdomains ** 2)
     if spec.mesh_file and spec.mesh == "unstructured":
@@ -293,7 +299,7 @@ def solve(spec: ProblemSpec | dict, scene=None, comm: Any = None, *, gather: boo
         comm = CountingComm(comm)
     # the command line's checks, the same on every rank (no collective): a method that is not distributed
     # made rank 0 raise while the others waited in a broadcast forever (a review)
-    check_supported(spec, comm.size)
+    check_supported(spec, comm.size, decomposition=scene is None)    # a given scene's parts decide (a review)
     with threadpool_limits(limits=1, user_api="blas"):
         t0 = time.perf_counter()
         prob = _prepare_agreed(spec, comm, scene)

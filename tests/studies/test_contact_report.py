@@ -89,6 +89,9 @@ def test_tables_render_beside_the_thesis(summary, thesis):
     md, tex = render_contact_table(df, thesis["active-set"], "table_5_1")
     assert md.startswith("# Table 5.1") and "PCG it. thesis" in md and "16 16" in md
     assert r"$N_{sub}(1/H)$" in tex and r"\toprule" in tex
+    # the label of lambda in math mode, after the escapes of to_latex (a review: after λ became $\lambda$
+    # the replacement missed it), and nothing outside ASCII for pdflatex
+    assert r"$N_{dof}(\lambda)$" in tex and tex.isascii()
     md6, _ = render_contact_table(df, thesis["smalbe"], "table_6_1")
     assert "PCG it." not in md6 and "24 6 5 6" in md6
     md_c, tex_c, comp, caption = render_comparison(df, thesis)

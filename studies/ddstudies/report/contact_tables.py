@@ -75,7 +75,7 @@ CONTACT_METHOD_LABELS: dict[str, str] = {"active-set": "active set", "smalbe": "
 #: Labels typeset in math mode by :func:`contact_latex` (after escaping by to_latex).
 LATEX_REPLACEMENTS: dict[str, str] = {
     r"N\_sub(1/H)": r"$N_{sub}(1/H)$",
-    "N\\_dof(λ)": r"$N_{dof}(\lambda)$",
+    r"N\_dof($\lambda$)": r"$N_{dof}(\lambda)$",
     r"N\_dof(total)": r"$N_{dof}(total)$",
 }
 

@@ -612,7 +612,9 @@ _LATEX_ESCAPES = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$",
                   # pdflatex's utf8 input has no glyph for these (the growth table used them; a review)
                   "→": r"$\to$", "√": r"$\surd$", "²": r"\textsuperscript{2}", "³": r"\textsuperscript{3}",
                   "×": r"$\times$", "·": r"$\cdot$", "≤": r"$\le$", "≥": r"$\ge$", "≈": r"$\approx$",
-                  "ρ": r"$\rho$", "λ": r"$\lambda$", "κ": r"$\kappa$", "−": "-", "–": "--"}
+                  "ρ": r"$\rho$", "λ": r"$\lambda$", "κ": r"$\kappa$", "ε": r"$\varepsilon$", "Γ": r"$\Gamma$",
+                  "‖": r"$\|$", "∞": r"$\infty$", "₊": r"$_+$", "⁺": r"$^+$", "⁻": r"$^-$", "°": r"$^\circ$",
+                  "−": "-", "–": "--"}
 
 
 def latex_escape(text: str) -> str:

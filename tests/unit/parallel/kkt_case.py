@@ -59,7 +59,7 @@ def main(kind: str, check: bool, out: str) -> None:
              prepare_calls=np.array(n_calls), result_converged=result.converged, u=sol.u, lam=sol.lam,
              bare_u_is_none=bare.u is None, bare_result=np.array([bare.extra[k] for k in KEYS] + [bare.extra["energy"]]),
              bare_iterations=[bare.iterations, result.iterations],
-             weighted=[dist.kkt_weighted, ser.kkt_weighted, e["kkt_weighted"]])
+             weighted=[dist.weighted_feasibility, ser.weighted_feasibility, e["kkt_weighted_feasibility"]])
 
 
 def _row(m: ContactMeasures) -> np.ndarray:

@@ -11,13 +11,18 @@ SPECS = {"direct": dict(problem="poisson", method="direct"),
          "smalbe": dict(problem="contact", method="smalbe"),
          "edges": dict(problem="poisson", method="fetidp", primal="vertices+edges", subdomains=3),
          "lumped": dict(problem="multibody", method="hybrid", bodies=2, projection="lumped"),
-         "one": dict(problem="poisson", method="fetidp", subdomains=1)}
+         "one": dict(problem="poisson", method="fetidp", subdomains=1),
+         "scene": dict(problem="poisson", method="bddc", subdomains=1)}
 
 if __name__ == "__main__":
     rank = MPI.COMM_WORLD.rank
     for name in sys.argv[1:]:
+        scene = None
+        if name == "scene":          # a caller's scene: its parts decide, not the spec's subdomains (here 1)
+            from ddsolve.scene import unstructured_scene
+            scene = unstructured_scene("poisson", maxh=0.3, parts=2, rho=1.0, seed=0)
         try:
-            solve(SPECS[name])
-            print(f"{name} {rank} solved", flush=True)
+            result = solve(SPECS[name], scene=scene)
+            print(f"{name} {rank} solved" + (f" {result.converged}" if rank == 0 else ""), flush=True)
         except InputError as exc:
             print(f"{name} {rank} {exc.field}", flush=True)

@@ -53,7 +53,7 @@ def test_distributed_kkt_equals_serial(tmp_path, kind, n):
     # <= 9e-16; worst-case bound 2 m eps || |K| |u| || / scale ~ 8e-13): equal to 1e-14 absolute
     assert all(_close(float(d), float(s)) for d, s in zip(dist[3:5], ser[3:5])), (dist, ser)
     assert abs(dist[5] - ser[5]) <= 1e-10 * abs(ser[5])       # energy (measured <= 2e-14)
-    # the KKT violation weighted by the stiffness: diag K summed from the subdomains instead of assembled
+    # the penetration weighted by the stiffness: diag K summed from the subdomains instead of assembled
     weighted = par["weighted"]
     assert weighted[1] > 0.0 and abs(weighted[0] - weighted[1]) <= 1e-12 * weighted[1], weighted
     assert weighted[2] == weighted[0]                           # the result reports it

@@ -20,6 +20,15 @@ def test_library_refuses_on_every_rank():
     assert sorted(proc.stdout.strip().splitlines()) == expected        # one InputError per spec and rank
 
 
+def test_a_given_scene_is_not_judged_by_the_spec_decomposition():
+    """With a scene, its parts decide: the spec's own subdomain count (here 1, too few for 2 ranks and for
+    BDDC) refused a valid 2-part METIS scene (a review of the check added above)."""
+    proc = mpiexec(2, [str(HERE / "refusal_case.py"), "scene"])
+    assert proc.returncode == 0, proc.stderr
+    # (the ranks' lines may interleave in the launcher's stream)
+    assert "scene 0 solved True" in proc.stdout and proc.stdout.count("solved") == 2, proc.stdout
+
+
 def test_hybrid_load_beyond_the_double_range_is_a_breakdown_on_every_rank():
     """As serial (tests/unit/multibody/test_multibody_review_20261128.py): converged false, exit 0; under
     mpiexec it was an abort with 'InputError: atol' on every rank."""
