@@ -265,7 +265,7 @@ def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: 
     nodal, cellwise = solution_fields(prep, u, lam)
     if result is not None:
         # the file replaces a previous one whatever the verdict: say which it holds (a cell field for ParaView)
-        cellwise["converged"] = np.full(next(iter(cellwise.values())).shape, float(bool(result.converged)))
+        cellwise["converged"] = np.full(len(prep.scene.elements), float(bool(result.converged)))
         if not result.converged:
             log.warning("writing %s with the last iterate of a solve that did not converge (%s); its cell "
                         "field 'converged' is 0", spec.output, result.reason)

@@ -39,7 +39,7 @@ from ..dd.common import MethodOutput
 from ..dd.projection import Projection
 from ..multibody.interface import UNTIED_MESSAGE, UNTIED_TOL
 from .hybrid import DistributedHybrid
-from .kkt import distributed_kkt
+from .kkt import distributed_kkt, gamma_diagonal
 from .setup import RankProblem
 
 __all__ = ["ReplicatedHybrid", "DistributedActiveSetHybrid"]
@@ -186,11 +186,9 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
         return distributed_kkt(self.dh, self.hybrid.last_u_gamma, sol.lam)
 
     def gamma_stiffness(self) -> np.ndarray:
-        """|diag K| on the u_Gamma dofs, replicated: the subdomains' diagonals summed on this rank's
-        u_Gamma dofs (one neighbour sum), then made replicated (one Allreduce of n_Gamma doubles)."""
-        dh = self.dh
-        d_W = np.abs(dh.prob.sub.K_W.diagonal())
-        return self.hybrid.to_global(dh.gamma.exchange.sum(dh.gamma.space.gather(d_W, None)))
+        """|diag K| on the u_Gamma dofs, replicated: :func:`~ddsolve.parallel.kkt.gamma_diagonal` (one
+        neighbour sum), then made replicated (one Allreduce of n_Gamma doubles)."""
+        return self.hybrid.to_global(gamma_diagonal(self.dh))
 
     def coefficient_scale(self) -> float:
         """max_i rho_i over the subdomains of all ranks (one Allreduce)."""

@@ -53,13 +53,19 @@ from ..contact.run import ContactMeasures
 from ..krylov.convergence import norm2
 from .krylov import Reductions
 
-__all__ = ["distributed_kkt"]
+__all__ = ["distributed_kkt", "gamma_diagonal"]
 
 
 def _assembled_gamma(dh, w: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
     """sum_i R_i^T (weights w_i) on this rank's u_Gamma dofs, summed over ranks (one neighbour sum)."""
     g = dh.gamma
     return g.exchange.sum(g.space.gather(w, weights))
+
+
+def gamma_diagonal(dh) -> np.ndarray:
+    """|diag K| of the assembled K on this rank's u_Gamma dofs: the subdomains' diagonals summed over their
+    copies and ranks (one neighbour sum), shape (dh.gamma.n,)."""
+    return _assembled_gamma(dh, np.abs(dh.prob.sub.K_W.diagonal()), None)
 
 
 def distributed_kkt(dh, u_gamma: np.ndarray | None, lam: np.ndarray) -> ContactMeasures:
@@ -95,9 +101,8 @@ def distributed_kkt(dh, u_gamma: np.ndarray | None, lam: np.ndarray) -> ContactM
     interior = ~on_gamma
 
     # |diag K| of the assembled K: summed copies on u_Gamma, one copy elsewhere (the weighted feasibility)
-    d_W = np.abs(sub.K_W.diagonal())
-    d_g = _assembled_gamma(dh, d_W, None)
-    d_W = np.where(on_gamma, g.space.scatter(d_g), d_W)
+    d_g = gamma_diagonal(dh)
+    d_W = np.where(on_gamma, g.space.scatter(d_g), np.abs(sub.K_W.diagonal()))
 
     # ||u||_inf (NaN anywhere: NaN, as np.abs(u).max() in serial) and ||D u||_inf, one Allreduce(MAX)
     absu = np.abs(u_W)
@@ -112,13 +117,13 @@ def distributed_kkt(dh, u_gamma: np.ndarray | None, lam: np.ndarray) -> ContactM
 
     # the gap B u = u^1 - u^2 at the pairs and the pairs' |diag K|: each dof from the rank owning it,
     # one Allreduce of 4 n_c
-    pair_u = np.zeros((2,) + dh.pair_dofs.shape)
+    pair_values = np.zeros((2,) + dh.pair_dofs.shape)              # u and |diag K| at the pairs' dofs
     pos = g.local_index(dh.pair_dofs)
     mine = pos >= 0
     mine[mine] = g.owned[pos[mine]]
-    pair_u[0][mine] = u_g[pos[mine]]
-    pair_u[1][mine] = d_g[pos[mine]]
-    pair_u, pair_d = comm.allreduce_sum(pair_u.ravel()).reshape((2,) + dh.pair_dofs.shape)
+    pair_values[0][mine] = u_g[pos[mine]]
+    pair_values[1][mine] = d_g[pos[mine]]
+    pair_u, pair_d = comm.allreduce_sum(pair_values.ravel()).reshape((2,) + dh.pair_dofs.shape)
     gap = pair_u[:, 0] - pair_u[:, 1]
 
     l_inf = float(np.abs(lam).max()) if lam.size else 0.0

@@ -197,11 +197,10 @@ def run_unstructured_case(problem: str, *, maxh: float, refine: int, parts: int,
 
 
 def _import_peer(method: str) -> None:
-    """Import the package a peer method runs on (none for ddsolve's methods; a missing one is reported later)."""
-    module = {"pyamg": "pyamg"}.get(method)
-    if module is not None:
+    """Import the package of a peer that ddsolve does not load itself (pyamg; a missing one is reported later)."""
+    if method == "pyamg":
         try:
-            importlib.import_module(module)
+            importlib.import_module("pyamg")
         except ImportError:
             pass
 
