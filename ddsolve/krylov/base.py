@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -284,6 +284,14 @@ class KrylovSolver:
     def inner(self, a: np.ndarray, b: np.ndarray) -> float:
         """Inner product ``<a, b>``."""
         return float(np.dot(a, b))
+
+    def inners(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[float]:
+        """``[<a, b> for (a, b) in pairs]``: several inner products that a recurrence needs at the
+        same point, so that a distributed solver sums them in one reduction (the values are those
+        of :meth:`inner`; an overflow is a non-finite value for the recurrence to handle, quietly,
+        as in :func:`~ddsolve.krylov.convergence.norm2`)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            return [self.inner(a, b) for a, b in pairs]
 
     def l2norm(self, v: np.ndarray) -> float:
         """Euclidean norm ``||v||_2`` (:func:`~ddsolve.krylov.convergence.norm2`)."""

@@ -38,7 +38,7 @@ import numpy as np
 from ..errors import InputError
 from ..options import NORMS  # Euclidean, or <r, M r>^{1/2} with M the preconditioner
 from .base import BREAKDOWN, KrylovSolver, apply, as_matvec
-from .convergence import norm2
+from .convergence import _DOT_MIN, norm2
 from .result import KrylovResult
 
 __all__ = ["NORMS", "PCR", "pcr"]
@@ -49,7 +49,7 @@ logger = logging.getLogger(__name__)
 #: recurrence (the two-term CR would divide by a numerically zero pivot). For
 #: ``norm="M"`` the norms are those of the M-geometry, ``||z||_{M^-1} = <r, M r>^{1/2}``
 #: and ``||A z||_M``, so the test is invariant under block scalings of the unknowns
-#: (rho -> s rho in a saddle-point system); see :func:`_pivot_vanishes`.
+#: (rho -> s rho in a saddle-point system); see :func:`_cr_pivot`.
 _CR_PIVOT_TOL = 1e-8
 #: A negative ``<r, M r>`` within ``_ROUNDING * ||r|| ||M r||`` is rounding, not an
 #: indefinite ``M``: its square root is taken of the absolute value.
@@ -197,19 +197,37 @@ class PCR(KrylovSolver):
                               "or NaN/inf)")
 
 
-def _pivot_vanishes(st: PCR, rho: float, z: np.ndarray, az: np.ndarray, maz: np.ndarray | None) -> bool:
-    """Whether the CR pivot ``rho = <z, A z>`` is numerically zero (the cosine test of ``_CR_PIVOT_TOL``).
+def _cr_pivot(st: PCR, z: np.ndarray, az: np.ndarray) -> tuple[float, np.ndarray | None, bool]:
+    """The CR pivot ``rho = <z, A z>``, ``P M A z`` (``norm="M"``, else None) and whether ``rho`` is
+    numerically zero (the cosine test of ``_CR_PIVOT_TOL``).
 
-    ``norm="l2"``: ``|rho| <= tol ||z||_2 ||A z||_2``. ``norm="M"`` (``maz = P M A z``):
+    ``norm="l2"``: ``|rho| <= tol ||z||_2 ||A z||_2``. ``norm="M"``:
     ``|rho| <= tol <r, z>^{1/2} <A z, M A z>^{1/2}``, the Cauchy-Schwarz bound in the
     M^{-1} / M pairing, which is invariant when the unknowns' blocks are scaled
     differently (x -> D x, r -> D^{-1} r, M -> D M D): the l2 cosine is not, so a saddle
     point system with rho -> s rho would switch recurrences at other iterations.
+
+    The inner products of the test are taken together with ``rho`` (:meth:`KrylovSolver.inners`:
+    one reduction over ranks for ``"l2"``, two for ``"M"``, whose ``M A z`` needs a finite
+    ``rho`` first). A non-finite ``rho`` is returned with ``False`` (the caller's breakdown).
     """
-    if maz is None:
-        return abs(rho) <= _CR_PIVOT_TOL * st.l2norm(z) * st.l2norm(az)
-    rz, am = st.inner(st.r, z), st.inner(az, maz)
-    return abs(rho) <= _CR_PIVOT_TOL * math.sqrt(abs(rz)) * math.sqrt(abs(am))
+    if st.norm == "M":
+        rho = st.inner(z, az)
+        if not math.isfinite(rho):
+            return rho, None, False
+        maz = st.precondition(az)
+        rz, am = st.inners([(st.r, z), (az, maz)])
+        return rho, maz, abs(rho) <= _CR_PIVOT_TOL * math.sqrt(abs(rz)) * math.sqrt(abs(am))
+    rho, zz, aa = st.inners([(z, az), (z, z), (az, az)])
+    if not math.isfinite(rho):
+        return rho, None, False
+    return rho, None, abs(rho) <= _CR_PIVOT_TOL * _norm_of(st, z, zz) * _norm_of(st, az, aa)
+
+
+def _norm_of(st: PCR, v: np.ndarray, vv: float) -> float:
+    """||v||_2 from ``vv = <v, v>``: its square root where that is exact to rounding (the fast path
+    of :func:`~ddsolve.krylov.convergence.norm2`), else the scaled :meth:`KrylovSolver.l2norm`."""
+    return math.sqrt(vv) if _DOT_MIN <= vv < math.inf else st.l2norm(v)
 
 
 def _two_term(st: PCR) -> str:
@@ -225,7 +243,7 @@ def _two_term(st: PCR) -> str:
         A p_{k+1} = A z_{k+1} + beta_k A p_k,   M A p_{k+1} = M (A p_{k+1})
 
     (``norm="M"``: ``M A p_{k+1} = M A z_{k+1} + beta_k M A p_k``, with ``M A z``
-    needed by the invariant pivot test, :func:`_pivot_vanishes`.) One operator
+    needed by the invariant pivot test, :func:`_cr_pivot`.) One operator
     (``A z``) and one preconditioner application per iteration. ``z`` is ``st.z``, updated in place by :meth:`PCR.step`.
     Returns ``_SWITCH`` when ``rho`` is numerically zero.
     """
@@ -233,13 +251,12 @@ def _two_term(st: PCR) -> str:
         st.z = st.precondition(st.r)
     z = st.z
     az = st.op(z)
-    rho = st.inner(z, az)
+    rho, maz, vanishes = _cr_pivot(st, z, az)
     if not math.isfinite(rho):
         st.reason = f"breakdown: non-finite <z, A z> at iteration {st.iterations + 1}"
         return BREAKDOWN
     m_geometry = st.norm == "M"
-    maz = st.precondition(az) if m_geometry else None
-    if _pivot_vanishes(st, rho, z, az, maz):
+    if vanishes:
         return _SWITCH
     p = z.copy()
     ap = az
@@ -256,12 +273,11 @@ def _two_term(st: PCR) -> str:
         if outcome is not None:
             return outcome
         az = st.op(z)
-        rho_new = st.inner(z, az)
+        rho_new, maz, vanishes = _cr_pivot(st, z, az)
         if not math.isfinite(rho_new):
             st.reason = f"breakdown: non-finite <z, A z> at iteration {st.iterations + 1}"
             return BREAKDOWN
-        maz = st.precondition(az) if m_geometry else None
-        if _pivot_vanishes(st, rho_new, z, az, maz):
+        if vanishes:
             return _SWITCH
         beta = rho_new / rho
         rho = rho_new

@@ -86,6 +86,26 @@ class DistributedProjection:
         self.coarse_seconds += time.perf_counter() - t0
         return v - self.G @ y
 
+    def apply_pair(self, v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(P v, P w) with one Allreduce of 2 k doubles (the values of :meth:`apply`)."""
+        k = self.G.shape[1]
+        t0 = time.perf_counter()
+        gt = self.comm.allreduce_sum(np.concatenate([self.local_sums(v), self.local_sums(w)]))
+        self.coarse_seconds += time.perf_counter() - t0
+        return self.apply_summed(v, gt[:k]), self.apply_summed(w, gt[k:])
+
+    def local_sums(self, v: np.ndarray) -> np.ndarray:
+        """This rank's share of G^T v (its owned rows), shape (k,): :meth:`reduce` before its Allreduce."""
+        return self.GT_owned @ v[self.owned]
+
+    def apply_summed(self, v: np.ndarray, gtv: np.ndarray) -> np.ndarray:
+        """P v from G^T v already summed over ranks (``gtv``, shape (k,)): :meth:`apply` after its
+        reduction, for a caller that sums G^T v together with other values."""
+        t0 = time.perf_counter()
+        y = self.coarse_solve(gtv)
+        self.coarse_seconds += time.perf_counter() - t0
+        return v - self.G @ y
+
     def particular(self, e: np.ndarray) -> np.ndarray:
         return self.G @ self.coarse_solve(e)
 

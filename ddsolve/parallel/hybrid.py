@@ -20,8 +20,12 @@ Coarse problems of the floating bodies. P_R (the mean on each floating
 body) is one Allreduce of k doubles; the projection P^k = I - G (G^T G)^{-1}
 G^T of G^k = Z B^ R_c is :class:`~ddsolve.parallel.dual.DistributedProjection`:
 G^T G (k x k) summed once and factored redundantly, G^T v one Allreduce of k
-doubles. PCR is the serial recurrence with global reductions
-(:class:`~ddsolve.parallel.krylov.DistributedPCR`), restarted as in serial.
+doubles. The preconditioner (4.11) applies P_R and P^k to the two blocks of the
+same vector, before and after its solves: each such pair is one Allreduce of
+2 k doubles (:meth:`DistributedHybrid.P_R_and_project`); so are the two P^k of
+the operator (4.13), on its input multipliers and on the jump of its u_Gamma. PCR is the serial
+recurrence with global reductions (:class:`~ddsolve.parallel.krylov.DistributedPCR`),
+restarted as in serial.
 
 Only the orthogonal projection P^k (the default and the thesis's) is
 distributed; ``projection="dirichlet"``/``"lumped"`` are refused under mpiexec.
@@ -314,6 +318,17 @@ class DistributedHybrid:
         fs = self._floating_sums
         return fs.subtract(u, self.comm.allreduce_sum(fs.sums(u)) / self._kernel_count)
 
+    def P_R_and_project(self, u: np.ndarray, lam: np.ndarray,
+                        P: DistributedProjection) -> tuple[np.ndarray, np.ndarray]:
+        """(P_R u, P^k lam) with one Allreduce of 2 k doubles: the two projections of (4.11), which
+        act on the two blocks of the same vector, summed together (the values of :meth:`P_R` and
+        ``P.apply``; k floating bodies, so P_R and P^k exist together)."""
+        fs, k = self._floating_sums, self.floating.size
+        t0 = time.perf_counter()
+        sums = self.comm.allreduce_sum(np.concatenate([fs.sums(u), P.local_sums(lam)]))
+        P.coarse_seconds += time.perf_counter() - t0
+        return fs.subtract(u, sums[:k] / self._kernel_count), P.apply_summed(lam, sums[k:])
+
     def kernel_load(self) -> np.ndarray:
         """e = R_c^T g^_c over all ranks, shape (n_float,)."""
         return self.comm.allreduce_sum(self._floating_sums.sums(self.g_hat))
@@ -426,12 +441,15 @@ class DistributedHybrid:
 
         def A_op(x: np.ndarray) -> np.ndarray:                  # (4.13)
             u, mu = x[:n_g], x[n_g:]
-            return np.concatenate([self.S_hat(u) + a.jump.rmatvec(proj(mu)), proj(a.jump.matvec(u))])
+            jump = a.jump.matvec(u)
+            mu, jump = (mu, jump) if P is None else P.apply_pair(mu, jump)    # one Allreduce for both
+            return np.concatenate([self.S_hat(u) + a.jump.rmatvec(mu), jump])
 
         def M_op(r: np.ndarray) -> np.ndarray:                  # (4.11)
-            zu = self.P_R(self.M_bddc(self.P_R(r[:n_g])))
-            zl = proj(self.M_D(a, proj(r[n_g:]), s_ol))
-            return np.concatenate([zu, zl])
+            if P is None:                   # no floating body: P_R = I, P^k = I
+                return np.concatenate([self.M_bddc(r[:n_g]), self.M_D(a, r[n_g:], s_ol)])
+            ru, rl = self.P_R_and_project(r[:n_g], r[n_g:], P)      # P_R and P^k: one Allreduce each side
+            return np.concatenate(self.P_R_and_project(self.M_bddc(ru), self.M_D(a, rl, s_ol), P))
 
         b = np.concatenate([self.g_hat - a.jump.rmatvec(lam0), np.zeros(n_act)])
         owned = np.concatenate([self.gamma.owned, a.shared.owned])

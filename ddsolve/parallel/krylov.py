@@ -1,17 +1,20 @@
 """PCG with a distributed inner product: the serial recurrence, global reductions.
 
-:class:`DistributedPCG` is :class:`~ddsolve.krylov.pcg.PCG` with the three
-reduction hooks of :class:`~ddsolve.krylov.base.KrylovSolver` replaced by
+:class:`DistributedPCG` is :class:`~ddsolve.krylov.pcg.PCG` with the
+reduction hooks (inner, inners, l2norm, absmax) of :class:`~ddsolve.krylov.base.KrylovSolver` replaced by
 Allreduce over the indices each rank owns (:class:`~ddsolve.parallel.comm.SharedIndex`).
 Vectors are rank-local, with consistent copies of shared indices (the operators
 end with :class:`~ddsolve.parallel.comm.NeighbourSum`), so every rank runs the
 same recurrence with the same scalars; the iteration counts are the serial ones.
 Per iteration: 3 Allreduces (<p, q>, ||r||, <r, z>). :class:`DistributedPCR` is
-:class:`~ddsolve.krylov.pcr.PCR` with the same hooks (the hybrid method).
+:class:`~ddsolve.krylov.pcr.PCR` with the same hooks (the hybrid method): 3 Allreduces per
+iteration of its two-term recurrence in the l2 norm (<A p, M A p>, ||r||, and <z, A z> with the
+pivot test's ||z||, ||A z|| summed together by the ``inners`` hook).
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -45,6 +48,13 @@ class Reductions:
         with np.errstate(over="ignore", invalid="ignore"):     # inf is handled by l2norm's rescaling, quietly
             return self.comm.allreduce_scalar(float(np.dot(a[o], b[o])))   # as serial (no RuntimeWarning)
 
+    def inners(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[float]:
+        """``[<a, b> for (a, b) in pairs]`` over all ranks in one Allreduce (the values of :meth:`inner`)."""
+        o = self.owned
+        with np.errstate(over="ignore", invalid="ignore"):
+            local = np.array([np.dot(a[o], b[o]) for a, b in pairs], dtype=np.float64)
+        return [float(x) for x in self.comm.allreduce_sum(local)]
+
     def l2norm(self, v: np.ndarray) -> float:
         d = self.inner(v, v)
         if _DOT_MIN <= d < math.inf or v.size == 0:
@@ -76,6 +86,9 @@ class DistributedReductions:
 
     def inner(self, a: np.ndarray, b: np.ndarray) -> float:
         return self.reductions.inner(a, b)
+
+    def inners(self, pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[float]:
+        return self.reductions.inners(pairs)
 
     def l2norm(self, v: np.ndarray) -> float:
         return self.reductions.l2norm(v)
