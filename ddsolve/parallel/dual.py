@@ -50,7 +50,9 @@ class DistributedProjection:
     ----------
     coarse_seconds : float
         Time in the coarse problem on this rank (setup reduction and factorization, every
-        reduction of G^T v and coarse solve, waits at the reductions included).
+        reduction of G^T v and coarse solve, waits at the reductions included; each counted once,
+        and a reduction that sums G^T v with other values, :meth:`apply_pair` or
+        :meth:`~ddsolve.parallel.hybrid.DistributedHybrid.P_R_and_project`, counted whole).
     """
 
     def __init__(self, G: sp.spmatrix, owned: np.ndarray, comm: CountingComm) -> None:
@@ -81,10 +83,7 @@ class DistributedProjection:
         return out
 
     def apply(self, v: np.ndarray) -> np.ndarray:
-        t0 = time.perf_counter()
-        y = self.coarse_solve(self.reduce(v))
-        self.coarse_seconds += time.perf_counter() - t0
-        return v - self.G @ y
+        return self.apply_summed(v, self.reduce(v))      # each counts its own part of coarse_seconds once
 
     def apply_pair(self, v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(P v, P w) with one Allreduce of 2 k doubles (the values of :meth:`apply`)."""
@@ -110,7 +109,11 @@ class DistributedProjection:
         return self.G @ self.coarse_solve(e)
 
     def coefficients(self, r: np.ndarray) -> np.ndarray:
-        return self.coarse_solve(self.reduce(r))
+        gtv = self.reduce(r)
+        t0 = time.perf_counter()
+        y = self.coarse_solve(gtv)
+        self.coarse_seconds += time.perf_counter() - t0
+        return y
 
 
 @dataclass

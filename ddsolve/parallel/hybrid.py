@@ -322,7 +322,8 @@ class DistributedHybrid:
                         P: DistributedProjection) -> tuple[np.ndarray, np.ndarray]:
         """(P_R u, P^k lam) with one Allreduce of 2 k doubles: the two projections of (4.11), which
         act on the two blocks of the same vector, summed together (the values of :meth:`P_R` and
-        ``P.apply``; k floating bodies, so P_R and P^k exist together)."""
+        ``P.apply``; k floating bodies, so P_R and P^k exist together). The shared Allreduce is
+        counted in ``P.coarse_seconds`` (the means of the floating bodies are coarse work too)."""
         fs, k = self._floating_sums, self.floating.size
         t0 = time.perf_counter()
         sums = self.comm.allreduce_sum(np.concatenate([fs.sums(u), P.local_sums(lam)]))
