@@ -115,6 +115,17 @@ def check_flag(name: str, value: Any) -> bool:
     return bool(value)
 
 
+def check_seed(name: str, value: Any) -> int:
+    """``value`` as an int if it is an integer that fits METIS's C int seed, else :class:`InputError`
+    naming ``name`` (``seed=2**70`` failed inside pymetis with a TypeError)."""
+    import numpy as np
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise InputError(name, f"must be an integer, got {brief(value)}")
+    if not -2**31 <= int(value) < 2**31:
+        raise InputError(name, f"must lie in [-2**31, 2**31 - 1] (METIS's seed), got {value!r}")
+    return int(value)
+
+
 class ConvergenceWarning(UserWarning):
     """A solve that returns without meeting its tolerance (its result says why: ``converged``, ``reason``).
 

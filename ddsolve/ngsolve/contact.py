@@ -27,7 +27,7 @@ from typing import Any
 import ngsolve
 import numpy as np
 
-from ..errors import InputError, brief
+from ..errors import InputError, brief, check_seed
 
 log = logging.getLogger(__name__)
 
@@ -284,8 +284,7 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
         raise InputError("contact", f"expected a boundary name, got {contact!r}")
     if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
         raise InputError("parts", f"must be a positive integer, got {parts!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise InputError("seed", f"must be an integer, got {seed!r}")
+    seed = check_seed("seed", seed)
     for m in (mesh if isinstance(mesh, (tuple, list)) else (mesh,)):
         if isinstance(m, ngsolve.Mesh) and m.GetCurveOrder() > 1:    # the scene has straight triangles
             raise InputError("mesh", f"curved elements (mesh.Curve({m.GetCurveOrder()})) are not supported: "

@@ -403,6 +403,9 @@ def element_matrices(a: Any, fes: Any, n_local: int, integrators: list | None = 
     try:
         ad.Assemble()
     except NgException as exc:          # e.g. a skeleton (interior facet) term, which couples two elements
+        if "complex" in str(exc):        # NGSolve: "real Evaluate called for complex ..." (a.Assemble() fails so too)
+            raise InputError("a", "a complex coefficient on a real space: complex forms are not supported "
+                                  f"({str(exc).strip()})") from None
         raise InputError("a", f"a term couples elements (dx(skeleton=True)?): not assembled element by element "
                               f"({exc})") from None
     ne = fes.mesh.ne if n_elements is None else int(n_elements)

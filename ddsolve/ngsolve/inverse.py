@@ -14,7 +14,7 @@ from scipy.sparse.csgraph import connected_components
 from ..dd import Substructures
 from ..dd.check import energy_error_estimate
 from ..dd.edges import subdomain_edges_3d
-from ..errors import ConvergenceWarning, InputError, check_flag, check_tolerance
+from ..errors import ConvergenceWarning, InputError, check_flag, check_seed, check_tolerance
 from ..krylov.convergence import ERROR_CAP, ERROR_FACTOR, ERROR_FLOOR, error_limit
 from ..options import PRIMAL_METHODS, PRIMALS
 from .dofs import (
@@ -55,11 +55,17 @@ def _free_mask(fes: Any, freedofs: Any) -> np.ndarray:
     if freedofs is None:
         freedofs = fes.FreeDofs()
     try:
+        raw = np.asarray(freedofs) if not isinstance(freedofs, ngsolve.BitArray) else None
         free = np.array(freedofs, dtype=bool)
     except (TypeError, ValueError) as exc:
         raise InputError("freedofs", f"expected a BitArray or boolean array ({exc})") from None
     if free.shape != (fes.ndof,):
         raise InputError("freedofs", f"expected {fes.ndof} entries, got shape {free.shape}")
+    # a numeric array must hold 0/1 flags: 0.5 or NaN was read as free (bool(x) of any nonzero)
+    if raw is not None and raw.dtype != bool and not (raw.dtype.kind in "iuf" and np.isin(raw, (0, 1)).all()):
+        got = (f"values such as {raw[~np.isin(raw, (0, 1))][0]}" if raw.dtype.kind in "iuf"
+               else f"an array of dtype {raw.dtype}")
+        raise InputError("freedofs", f"expected booleans or 0/1 entries, got {got}")
     return free
 
 
@@ -118,6 +124,20 @@ def _mesh_pieces(part: np.ndarray, graph: tuple[np.ndarray, np.ndarray],
         a, b = np.concatenate([a, owner[:-1][same]]), np.concatenate([b, owner[1:][same]])
     joined = sp.csr_matrix((np.ones(a.size), (a, b)), shape=(n_parts, n_parts))
     return connected_components(joined, directed=False)
+
+
+def mesh_pieces(part: np.ndarray, graph: tuple[np.ndarray, np.ndarray], vertex_dofs: np.ndarray,
+                periodic: bool) -> tuple[int, np.ndarray]:
+    """:func:`_mesh_pieces` joined through shared vertex dofs too, as the form couples them: parts that
+    touch at a vertex only (two squares meeting at a corner) are one piece, not two bodies.
+
+    The vertex incidences (one sort of n_elements x k entries, 0.5 s at 2M elements) are read only
+    where the facets leave more than one piece, or for a periodic space.
+    """
+    n_pieces, piece_of_part = _mesh_pieces(part, graph)
+    if n_pieces > 1 or periodic:
+        n_pieces, piece_of_part = _mesh_pieces(part, graph, vertex_dofs)
+    return n_pieces, piece_of_part
 
 
 def _check_not_singular(Ke: np.ndarray, T: np.ndarray, free: np.ndarray, nv: int, part: np.ndarray,
@@ -271,8 +291,14 @@ class DDInverse(ngsolve.BaseMatrix):
         if flags.get("diagonal"):       # NGSolve keeps only the diagonal of each element matrix then
             raise InputError("a", "a form with diagonal=True is not supported: its a.mat is the diagonal of the "
                                   "element matrices; invert it directly (a.mat.Inverse(freedofs))")
+        if a.testspace is not a.trialspace:  # BilinearForm(trialspace=..., testspace=...): not an operator on one space
+            raise InputError("a", "its trial and test spaces differ (BilinearForm(trialspace=, testspace=)); "
+                                  "DDInverse inverts a form on one space")
         fes = a.space if fes is None else fes
         check_space(uncompressed(fes)[0])
+        if fes.mesh.ne == 0:
+            raise InputError("mesh", f"has no {fes.mesh.dim}D (volume) elements (a surface mesh?); DDInverse "
+                                     "needs a mesh of triangles or quadrilaterals (2D) or tetrahedra or hexahedra (3D)")
         if not fes.mesh == a.space.mesh:
             raise InputError("fes", "is on another mesh than the form's space; give a space on the form's mesh or None")
         if method not in METHODS:
@@ -287,8 +313,7 @@ class DDInverse(ngsolve.BaseMatrix):
         rtol, cond = check_tolerance("rtol", rtol), check_flag("cond", cond)
         if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
             raise InputError("maxiter", f"must be a positive integer, got {maxiter!r}")
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-            raise InputError("seed", f"must be an integer, got {seed!r}")
+        seed = check_seed("seed", seed)
         if scaling == "deluxe" and method == "feti":
             raise InputError("scaling", "'deluxe' needs method 'bddc' or 'fetidp'")
         self.a, self.fes, self.method, self.rtol, self.maxiter = a, fes, method, rtol, int(maxiter)
@@ -368,10 +393,9 @@ class DDInverse(ngsolve.BaseMatrix):
         t = time.perf_counter()
         graph, boundary = facet_adjacency(V, dim, ndof)     # facet graph, boundary vertex dofs (= vertex numbers)
         part = element_parts(fes.mesh, V, parts, partition, seed=seed, graph=graph, elements=elements)
-        # a periodic space joins pieces of the mesh through its identified dofs (0.5 s more at 2M elements,
-        # so only there)
-        periodic = isinstance(fes, ngsolve.comp.Periodic)
-        n_pieces, piece_of_part = _mesh_pieces(part, graph, T[:, :V.shape[1]] if periodic else None)
+        # pieces joined by facets, then by shared vertex dofs (a corner where two pieces touch; the two
+        # sides of a periodic identification)
+        n_pieces, piece_of_part = mesh_pieces(part, graph, T[:, :V.shape[1]], isinstance(fes, ngsolve.comp.Periodic))
         self.timings["partition"] = time.perf_counter() - t
         _check_not_singular(Ke, T, self.free, fes.mesh.nv, part, n_pieces, piece_of_part)   # after the partition's checks
         t = time.perf_counter()
