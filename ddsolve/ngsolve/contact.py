@@ -27,7 +27,7 @@ from typing import Any
 import ngsolve
 import numpy as np
 
-from ..errors import InputError, brief, check_seed
+from ..errors import InputError, brief, check_seed, check_tolerance
 
 log = logging.getLogger(__name__)
 
@@ -44,16 +44,21 @@ class ContactResult:
         u^1 and u^2: order-1 H1 GridFunctions, on the body's material
         (``definedon``) of the one mesh, or on each of the two meshes.
     points : ndarray, shape (n_c, 2)
-        Contact nodes (the vertices of the contact boundary), ordered by (y, x).
+        Contact nodes (the vertices of the contact boundary), in the order of the contact
+        problem's pairs (``prepared.contact``, the rows of its B); no geometric order is promised.
     multipliers : ndarray, shape (n_c,)
         Contact forces lambda >= 0 (nodal forces pushing body 2 up).
     gap : ndarray, shape (n_c,)
-        u^2 - u^1 at the contact nodes (>= 0; zero where active).
+        u^2 - u^1 at the contact nodes (>= 0, and zero where active, to the method's accuracy: of
+        order 1e-9 for the iterative methods at the default rtol).
     active : ndarray of bool, shape (n_c,)
         Nodes in contact.
     iterations : int
         Total inner iterations (0 for ``method="direct"``).
     converged : bool
+        The method's stopping rule met and, for the iterative methods, the result accepted by its
+        KKT check: ``kkt_residual`` at most :func:`ddsolve.contact.problem.kkt_limit` (max(100 rtol,
+        1e-8), at most 1e-2).
     reason : str
     energy : float
         J(u).
@@ -117,13 +122,24 @@ def _per_body(name: str, value: Any, bodies: Sequence[str]) -> list[Any]:
     return [value] * len(bodies)
 
 
+def _reads_a_gridfunction(cf: Any) -> bool:
+    """Whether a CoefficientFunction is, or is an expression of, a GridFunction (``1.0 * g``,
+    ``CoefficientFunction(g)``, ``IfPos(x, g, 1)``): NGSolve names a GridFunction leaf in the expression
+    tree it prints (``gridfunction '...'`` or its C++ type ``...GridFunction...``) and offers no other way
+    to walk the tree from Python."""
+    return isinstance(cf, ngsolve.GridFunction) or "gridfunction" in str(cf).lower()
+
+
 def _number(name: str, value: Any) -> float:
     try:
         out = float(value)
     except (TypeError, ValueError):
-        if isinstance(value, ngsolve.CoefficientFunction):     # in a dict or pair of per-body values
+        if isinstance(value, ngsolve.CoefficientFunction) and name == "f":     # in a dict or pair of per-body loads
             raise InputError(name, "a per-body value must be a number; for a function give one "
                                    "CoefficientFunction for both bodies (e.g. with IfPos or MaterialCF)") from None
+        if isinstance(value, ngsolve.CoefficientFunction):
+            raise InputError(name, "must be a number, a pair of numbers or a dict of them (one per body), "
+                                   "got a CoefficientFunction") from None
         raise InputError(name, f"expected a number, got {brief(value)}") from None
     if not np.isfinite(out):
         raise InputError(name, f"must be finite, got {value!r}")
@@ -284,6 +300,9 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
         raise InputError("contact", f"expected a boundary name, got {contact!r}")
     if isinstance(parts, bool) or not isinstance(parts, (int, np.integer)) or parts < 1:
         raise InputError("parts", f"must be a positive integer, got {parts!r}")
+    rtol = check_tolerance("rtol", rtol)       # strict, as DDInverse: "1e-8" or None was read by the spec
+    if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
+        raise InputError("maxiter", f"must be a positive integer, got {brief(maxiter)}")
     seed = check_seed("seed", seed)
     for m in (mesh if isinstance(mesh, (tuple, list)) else (mesh,)):
         if isinstance(m, ngsolve.Mesh) and m.GetCurveOrder() > 1:    # the scene has straight triangles
@@ -316,6 +335,8 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
         data = netgen_arrays(mesh.ngmesh)
         if bodies is None:
             body_names = list(dict.fromkeys(data.material_names[i] for i in np.unique(data.material)))
+        elif isinstance(bodies, str) or not isinstance(bodies, (list, tuple)):
+            raise InputError("bodies", f"expected two material names (a pair), got {brief(bodies)}")
         else:
             body_names = [str(b) for b in bodies]
         if len(body_names) != 2:
@@ -335,12 +356,10 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
         scene.f = f_b[el_body]
     elif isinstance(f, ngsolve.CoefficientFunction) or callable(f):
         if two:
-            if isinstance(f, ngsolve.GridFunction):     # NGSolve reads a GridFunction as 0 on another mesh
-                other = [i + 1 for i, m in enumerate(meshes) if f.space.mesh is not m]
-                if other:
-                    raise InputError("f", f"a GridFunction lives on one mesh, and NGSolve reads it as 0 on body "
-                                          f"{other[0]}'s mesh; give a CoefficientFunction of x, y, a number per "
-                                          f"body, or the bodies as one mesh")
+            if isinstance(f, ngsolve.CoefficientFunction) and _reads_a_gridfunction(f):
+                raise InputError("f", "reads a GridFunction, which lives on one mesh and which NGSolve reads as 0 "
+                                      "on the other body's mesh; give a CoefficientFunction of x, y, a number per "
+                                      "body, or the bodies as one mesh")
             scene.f = np.concatenate([_element_loads(f, m, els) for m, els in zip(meshes, originals)])
         else:
             scene.f = _element_loads(f, mesh, data.elements)

@@ -6,6 +6,8 @@ zone), a curved mesh solved as a straight one, and tracebacks instead of one Inp
 """
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -158,3 +160,20 @@ def test_load_returning_a_number(mesh):
     """f(x, y) may return a number: the same as that constant (it raised AttributeError 'Norm')."""
     a, b = _solve(mesh, lambda x, y: -1.0), _solve(mesh, -1.0)
     assert a.converged and a.energy == pytest.approx(b.energy, rel=1e-12)
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"rho": ngs.CoefficientFunction(1.0)}, "rho: must be a number, a pair of numbers or a dict of them"),
+    ({"bodies": "left"}, "bodies: expected two material names (a pair), got 'left'"),
+    ({"rtol": "1e-8"}, "rtol: must be a number in (0, 1)"),
+    ({"rtol": None}, "rtol: must be a number in (0, 1)"),
+    ({"maxiter": "10"}, "maxiter: must be a positive integer"),
+    ({"maxiter": None}, "maxiter: must be a positive integer"),
+])
+def test_bad_arguments_of_a_second_review(mesh, kw, message):
+    """A review of 2026-11-28: rho as a CoefficientFunction got the message meant for f; bodies="left" was split
+    into characters; rtol and maxiter as strings ran, and rtol=None used the spec's 1e-5, not the documented
+    default 1e-8."""
+    kw = {"bodies": ("left", "right"), **kw}
+    with pytest.raises(InputError, match=re.escape(message)):
+        contact_solve(mesh, kw.pop("bodies"), contact="gap", dirichlet="wall", **kw)

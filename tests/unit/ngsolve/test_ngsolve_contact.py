@@ -169,5 +169,7 @@ def test_refused_meshes_and_loads():
     m1, m2 = one_body(0, 0.2), one_body(1, 0.2)
     g = ngs.GridFunction(ngs.H1(m1, order=1))
     g.Set(-1.0)
-    with pytest.raises(InputError, match="^f: a GridFunction lives on one mesh, and NGSolve reads it as 0 on body 2"):
-        contact_solve((m1, m2), contact="gap", dirichlet="wall", f=g, method="direct")
+    for f in (g, 1.0 * g, ngs.CoefficientFunction(g), ngs.IfPos(ngs.x - 0.5, g, -1.0)):   # a review, 2026-11-28:
+        with pytest.raises(InputError, match="^f: reads a GridFunction, which lives on one mesh"):   # 1.0 * g passed
+            contact_solve((m1, m2), contact="gap", dirichlet="wall", f=f, method="direct")
+    assert contact_solve((m1, m2), contact="gap", dirichlet="wall", f=-1.0 + 0 * ngs.x, method="direct").converged
