@@ -78,7 +78,7 @@ class DistributedProjection:
     def reduce(self, v: np.ndarray) -> np.ndarray:
         """G^T v over all ranks (owned rows only, one Allreduce)."""
         t0 = time.perf_counter()
-        out = self.comm.allreduce_sum(self.GT_owned @ v[self.owned])
+        out = self.comm.allreduce_sum(self.local_sums(v))
         self.coarse_seconds += time.perf_counter() - t0
         return out
 
