@@ -3,7 +3,9 @@
 The workflow scripts (``workflows/scripts/*.py``) run their whole body inside
 :func:`job_log`: what the job prints goes to its log file, and so does the
 traceback of an error, which is then raised again so that Snakemake reports the
-job as failed (and prints the traceback once more on its own output).
+job as failed (and prints the traceback once more on its own output). Errors that
+need no traceback (:func:`one_line_error`: bad input, a full disk) are one line,
+in the log and on stderr, and the job exits with status 1.
 """
 from __future__ import annotations
 
@@ -58,10 +60,13 @@ _NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
 
 
 def one_line_error(exc: BaseException) -> str | None:
-    """``ddsolve: error: <what>`` for an error that needs no traceback (full disk, bad input file), else None."""
+    """``ddsolve: error: <what>`` for an error that needs no traceback (full disk, bad input file, an
+    :class:`~ddsolve.errors.InputError` of a case that passed planning: more parts than triangles, every
+    node on the Dirichlet boundary), else None."""
+    from ..errors import InputError
     from .hdf5 import NoSpaceError, ResultFileError
 
-    if isinstance(exc, (NoSpaceError, ResultFileError)):
+    if isinstance(exc, (NoSpaceError, ResultFileError, InputError)):
         return f"ddsolve: error: {exc}"
     if isinstance(exc, OSError) and exc.errno in _NO_SPACE:
         where = f" writing {exc.filename}" if exc.filename else ""

@@ -228,6 +228,19 @@ def test_job_log_turns_a_full_disk_into_one_line(tmp_path):
     assert "Traceback" in (tmp_path / "other.log").read_text()
 
 
+def test_job_log_turns_an_input_error_into_one_line(tmp_path):
+    """A case that passed planning and is refused by the solver (more parts than triangles, every node on the
+    Dirichlet boundary) failed its job with a full traceback, where docs/studies.md promises one line (a review,
+    2026-11-28)."""
+    log = tmp_path / "job.log"
+    code = (f"from ddsolve.io.joblog import job_log\nfrom ddsolve.errors import InputError\n"
+            f"with job_log({str(log)!r}):\n    raise InputError('parts', '500 parts for 96 triangles')\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 1
+    assert proc.stderr.strip() == "ddsolve: error: parts: 500 parts for 96 triangles"
+    assert log.read_text().splitlines() == ["ddsolve: error: parts: 500 parts for 96 triangles"]
+
+
 # --- the workflow's checks (ddstudies.workflow) ------------------------------------------------
 
 
