@@ -60,8 +60,10 @@ square; measured / estimated MiB)::
 
 Work: set-up loops over subdomains in Python (scene, assembly, local
 factorization groups): :data:`SECONDS_PER_SUBDOMAIN` each, plus
-:data:`SECONDS_PER_W_DOF` for the vectorised work; the estimate is of set-up
-seconds and is compared with :data:`MAX_SETUP_SECONDS`.
+:data:`SECONDS_PER_W_DOF` for the vectorised work, plus for a built-in
+unstructured geometry netgen's meshing, :data:`SECONDS_PER_MESHED_TRIANGLE` per
+triangle before refinement; the estimate is of set-up seconds and is compared
+with :data:`MAX_SETUP_SECONDS`.
 """
 from __future__ import annotations
 
@@ -91,6 +93,10 @@ SECONDS_PER_W_DOF = 2e-6
 MAX_SETUP_SECONDS = 3600.0
 #: Triangles of a netgen mesh per unit area at maxh = 1 (T ~ 2.3 area / maxh^2, measured on the square).
 TRIANGLES_PER_AREA = 2.3
+#: Seconds per triangle of netgen's meshing of a built-in geometry (before the uniform refinements, which
+#: are cheap): 9,700-12,000 triangles/s on the square, hole and lshape at maxh 0.02 and 0.01 (2026-11-28,
+#: one process). Without it a maxh of 0.004 (48 s of meshing under load) was estimated at 0.15 s.
+SECONDS_PER_MESHED_TRIANGLE = 1e-4
 #: Area of each built-in unstructured geometry (ddsolve.options.GEOMETRIES).
 GEOMETRY_AREA = {"square": 1.0, "lshape": 0.75, "hole": 1.0 - math.pi / 16.0, "membranes": 2.0}
 #: Bytes of a netgen .vol file per triangle (points and elements as text), for mesh files.
@@ -171,6 +177,8 @@ def _estimate_unstructured(spec: "ProblemSpec") -> Estimate:
     if spec.method == "direct":
         memory += BYTES_PER_DIRECT_DOF * nodes
     seconds = SECONDS_PER_SUBDOMAIN * n_sub + SECONDS_PER_W_DOF * nodes
+    if not spec.mesh_file:             # netgen meshes the geometry at maxh, then refines uniformly
+        seconds += SECONDS_PER_MESHED_TRIANGLE * triangles / 4.0 ** int(spec.refine)
     return Estimate(n_subdomains=n_sub, n_w=int(min(nodes, 1e18)), ndof=int(min(nodes, 1e18)),
                     memory_bytes=float(memory), setup_seconds=seconds)
 

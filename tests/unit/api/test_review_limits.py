@@ -32,3 +32,16 @@ def test_the_bound_admits_what_netgen_can_partition():
 def test_too_large_names_the_field_that_makes_it_so(fields, named):
     with pytest.raises(InputError, match=f"^{named}: problem too large"):
         check_resources(ProblemSpec(mesh="unstructured", method="bddc", **fields))
+
+
+def test_the_setup_estimate_counts_netgen_meshing():
+    """A review of 2026-11-28: maxh 0.004 on the hole took 48 s of netgen meshing (11.7 s idle at 10,000
+    triangles/s) and was estimated at 0.15 s; the time limit could never see meshing. A mesh file is not meshed."""
+    from ddsolve.limits import estimate
+    spec = ProblemSpec(mesh="unstructured", geometry="hole", maxh=0.004, parts=16, method="fetidp")
+    assert 8.0 < estimate(spec).setup_seconds < 20.0
+    refined = ProblemSpec(mesh="unstructured", geometry="hole", maxh=0.016, refine=2, parts=16, method="fetidp")
+    assert estimate(refined).setup_seconds < 0.2 * estimate(spec).setup_seconds     # meshed coarse, then refined
+    with pytest.raises(InputError, match=r"^maxh: problem too large: ~1\.87e\+04 s of set-up estimated"):
+        check_resources(ProblemSpec(mesh="unstructured", geometry="hole", maxh=1e-4, parts=16, method="fetidp"),
+                        max_memory="1000 TiB")
