@@ -135,7 +135,7 @@ def _not_subnormal(field: str, out: float, value: Any) -> float:
 
 
 def _as_positive_float(field: str, value: Any) -> float:
-    out = _number(field, value, "a positive number")
+    out = _number(field, value, "a positive finite number")
     if not math.isfinite(out) or out <= 0:
         raise InputError(field, f"must be a positive finite number, got {brief(_plain(value))}")
     return _not_subnormal(field, out, value)

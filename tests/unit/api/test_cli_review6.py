@@ -131,7 +131,7 @@ def test_hostile_sizes_are_one_line(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("text, message", [
-    ("rho: 1:30\n", "rho: must be a positive number, got '1:30'"),           # YAML 1.1: 90
+    ("rho: 1:30\n", "rho: must be a positive finite number, got '1:30'"),           # YAML 1.1: 90
     ("subdomains: 1_0\n", "subdomains: must be an integer in [1, 2147483647], got '1_0'"),   # 10
     ("subdomains: 0x4\n", "subdomains: must be an integer in [1, 2147483647], got '0x4'"),
     ("subdomains: 4\nsubdomains: 8\n", "scene: key 'subdomains' is given twice (lines 1 and 2)"),   # last won

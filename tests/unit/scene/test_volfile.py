@@ -62,6 +62,9 @@ def test_a_complete_mesh_passes(vol_text):
     (lambda t: t.replace("geomtype\n", "geomtype\ngeomtype\n", 1), "appears twice"),  # (a ValueError later)
     (lambda t: _field(t, "surfaceelements", 2, "1e308"), "whole number"),
     (lambda t: "hello\n" + t, "not a netgen mesh"),
+    # an undeclared material index (a review, 2026-11-28): netgen named it "default" without a word
+    (lambda t: _field(t, "surfaceelements", 1, "99"), "material index 99, which section 'materials' does not declare"),
+    (lambda t: _field(t, "surfaceelements", 1, "0"), "material index 0, which section 'materials' does not declare"),
 ])
 def test_inconsistent_files_are_refused(vol_text, mutate, message):
     with pytest.raises(InputError, match=message) as info:
