@@ -541,19 +541,22 @@ class BatchedSolver:
         batched subdomains; ``b`` may have shape (n_W, k) (k right-hand sides).
         """
         x = np.zeros(b.shape)
-        for g in self.groups:
-            if isinstance(g.factor, _BlockView):
-                continue
-            if b.ndim == 1:
-                x[g.index] = g.factor.solve(b[g.index]) * g.inv_rho
-            else:
-                n, m = g.index.shape
-                y = g.factor.solve(b[g.index].reshape(n, -1)).reshape(n, m, -1)
-                x[g.index] = y * g.inv_rho[None, :, None]
-        if self._batch is not None:
-            factor, entries, inv_rho = self._batch
-            y = factor.solve(b[entries])
-            x[entries] = y * (inv_rho if b.ndim == 1 else inv_rho[:, None])
+        # a solution beyond the double range (rho 1e-300 against a load of 1e300) is inf here, quietly: the
+        # Krylov method that reads it reports the non-finite value as its breakdown (never converged)
+        with np.errstate(over="ignore", invalid="ignore"):
+            for g in self.groups:
+                if isinstance(g.factor, _BlockView):
+                    continue
+                if b.ndim == 1:
+                    x[g.index] = g.factor.solve(b[g.index]) * g.inv_rho
+                else:
+                    n, m = g.index.shape
+                    y = g.factor.solve(b[g.index].reshape(n, -1)).reshape(n, m, -1)
+                    x[g.index] = y * g.inv_rho[None, :, None]
+            if self._batch is not None:
+                factor, entries, inv_rho = self._batch
+                y = factor.solve(b[entries])
+                x[entries] = y * (inv_rho if b.ndim == 1 else inv_rho[:, None])
         return x
 
 

@@ -84,3 +84,17 @@ def test_flags_turn_off_a_scene_files_cond_and_check(tmp_path, capsys):
     assert main(["solve", str(scene), "--no-cond", "--no-check", "--json"]) == 0
     off = json.loads(capsys.readouterr().out)
     assert off["cond"] is None and off["error_vs_direct"] is None
+
+
+@pytest.mark.parametrize("method", ["fetidp", "feti", "bddc"])
+def test_an_overflowing_local_solve_is_a_quiet_breakdown(method):
+    """rho 1e-300 against a load of 1e300 on a mesh: the local solves overflow to inf, which the Krylov method
+    reports as its breakdown; numpy's 'overflow encountered in multiply' also leaked to stderr (a second review
+    of 2026-11-28)."""
+    proc = subprocess.run([sys.executable, "-m", "ddsolve", "solve", "--mesh", "unstructured", "--rho", "1e-300",
+                           "--f", "1e300", "--method", method, "--json"], capture_output=True, text=True, env=ENV,
+                          timeout=120)
+    import json
+    assert proc.returncode == 0 and proc.stderr == ""
+    out = json.loads(proc.stdout)
+    assert out["converged"] is False and out["reason"].startswith("breakdown: non-finite initial residual")
