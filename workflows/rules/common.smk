@@ -608,7 +608,7 @@ elif KIND == "unstructured" and COND_SPECS:
                        manifest=f"results/{STUDY}/cond/summary.sha256")
 # the JSON / CSV job results of the mpi, stress and unstructured studies: one deleted is recomputed with
 # everything made from it (their contents are checked when read: ddstudies.workflow.read_job_results)
-if MAIN_PROCESS and KIND in ("mpi", "stress", "unstructured"):
+if MAIN_PROCESS and not READ_ONLY and KIND in ("mpi", "stress", "unstructured"):
     _job_results = {"mpi": mpi_case_files, "unstructured": unstructured_case_files,
                     "stress": lambda: expand(f"results/{STUDY}/cases/{{series}}.json", series=STRESS_SERIES)}[KIND]()
     studies_workflow.rebuild_below_missing(_job_results, targets() + ([f"results/{STUDY}/summary.csv"]

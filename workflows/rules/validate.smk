@@ -18,6 +18,23 @@ def _main_process():
 #: Integrity actions (locks, incomplete marks, moving corrupt results aside) happen only here.
 MAIN_PROCESS = _main_process()
 
+#: Snakemake's options that run no job and only read the workflow and its files: with them the integrity
+#: actions are not taken (a review: --lint and --summary after a truncated result moved it aside and
+#: deleted the summary and the reports, then ran nothing; --report did the same and then failed).
+READ_ONLY_OPTIONS = ("--lint", "--summary", "-S", "--detailed-summary", "-D", "--report", "--list", "-l",
+                     "--list-target-rules", "--lt", "--dag", "--rulegraph", "--filegraph", "--d3dag",
+                     "--list-changes", "--lc", "--list-input-changes", "--li", "--list-params-changes", "--lp",
+                     "--list-code-changes", "--list-version-changes", "--print-compilation", "--containerize",
+                     "--export-cwl", "--archive")
+
+
+def _read_only():
+    """Whether this Snakemake was started with an option of READ_ONLY_OPTIONS (``--report=PATH`` included)."""
+    return any(arg.split("=", 1)[0] in READ_ONLY_OPTIONS for arg in sys.argv[1:])
+
+
+READ_ONLY = _read_only()
+
 
 def config_error(message):
     """Bad configuration: one line ``ddsolve: error: <message>`` on stderr and exit status 2, before any job
@@ -81,8 +98,9 @@ def check_result_files(paths, summary=None, consumers=(), manifest=None):
     """Before planning: clear the "incomplete" marks that an interrupted run left on complete results
     (ddstudies.workflow.release_complete); move truncated / non-HDF5 results aside (<file>.corrupt); if
     a result the summary was built from is missing, remove the summary and its consumers, so that this
-    run rebuilds them and the result (ddstudies.workflow.check_results)."""
-    if not MAIN_PROCESS:
+    run rebuilds them and the result (ddstudies.workflow.check_results). Not for a command that only reads
+    (READ_ONLY: --lint, --summary, --report, ...)."""
+    if not MAIN_PROCESS or READ_ONLY:
         return
     paths = list(paths)
     studies_workflow.release_complete(paths, log=lambda line: print(line, file=sys.stderr))
