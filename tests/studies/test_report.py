@@ -142,6 +142,17 @@ def test_plot_writes_png(tmp_path):
     c, r2 = fits[("feti", 2)]
     assert c == pytest.approx(2.0, rel=1e-4) and r2 == pytest.approx(1.0, abs=1e-6)
     assert set(fits) == {("feti", 2), ("feti", 4), ("fetidp", 2), ("fetidp", 4)}
+    assert math.isnan(fits[("feti", 4)][0])          # its H/h = 8 run did not converge: one point, no fit
+
+
+def test_a_run_that_did_not_converge_is_not_fitted(tmp_path):
+    """A review (2026-11-28): a run stopped at maxiter was plotted and fitted like the others. It is drawn open
+    and left out of the fit: the fit of the converged runs is exact."""
+    rows = [{"method": "feti", "subdomains": 2, "elements": m, "cond": 1.5 + 0.6 * (1 + math.log(m)) ** 2,
+             "converged": True} for m in (2, 4, 8)]
+    rows.append({"method": "feti", "subdomains": 2, "elements": 16, "cond": 1e4, "converged": False})
+    fits = plots.plot_cond_vs_Hh(pd.DataFrame(rows), tmp_path / "c.png", methods=["feti"])
+    assert fits[("feti", 2)] == pytest.approx((0.6, 1.0))
 
 
 # --- the pipeline's configuration schema -------------------------------------------------

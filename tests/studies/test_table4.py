@@ -187,7 +187,8 @@ def hbhs_runs() -> pd.DataFrame:
                          "elements": 2, "cond": 2.5 * x - 3, "iterations": 2 + 4 * math.sqrt(x),
                          "converged": True})
             rows.append({"method": "hybrid", "contact": contact, "bodies": 2, "subdomains": x,
-                         "elements": 2, "cond": math.nan, "iterations": 10 + 4 * math.log(2 * x),
+                         "elements": 2, "cond": math.nan,
+                         "iterations": 10 + 4 * math.log(2 * x) if x != 24 else 17,    # capped at maxiter 17
                          "converged": x != 24})
     rows.append({"method": "hybrid", "contact": "full", "bodies": 4, "subdomains": 4, "elements": 2,
                  "cond": math.nan, "iterations": 99, "converged": True})  # not on the sweep
@@ -214,6 +215,7 @@ def test_hbhs_growth_laws_ratios_and_crossing():
     assert (it["a"], it["b"]) == (pytest.approx(2), pytest.approx(4))
     hyb = g.loc[("(I)", "hybrid", "iterations")]  # the law is in H_b/h = 2 H_b/H_s
     assert (hyb["a"], hyb["b"], hyb["r2"]) == (pytest.approx(10), pytest.approx(4), pytest.approx(1))
+    assert hyb["to"] == 16          # the run at 24 stopped at maxiter (17): left out (a review, 2026-11-28)
     # 2 + 4 sqrt(x) = 10 + 4 log(2x) at x ~ 36.4 (found numerically)
     x = hyb["crossing"]
     assert 2 + 4 * math.sqrt(x) == pytest.approx(10 + 4 * math.log(2 * x), abs=1e-3)
@@ -422,7 +424,7 @@ def test_scripts_render_reports_beyond_the_thesis(tmp_path):
                params={"table": table_4_2, "contacts": ["full"], "cases": [[2, 2, 2]], "base": [2, 2, 2]})
     text = Path(out["md"]).read_text()
     assert "Rows marked † ((2, 8, 2); (2, 16, 2); (2, 24, 2); (4, 4, 2)) go beyond" in text
-    assert "99.0000† |" in text and "25.4848*† |" in text and "value). " not in text
+    assert "99.0000† |" in text and "17.0000*† |" in text and "value). " not in text
 
     figure = {"method": "hybrid", "kind": "growth", "title": "Iterations"}
     png = tmp_path / "f.png"

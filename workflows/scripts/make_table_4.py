@@ -78,8 +78,9 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
             f"{f' Rule set {shown_set}, the only one this study ran.' if shown_set != 'default' else ''}\n\n")
         fits = (
             "\n## Growth in H_b/H_s\n\n"
-            "values: ours at the two H_b/H_s values, ratio: their quotient. Fitted laws (least "
-            "squares over the whole H_b/H_s sweep, natural log): FETI-FETI cond a + b H_b/H_s "
+            "values: ours at the two H_b/H_s values, ratio: their quotient; runs that did not converge "
+            "(counts capped at maxiter, marked * above) are left out of these rows and of the fits. Fitted "
+            "laws (least squares over the whole H_b/H_s sweep, natural log): FETI-FETI cond a + b H_b/H_s "
             "(linear, as Figure 4.2), FETI-FETI iterations a + b sqrt(H_b/H_s) (CG needs "
             "O(sqrt(cond)) steps), hybrid iterations a + b log(H_b/h) (the log(H_b/h) factor of "
             "Theorem 4.3.6 with H_s/h fixed). fits cross at: the H_b/H_s where the fitted "

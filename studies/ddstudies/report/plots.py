@@ -261,7 +261,8 @@ FIT_FORMULAS: dict[str, str] = {
 def plot_sweep_fits(series: Mapping[str, tuple], path: str | os.PathLike | None = None, *,
                     model: str, reference: Mapping[str, tuple] | None = None,
                     xlabel: str = "x", ylabel: str = "y", title: str | None = None,
-                    logx: bool = False, reference_label: str = "thesis") -> dict:
+                    logx: bool = False, reference_label: str = "thesis",
+                    failed: Mapping[str, tuple] | None = None) -> dict:
     """Values against one parameter, several series, each with a least-squares fit.
 
     Parameters
@@ -281,6 +282,9 @@ def plot_sweep_fits(series: Mapping[str, tuple], path: str | os.PathLike | None 
         Logarithmic x axis (base 2, ticks at the data).
     reference_label : str
         Name of the reference values in the legend.
+    failed : mapping, optional
+        ``{label: (x, y)}``: our runs that did not converge, crosses in the colour of the series,
+        not fitted.
 
     Returns
     -------
@@ -295,12 +299,19 @@ def plot_sweep_fits(series: Mapping[str, tuple], path: str | os.PathLike | None 
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     markers = ["o", "s", "^", "D", "v", "P"]
     reference = dict(reference or {})
-    labels = list(dict.fromkeys([*series, *reference]))
+    failed = dict(failed or {})
+    labels = list(dict.fromkeys([*series, *reference, *failed]))
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
     fits: dict[tuple[str, str], tuple[tuple[float, ...], float]] = {}
     xticks: set[float] = set()
     for k, label in enumerate(labels):
         color, marker = colors[k % len(colors)], markers[k % len(markers)]
+        if label in failed:
+            x, y = _finite_pairs(*failed[label])
+            if x.size:
+                xticks.update(x.tolist())
+                ax.plot(x, y, linestyle="none", marker="x", color=color, markersize=8,
+                        label=f"{label} ours: not converged (capped at maxiter; not fitted)")
         for who, data, filled, style in (("ours", series.get(label), True, "--"),
                                          (reference_label, reference.get(label), False, ":")):
             if data is None:
@@ -408,7 +419,9 @@ def plot_multibody_sweep(df: pd.DataFrame, thesis: pd.DataFrame | None, path: st
     rule_set = chosen_rule_set(df, rule_set)
     fixed_rules = f", rule set {rule_set}" if len(rule_sets(df)) > 1 or rule_set != DEFAULT else ""
     df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
-    series = multibody_sweep(df, method=method, x=x, y=y, base=base, contacts=contacts)
+    converged = _converged_mask(df)     # a run that did not converge is drawn, not fitted (a review)
+    series = multibody_sweep(df[converged], method=method, x=x, y=y, base=base, contacts=contacts)
+    failed = multibody_sweep(df[~converged], method=method, x=x, y=y, base=base, contacts=contacts)
     reference = thesis_sweep(thesis, x=x, y=y, base=base, contacts=contacts) if thesis is not None else None
     def math_label(key: str) -> str:
         label = MULTIBODY_ROW_LABELS.get(key, key)
@@ -418,7 +431,7 @@ def plot_multibody_sweep(df: pd.DataFrame, thesis: pd.DataFrame | None, path: st
     ylabel = {"cond": "condition number estimate", "iterations": "iterations"}.get(y, y)
     full_title = f"{title}\n({fixed})" if title else f"{METHOD_LABELS.get(method, method)} ({fixed})"
     return plot_sweep_fits(series, path, model=model, reference=reference,
-                           xlabel=math_label(x), ylabel=ylabel, title=full_title, logx=logx)
+                           xlabel=math_label(x), ylabel=ylabel, title=full_title, logx=logx, failed=failed)
 
 
 #: The laws of :func:`plot_iterations_vs_HbHs` / :func:`hbhs_growth`: (method, quantity) ->
@@ -465,7 +478,8 @@ def hbhs_growth(df: pd.DataFrame, *, base: Sequence[int], contacts: Sequence[str
                 start: int = 4, end: int | None = None, rule_set: str = DEFAULT) -> pd.DataFrame:
     """Growth in H_b/H_s of FETI-FETI's cond and iterations and the hybrid's iterations.
 
-    Only the runs of rule set ``rule_set`` (:func:`~ddstudies.report.rule_sets.one_rule_set`).
+    Only the runs of rule set ``rule_set`` (:func:`~ddstudies.report.rule_sets.one_rule_set`) that
+    converged (a count capped at ``maxiter`` is not a growth).
 
     Parameters
     ----------
@@ -489,6 +503,7 @@ def hbhs_growth(df: pd.DataFrame, *, base: Sequence[int], contacts: Sequence[str
         no FETI-FETI runs).
     """
     df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
+    df = df[_converged_mask(df)]      # a count capped at maxiter is no growth (a review: "17 -> 17" was fitted)
     elements = int(base[2])
     rows = []
     for contact in contacts:
@@ -529,7 +544,7 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
     Only the runs of rule set ``rule_set`` (:func:`~ddstudies.report.rule_sets.one_rule_set`).
 
     Our iterations are filled markers with the fitted law of :data:`HBHS_LAWS`
-    (dashed; FETI-FETI a + b sqrt(H_b/H_s), hybrid a + b log(H_b/h) with
+    (runs that did not converge: crosses, not fitted; dashed; FETI-FETI a + b sqrt(H_b/H_s), hybrid a + b log(H_b/h) with
     H_b/h = H_b/H_s * H_s/h); the thesis's (``theses = {"feti-feti": table 4.1,
     "hybrid": table 4.2}``) are open markers. A dotted vertical line marks the
     largest H_b/H_s of the thesis's tables: points to its right are ours only.
@@ -542,6 +557,7 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
     rule_set = chosen_rule_set(df, rule_set)
     fixed_rules = f", rule set {rule_set}" if len(rule_sets(df)) > 1 or rule_set != DEFAULT else ""
     df = one_rule_set(df, rule_set)   # one run per case (a study may sweep `presets`)
+    converged = _converged_mask(df)
     theses = dict(theses or {})
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     styles = {"feti-feti": (colors[0], "o"), "hybrid": (colors[1], "s")}
@@ -557,8 +573,16 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
             model, variable, law = HBHS_LAWS[(method, "iterations")]
             color, marker = styles[method]
             name = METHOD_LABELS.get(method, method)
-            series = multibody_sweep(df, method=method, x="subdomains", y="iterations", base=base,
+            series = multibody_sweep(df[converged], method=method, x="subdomains", y="iterations", base=base,
                                      contacts=[contact]).get(case)
+            failed = multibody_sweep(df[~converged], method=method, x="subdomains", y="iterations", base=base,
+                                     contacts=[contact]).get(case)
+            if failed is not None:      # drawn, not fitted (a review: counts capped at maxiter were fitted)
+                x, y = _finite_pairs(*failed)
+                if x.size:
+                    xticks.update(x.tolist())
+                    ax.plot(x, y, linestyle="none", marker="x", color=color, markersize=8,
+                            label=f"{name} ours: not converged (capped at maxiter; not fitted)")
             if series is not None:
                 x, y = _finite_pairs(*series)
                 if x.size:
@@ -666,16 +690,23 @@ def plot_cond_vs_Hh(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
                 continue
             color = colors[k % len(colors)]
             marker = markers[k % len(markers)]
+            # a run that did not converge is drawn open and left out of the fit (a review: a run stopped at
+            # maxiter was fitted as data); a table without the column counts every run as converged
+            ok = _converged_mask(pts)
+            good = pts[ok]
             # with an intercept: the bound's C (1 + log)^2 through the origin missed the points, R^2 < 0
             # at small H/h (a review); the constants of the estimate are not the bound's
-            a, c, r2 = fit_log_squared_affine(pts[x], pts[y])
+            a, c, r2 = fit_log_squared_affine(good[x], good[y]) if len(good) else (math.nan,) * 3
             gname = int(gval) if float(gval).is_integer() else gval
             fits[(method, gname)] = (c, r2)
             label = f"{glabel}={gname}: a={_fmt(a, '.3g')}, C={_fmt(c, '.3g')}, $R^2$={_fmt(r2, '.3f')}"
-            ax.plot(pts[x], pts[y], linestyle="none", marker=marker, color=color, label=label)
+            ax.plot(good[x], good[y], linestyle="none", marker=marker, color=color, label=label)
+            if (~ok).any():
+                ax.plot(pts[x][~ok], pts[y][~ok], linestyle="none", marker=marker, color=color,
+                        markerfacecolor="none", label=f"{glabel}={gname}: not converged (not fitted)")
             if math.isfinite(c):
-                xs = np.geomspace(pts[x].min(), pts[x].max(), 100) if pts[x].max() > pts[x].min() \
-                    else np.array([pts[x].min()])
+                xs = np.geomspace(good[x].min(), good[x].max(), 100) if good[x].max() > good[x].min() \
+                    else np.array([good[x].min()])
                 ax.plot(xs, a + c * log_squared(xs), linestyle="--", color=color, linewidth=1)
         ax.set_xscale("log", base=2)
         xticks = sorted(sub[x].unique())
@@ -695,6 +726,15 @@ def plot_cond_vs_Hh(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
     fig.tight_layout()
     _save(fig, path)
     return fits
+
+
+def _converged_mask(rows: pd.DataFrame) -> np.ndarray:
+    """Whether each row's run converged (its ``converged`` column, read as a bool also from CSV text);
+    all True without the column."""
+    if "converged" not in rows.columns:
+        return np.ones(len(rows), dtype=bool)
+    flags = rows["converged"].map(lambda v: str(v).strip().lower() in ("true", "1", "1.0"))
+    return flags.to_numpy(dtype=bool)
 
 
 def _plain_number(value: float) -> str:
