@@ -425,3 +425,17 @@ def test_schema_errors_name_the_key(change, expected):
             data[key] = value
     with pytest.raises(ConfigError, match=expected):
         validate(data, SCHEMA_DIR / "config.schema.yaml")
+
+
+def test_figure_5_2_of_a_one_preset_study_is_that_preset(workdir):
+    """A study of `presets: [thesis]` drew Figure 5.2 with the default rules (a review, 2026-11-28), although
+    docs/studies.md says a one-preset study's figures show that preset."""
+    presets, study = "[thesis]", "fig52"
+    (workdir / f"{study}.yaml").write_text(
+        f"kind: contact\nstudy: {study}\nproblem: contact\nmethods: [active-set]\nsubdomains: [2]\nelements: [4]\n"
+        f"presets: {presets}\nf: dostal\ncond: false\ncheck: false\nthesis_tables: config/thesis_tables\n"
+        "tables:\n  table_5_1: {method: active-set}\nfigure_5_2: {method: active-set, subdomains: 2, elements: 4}\n")
+    snakemake(workdir, f"reports/{study}/figure_5_2_surface.png", "--cores", "1", "--configfile", f"{study}.yaml")
+    log = (workdir / "logs" / study / "figure_5_2.log").read_text()
+    spec_line = next(line for line in log.splitlines() if line.startswith("spec:"))
+    assert "'preset': 'thesis'" in spec_line
