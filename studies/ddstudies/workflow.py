@@ -17,7 +17,8 @@ import yaml
 
 from ddsolve import options
 
-__all__ = ["rule_sets", "contact_precision_grids", "KINDS", "SCHEMAS", "ConfigError", "load_schema", "validate",
+__all__ = ["load_yaml_strict", "check_config_files", "rule_sets", "contact_precision_grids", "KINDS", "SCHEMAS",
+           "ConfigError", "load_schema", "validate",
            "unique_labels", "bench_tol_label", "bench_rtols", "check_finite", "check_cases", "case_mem_mb",
            "case_runtime", "machine_memory", "check_results", "quarantine", "remove_stale_tmp", "release_complete",
            "record_lock_owner", "release_stale_lock", "sha256", "write_manifest", "read_manifest", "write_text",
@@ -67,6 +68,43 @@ def inject_options(node: Any) -> Any:
         for value in node:
             inject_options(value)
     return node
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that refuses a mapping with a key given twice (PyYAML keeps the last one, silently)."""
+
+
+def _unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        if key in seen:
+            raise ConfigError(f"key {key!r} appears twice in one mapping (lines {seen[key] + 1} and "
+                              f"{key_node.start_mark.line + 1}); YAML would keep the last one silently")
+        seen[key] = key_node.start_mark.line
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+
+
+def load_yaml_strict(stream: Any) -> Any:
+    """``yaml.safe_load`` that raises :class:`ConfigError` on a key given twice in one mapping (a review: a
+    config with ``methods:`` twice ran the second list only, without a word)."""
+    return yaml.load(stream, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+
+
+def check_config_files(paths: Iterable[str | os.PathLike]) -> None:
+    """Refuse (:class:`ConfigError`, naming the file) a config file with a key given twice; files that are
+    missing or not YAML are left to Snakemake's own loading, which reports them."""
+    for path in paths:
+        try:
+            with open(path, encoding="utf-8") as stream:
+                load_yaml_strict(stream)
+        except ConfigError as err:
+            raise ConfigError(f"invalid config: {os.fspath(path)}: {err}") from None
+        except (OSError, yaml.YAMLError, UnicodeDecodeError):
+            continue
 
 
 def load_schema(path: str | os.PathLike) -> dict[str, Any]:

@@ -68,6 +68,8 @@ def assert_complete(wd: Path) -> None:
 #: (config text, the expected line); the slow ones repeat a check of the others on another key.
 BAD_CONFIGS = [
     ("rtol: .nan\n", "invalid config: rtol: must be a finite number, got nan"),
+    # a key given twice: YAML kept the last one silently (a review, 2026-11-28)
+    ("methods: [feti]\nmethods: [bddc]\n", "bad.yaml: key 'methods' appears twice in one mapping (lines 1 and 2)"),
     pytest.param("rho: .inf\n", "invalid config: rho: must be a finite number, got inf", marks=pytest.mark.slow),
     pytest.param("gamma: -.inf\n", "invalid config: gamma: must be a finite number, got -inf",
                  marks=pytest.mark.slow),

@@ -34,13 +34,15 @@ def study_config(entry):
     path = os.path.join(workflow.basedir, entry["configfile"])
     try:
         with open(path) as stream:
-            study = yaml.safe_load(stream) or {}
+            study = studies_workflow.load_yaml_strict(stream) or {}     # a key given twice: refused
     except OSError as err:
         config_error(f"studies: {entry['name']}: cannot read configfile {entry['configfile']}: "
                             f"{err.strerror}")
     except (yaml.YAMLError, UnicodeDecodeError) as err:      # a traceback before (a review)
         why = str(err).splitlines()[0] if str(err) else type(err).__name__
         config_error(f"studies: {entry['name']}: configfile {entry['configfile']} is not valid YAML: {why}")
+    except studies_workflow.ConfigError as err:
+        config_error(f"invalid config: studies: {entry['name']}: configfile {entry['configfile']}: {err}")
     if not isinstance(study, dict):
         config_error(f"studies: {entry['name']}: configfile {entry['configfile']} must hold a YAML mapping of "
                      f"config keys, got a {type(study).__name__}")

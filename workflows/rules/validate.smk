@@ -45,6 +45,15 @@ def config_error(message):
     sys.exit(2)
 
 
+# a key given twice in a config file: YAML keeps the last one without a word (a review: `methods:` twice ran
+# the second list only); Snakemake has loaded the files already, so they are read again here, strictly
+if MAIN_PROCESS:
+    try:
+        studies_workflow.check_config_files(getattr(workflow, "configfiles", ()))
+    except studies_workflow.ConfigError as _err:
+        config_error(str(_err))
+
+
 def schema_path(schema):
     return os.path.join(workflow.basedir, "workflows", "schemas", f"{schema}.schema.yaml")
 
