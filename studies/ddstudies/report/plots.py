@@ -307,11 +307,7 @@ def plot_sweep_fits(series: Mapping[str, tuple], path: str | os.PathLike | None 
     for k, label in enumerate(labels):
         color, marker = colors[k % len(colors)], markers[k % len(markers)]
         if label in failed:
-            x, y = _finite_pairs(*failed[label])
-            if x.size:
-                xticks.update(x.tolist())
-                ax.plot(x, y, linestyle="none", marker="x", color=color, markersize=8,
-                        label=f"{label} ours: not converged (capped at maxiter; not fitted)")
+            _plot_not_converged(ax, failed[label], color, f"{label} ours", xticks)
         for who, data, filled, style in (("ours", series.get(label), True, "--"),
                                          (reference_label, reference.get(label), False, ":")):
             if data is None:
@@ -544,8 +540,8 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
     Only the runs of rule set ``rule_set`` (:func:`~ddstudies.report.rule_sets.one_rule_set`).
 
     Our iterations are filled markers with the fitted law of :data:`HBHS_LAWS`
-    (runs that did not converge: crosses, not fitted; dashed; FETI-FETI a + b sqrt(H_b/H_s), hybrid a + b log(H_b/h) with
-    H_b/h = H_b/H_s * H_s/h); the thesis's (``theses = {"feti-feti": table 4.1,
+    (dashed; FETI-FETI a + b sqrt(H_b/H_s), hybrid a + b log(H_b/h) with
+    H_b/h = H_b/H_s * H_s/h; runs that did not converge: crosses, not fitted); the thesis's (``theses = {"feti-feti": table 4.1,
     "hybrid": table 4.2}``) are open markers. A dotted vertical line marks the
     largest H_b/H_s of the thesis's tables: points to its right are ours only.
 
@@ -562,7 +558,7 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     styles = {"feti-feti": (colors[0], "o"), "hybrid": (colors[1], "s")}
     elements = int(base[2])
-    fig, axes = plt.subplots(1, max(len(contacts), 1), figsize=(6.0 * max(len(contacts), 1), 4.8),
+    fig, axes = plt.subplots(1, max(len(contacts), 1), figsize=(6.0 * max(len(contacts), 1), 6.4),
                              sharey=True, squeeze=False)
     fits: dict[tuple[str, str], tuple[tuple[float, float], float]] = {}
     for ax, contact in zip(axes[0], contacts):
@@ -578,11 +574,7 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
             failed = multibody_sweep(df[~converged], method=method, x="subdomains", y="iterations", base=base,
                                      contacts=[contact]).get(case)
             if failed is not None:      # drawn, not fitted (a review: counts capped at maxiter were fitted)
-                x, y = _finite_pairs(*failed)
-                if x.size:
-                    xticks.update(x.tolist())
-                    ax.plot(x, y, linestyle="none", marker="x", color=color, markersize=8,
-                            label=f"{name} ours: not converged (capped at maxiter; not fitted)")
+                _plot_not_converged(ax, failed, color, f"{name} ours", xticks)
             if series is not None:
                 x, y = _finite_pairs(*series)
                 if x.size:
@@ -618,8 +610,8 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
         ax.set_title(f"case {case}: {'whole interface' if contact == 'full' else 'middle third'}")
         ax.set_xlabel("$H_b/H_s$")
         ax.grid(True, alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize="x-small", loc="upper left")
+        if ax.get_legend_handles_labels()[0]:     # below the panel: inside, it hid points (a review)
+            ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14))
         else:
             ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
     axes[0][0].set_ylabel("iterations")
@@ -726,6 +718,15 @@ def plot_cond_vs_Hh(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
     fig.tight_layout()
     _save(fig, path)
     return fits
+
+
+def _plot_not_converged(ax, data: tuple, color: str, who: str, xticks: set) -> None:
+    """Our runs that did not converge, ``data = (x, y)``: crosses in the series' colour, not fitted."""
+    x, y = _finite_pairs(*data)
+    if x.size:
+        xticks.update(x.tolist())
+        ax.plot(x, y, linestyle="none", marker="x", color=color, markersize=8,
+                label=f"{who}: not converged (capped at maxiter; not fitted)")
 
 
 def _converged_mask(rows: pd.DataFrame) -> np.ndarray:
