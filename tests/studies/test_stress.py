@@ -244,3 +244,11 @@ def test_stress_study_dry_run(tmp_path):
     assert "solve_case" not in out
     out = _snakemake(tmp_path, "-n", "--cores", "1", "--configfile", "config/poisson.yaml")
     assert "stress_series" not in out and "stress_report" not in out
+
+
+def test_notes_are_cut_at_a_word():
+    """The report's notes ended mid-word ("... to the tolerance: esti"; a review, 2026-11-28)."""
+    from ddstudies.stress.criteria import _short
+    text = "converged: the residual reached the tolerance: estimated error 1e-3"
+    assert _short(text, 40) == "converged: the residual reached the..."
+    assert _short(text, len(text)) == text and len(_short(text, 50)) <= 50

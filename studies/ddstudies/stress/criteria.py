@@ -29,6 +29,16 @@ REFERENCE_FORCE = 1e-4
 Verdict = tuple[bool, str]
 
 
+def _short(text: str, limit: int) -> str:
+    """``text`` cut to at most ``limit`` characters at a word boundary, with "..." where it was cut (a review:
+    notes ended mid-word, "to the tolerance: esti")."""
+    text = str(text)
+    if len(text) <= limit:
+        return text
+    cut = text[:limit - 3].rsplit(" ", 1)[0].rstrip(" ,;:(")
+    return cut + "..."
+
+
 def _clean_run(rec: Mapping[str, Any]) -> Verdict | None:
     """FAIL for a crash, a timeout or a silent NaN (non-finite output of a 'converged' solve)."""
     if rec["status"] in ("crash", "timeout"):
@@ -84,7 +94,7 @@ def _crit_not_robust(rec: Mapping[str, Any], base: Mapping[str, Any] | None) -> 
     if rec["status"] != "ok":
         return False, f"{rec['status']}: {rec['error']}"
     if not rec["converged"]:
-        return bool(rec["reason"]), f"expected failure seen: no convergence ({rec['reason'][:60]})"
+        return bool(rec["reason"]), f"expected failure seen: no convergence ({_short(rec['reason'], 60)})"
     it = _ratio(rec, base, "iterations")
     cond = _ratio(rec, base, "cond")
     seen = (it is not None and it > ROBUST_FACTOR) or (cond is not None and cond >= COND_GROWTH)
@@ -117,7 +127,7 @@ def _rejected(rec: Mapping[str, Any]) -> Verdict | None:
     """PASS for an input error the case allows (``expect_message``), e.g. a load the scene rejects."""
     want = rec.get("expect_message")
     if rec["status"] == "input_error" and want and want in rec["error"] and "\n" not in rec["error"]:
-        return True, f"rejected as input: {rec['error'][:90]}"
+        return True, f"rejected as input: {_short(rec['error'], 90)}"
     return None
 
 
@@ -148,7 +158,7 @@ def _crit_contact_agree(rec: Mapping[str, Any], base: Mapping[str, Any] | None) 
     if rec["status"] != "ok":
         return False, f"{rec['status']}: {rec['error']}"
     if not rec["converged"]:
-        return bool(rec["reason"]), f"failed cleanly: {rec['reason'][:70]}"
+        return bool(rec["reason"]), f"failed cleanly: {_short(rec['reason'], 70)}"
     tol = ERROR_FACTOR * rec["rtol"]
     notes = []
     if rec["error_vs_direct"] > tol:
@@ -169,7 +179,7 @@ def _crit_input_error(rec: Mapping[str, Any], base: Mapping[str, Any] | None) ->
     msg = rec["error"]
     want = rec.get("expect_message") or ""
     ok = "\n" not in msg and want in msg
-    return ok, msg if len(msg) <= 110 else msg[:107] + "..."
+    return ok, _short(msg, 110)
 
 
 def _crit_not_converged(rec: Mapping[str, Any], base: Mapping[str, Any] | None) -> Verdict:
@@ -177,7 +187,7 @@ def _crit_not_converged(rec: Mapping[str, Any], base: Mapping[str, Any] | None) 
         return False, f"{rec['status']}: {rec['error']}"
     if rec["converged"]:
         return False, f"claims convergence: {rec['reason']}"
-    return bool(rec["reason"]), rec["reason"][:110]
+    return bool(rec["reason"]), _short(rec["reason"], 110)
 
 
 #: Criterion key -> (the rule in words, its check(record, baseline record) -> (passed, note)).
