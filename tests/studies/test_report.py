@@ -246,3 +246,10 @@ def test_a_study_of_one_other_preset_names_it_and_its_reports_run():
     both = pd.concat([df, df.assign(preset="other")])
     with pytest.raises(ValueError, match="no run of rule set 'default'"):
         one_rule_set(both)
+
+
+def test_a_two_point_fit_shows_no_r2():
+    """A two-parameter fit through two points has R^2 = 1 by construction; the legends showed "R^2=1.000" as if it
+    measured the fit (a review, 2026-11-28)."""
+    assert plots._r2_text(1.0, 2) == "2 points (exact, no $R^2$)"
+    assert plots._r2_text(0.98765, 3) == "$R^2$=0.988"

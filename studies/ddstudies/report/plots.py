@@ -320,7 +320,7 @@ def plot_sweep_fits(series: Mapping[str, tuple], path: str | os.PathLike | None 
             xticks.update(x.tolist())
             params, r2 = fit(x, y)
             fits[(label, who)] = (params, r2)
-            text = f"{label} {who}: {describe(params)}, $R^2$={_fmt(r2, '.3f')}"
+            text = f"{label} {who}: {describe(params)}, {_r2_text(r2, x.size)}"
             ax.plot(x, y, linestyle="none", marker=marker, color=color, label=text,
                     markerfacecolor=color if filled else "none", markersize=6 if filled else 8)
             if all(math.isfinite(v) for v in params) and x.max() > x.min():
@@ -582,7 +582,7 @@ def plot_iterations_vs_HbHs(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame 
                     params, r2 = _law_fit(model, variable, x, y, elements)
                     fits[(case, method)] = (params, r2)
                     text = (f"{name} ours: {law}, a={_fmt(params[0], '.3g')}, b={_fmt(params[1], '.3g')}, "
-                            f"$R^2$={_fmt(r2, '.3f')}")
+                            f"{_r2_text(r2, x.size)}")
                     ax.plot(x, y, linestyle="none", marker=marker, color=color, label=text)
                     if all(math.isfinite(v) for v in params) and x.max() > x.min():
                         xs = np.linspace(x.min(), x.max(), 300)
@@ -691,7 +691,7 @@ def plot_cond_vs_Hh(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
             a, c, r2 = fit_log_squared_affine(good[x], good[y]) if len(good) else (math.nan,) * 3
             gname = int(gval) if float(gval).is_integer() else gval
             fits[(method, gname)] = (c, r2)
-            label = f"{glabel}={gname}: a={_fmt(a, '.3g')}, C={_fmt(c, '.3g')}, $R^2$={_fmt(r2, '.3f')}"
+            label = f"{glabel}={gname}: a={_fmt(a, '.3g')}, C={_fmt(c, '.3g')}, {_r2_text(r2, len(good))}"
             ax.plot(good[x], good[y], linestyle="none", marker=marker, color=color, label=label)
             if (~ok).any():
                 ax.plot(pts[x][~ok], pts[y][~ok], linestyle="none", marker=marker, color=color,
@@ -718,6 +718,14 @@ def plot_cond_vs_Hh(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
     fig.tight_layout()
     _save(fig, path)
     return fits
+
+
+def _r2_text(r2: float, n_points: int) -> str:
+    """The legend's R^2 of a two-parameter fit: with two points it is 1 by construction, so it is not shown as
+    a measure of fit (a review: two-point fits read R^2 = 1.000)."""
+    if n_points <= 2:
+        return f"{n_points} points (exact, no $R^2$)"
+    return f"$R^2$={_fmt(r2, '.3f')}"
 
 
 def _plot_not_converged(ax, data: tuple, color: str, who: str, xticks: set) -> None:
