@@ -724,7 +724,7 @@ def _r2_text(r2: float, n_points: int) -> str:
     """The legend's R^2 of a two-parameter fit: with two points it is 1 by construction, so it is not shown as
     a measure of fit (a review: two-point fits read R^2 = 1.000)."""
     if n_points <= 2:
-        return f"{n_points} points (exact, no $R^2$)"
+        return f"{n_points} point{'s' if n_points != 1 else ''} (exact, no $R^2$)"
     return f"$R^2$={_fmt(r2, '.3f')}"
 
 
