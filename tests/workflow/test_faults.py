@@ -70,6 +70,9 @@ BAD_CONFIGS = [
     ("rtol: .nan\n", "invalid config: rtol: must be a finite number, got nan"),
     # a key given twice: YAML kept the last one silently (a review, 2026-11-28)
     ("methods: [feti]\nmethods: [bddc]\n", "bad.yaml: key 'methods' appears twice in one mapping (lines 1 and 2)"),
+    # kind grid with another problem: the first error named another key (a review, 2026-11-28)
+    pytest.param("kind: grid\nproblem: multibody\nmethods: [feti-feti]\n",
+                 "invalid config: problem: 'multibody' is a study of kind 'table_4', not 'grid'", marks=pytest.mark.slow),
     pytest.param("rho: .inf\n", "invalid config: rho: must be a finite number, got inf", marks=pytest.mark.slow),
     pytest.param("gamma: -.inf\n", "invalid config: gamma: must be a finite number, got -inf",
                  marks=pytest.mark.slow),

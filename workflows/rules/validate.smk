@@ -80,6 +80,14 @@ def validate_study(data):
         raise studies_workflow.ConfigError(f"invalid config: kind: {kind!r} is not one of "
                                            f"{list(studies_workflow.SCHEMAS)} (every single-study config "
                                            f"names its kind)")
+    # the kinds of the three grid studies and their problems (the schema's first complaint was another key's:
+    # "'thesis_tables' is a required property" for kind grid with problem multibody; a review)
+    problem_kind = {"poisson": "grid", "multibody": "table_4", "contact": "contact"}
+    problem = data.get("problem")
+    if kind in problem_kind.values() and problem in problem_kind and problem_kind[problem] != kind:
+        raise studies_workflow.ConfigError(
+            f"invalid config: problem: {problem!r} is a study of kind {problem_kind[problem]!r}, not {kind!r} "
+            f"(kind grid: poisson; table_4: multibody; contact: contact)")
     sweeps = data.get("sweeps")
     if "bodies" in data and isinstance(sweeps, list) and sweeps and all(
             isinstance(sweep, dict) and "bodies" in sweep for sweep in sweeps):
