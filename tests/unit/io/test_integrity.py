@@ -214,31 +214,30 @@ def test_any_error_removes_the_temporary_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_job_log_turns_a_full_disk_into_one_line(tmp_path):
+@pytest.mark.parametrize("body, line, printed", [
+    ("import errno\n    print('working')\n    raise OSError(errno.ENOSPC, 'No space left on device', 'out/x.h5')",
+     "ddsolve: error: no space left on device writing out/x.h5", ["working"]),
+    # a case that passed planning and is refused by the solver (more parts than triangles, every node on the
+    # Dirichlet boundary) failed its job with a full traceback, where docs/studies.md promises one line (a review,
+    # 2026-11-28)
+    ("from ddsolve.errors import InputError\n    raise InputError('parts', '500 parts for 96 triangles')",
+     "ddsolve: error: parts: 500 parts for 96 triangles", []),
+])
+def test_job_log_turns_an_expected_error_into_one_line(tmp_path, body, line, printed):
+    """A full disk and an input error: one line on stderr and in the log, exit status 1, no traceback."""
     log = tmp_path / "job.log"
-    code = (f"from ddsolve.io.joblog import job_log\nimport errno, os\nwith job_log({str(log)!r}):\n"
-            f"    print('working')\n    raise OSError(errno.ENOSPC, 'No space left on device', 'out/x.h5')\n")
+    code = f"from ddsolve.io.joblog import job_log\nwith job_log({str(log)!r}):\n    {body}\n"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 1
-    assert proc.stderr.strip() == "ddsolve: error: no space left on device writing out/x.h5"
-    assert log.read_text().splitlines() == ["working", "ddsolve: error: no space left on device writing out/x.h5"]
-    with pytest.raises(ValueError):           # anything else keeps its traceback
+    assert proc.stderr.strip() == line
+    assert log.read_text().splitlines() == [*printed, line]
+
+
+def test_job_log_keeps_the_traceback_of_anything_else(tmp_path):
+    with pytest.raises(ValueError):
         with job_log(tmp_path / "other.log"):
             raise ValueError("a bug")
     assert "Traceback" in (tmp_path / "other.log").read_text()
-
-
-def test_job_log_turns_an_input_error_into_one_line(tmp_path):
-    """A case that passed planning and is refused by the solver (more parts than triangles, every node on the
-    Dirichlet boundary) failed its job with a full traceback, where docs/studies.md promises one line (a review,
-    2026-11-28)."""
-    log = tmp_path / "job.log"
-    code = (f"from ddsolve.io.joblog import job_log\nfrom ddsolve.errors import InputError\n"
-            f"with job_log({str(log)!r}):\n    raise InputError('parts', '500 parts for 96 triangles')\n")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert proc.returncode == 1
-    assert proc.stderr.strip() == "ddsolve: error: parts: 500 parts for 96 triangles"
-    assert log.read_text().splitlines() == ["ddsolve: error: parts: 500 parts for 96 triangles"]
 
 
 # --- the workflow's checks (ddstudies.workflow) ------------------------------------------------
