@@ -335,7 +335,7 @@ def contact_solve(mesh: Any, bodies: Sequence[str] | None = None, *, contact: st
         data = netgen_arrays(mesh.ngmesh)
         if bodies is None:
             body_names = list(dict.fromkeys(data.material_names[i] for i in np.unique(data.material)))
-        elif isinstance(bodies, str) or not isinstance(bodies, (list, tuple)):
+        elif isinstance(bodies, str) or not isinstance(bodies, (list, tuple, np.ndarray)):
             raise InputError("bodies", f"expected two material names (a pair), got {brief(bodies)}")
         else:
             body_names = [str(b) for b in bodies]

@@ -41,7 +41,7 @@ from ..options import GEOMETRIES  # geometries of each problem (the first is the
 from .contact import DOSTAL_LOADS, check_contact_load, dostal_loads
 from .partition import partition_elements
 from .scene import RightHandSide, Scene, sorted_unique, triangle_areas
-from .volfile import check_vol_text
+from .volfile import check_vol_text, declared_materials
 
 log = logging.getLogger(__name__)
 
@@ -621,7 +621,26 @@ def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
                 ngmesh.Load(part)
     except Exception as exc:  # netgen raises its own NgException
         raise InputError("mesh", f"netgen cannot read {path}: {exc}") from None
+    _check_declared_materials(ngmesh, declared_materials(text[:mesh_end]), path)
     return ngmesh
+
+
+def _check_declared_materials(ngmesh: Any, declared: np.ndarray | None, path: str) -> None:
+    """Refuse a file whose triangle netgen read into a material the ``materials`` section does not declare.
+
+    netgen matches a triangle's two leading numbers against its face descriptors and makes an unmatched one
+    a new material named "default": a one-triangle body of a multibody scene, or a silent part of a poisson
+    one (a review). Read from netgen's own elements, so every such line is found. Files without a
+    ``materials`` section are not checked.
+    """
+    if declared is None or declared.size == 0:
+        return
+    index = np.asarray(ngmesh.Elements2D().NumPy()["index"], dtype=np.int64)
+    bad = np.flatnonzero(~np.isin(index, declared))
+    if bad.size:
+        raise InputError("mesh", f"{path}: triangle {int(bad[0]) + 1} has a material that section 'materials' "
+                                 f"does not declare (it declares {', '.join(map(str, declared))}; netgen read "
+                                 f"index {int(index[bad[0]])}): check the triangle's first two numbers")
 
 
 def scene_from_mesh(path_or_mesh: str | os.PathLike | Any, *, bodies: Sequence[str] | None = None,

@@ -152,7 +152,6 @@ def check_vol_text(text: str, name: str = "mesh file") -> int:
         del joined, tokens
         _in_range(points.astype(np.int64), n_points, "surfaceelements", name)
         _no_repeated_triangles(points.astype(np.int64), n_vertices, name)
-        _declared_materials(header[1::5].astype(np.int64), sections.get("materials", [None])[1:], name)
     # integer columns: edge segments p1 p2 trignum1 trignum2 (and the descriptor number, column 7, of
     # the gi3 form), point elements pnum index; the first n_points of them name points
     for key, int_cols, n_point_cols in (("edgesegments", (0, 1, 2, 3), 2), ("pointelements", (0, 1), 1)):
@@ -176,20 +175,15 @@ def check_vol_text(text: str, name: str = "mesh file") -> int:
     return len(text) if end < 0 else end + 1
 
 
-def _declared_materials(index: np.ndarray, lines: list[str], name: str) -> None:
-    """Refuse a triangle whose material index (column 2 of a 2-D surface element) the ``materials`` section
-    does not declare: netgen makes it a new material named "default" (a one-triangle body of a multibody
-    scene, or part of a poisson one, without a word). Files without a ``materials`` section are not checked."""
-    if not lines:
-        return
+def declared_materials(text: str) -> np.ndarray | None:
+    """The material indices a ``materials`` section of a checked ``.vol`` text declares (None without one)."""
+    lines = text.splitlines()
     try:
-        declared = np.array([int(ln.split()[0]) for ln in lines], dtype=np.int64)
+        at = lines.index("materials")
+        count = int(lines[at + 1])
+        return np.array([int(ln.split()[0]) for ln in lines[at + 2:at + 2 + count]], dtype=np.int64)
     except (ValueError, IndexError):
-        raise InputError("mesh", f"{name}: section 'materials' needs lines 'index name'") from None
-    bad = index[~np.isin(index, declared)]
-    if bad.size:
-        raise InputError("mesh", f"{name}: a triangle has material index {int(bad[0])}, which section "
-                                 f"'materials' does not declare (it declares {', '.join(map(str, declared))})")
+        return None
 
 
 def _integers(values: np.ndarray, key: str, name: str) -> None:

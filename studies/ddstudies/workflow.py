@@ -75,8 +75,13 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 
 def _unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    """The mapping of ``node``, refusing a key written twice. Merge keys (``<<: *anchor``) are left to PyYAML
+    (a key of the mapping overrides a merged one, as YAML says); a key that is not a plain scalar (``? [a, b]``)
+    is not compared."""
     seen: dict[Any, int] = {}
     for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+            continue
         key = loader.construct_object(key_node, deep=deep)
         if key in seen:
             raise ConfigError(f"key {key!r} appears twice in one mapping (lines {seen[key] + 1} and "

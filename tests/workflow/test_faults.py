@@ -191,7 +191,7 @@ def test_commands_that_only_read_change_nothing(finished):
     victim.write_bytes(whole[:500])
     kept = {path: (finished / path).read_bytes() for path in ["results/tiny/summary.csv", *REPORTS]}
     try:
-        for option in ("--lint", "--summary"):
+        for option in ("--lint", "--summ"):             # an abbreviation as Snakemake reads it (a review)
             proc = snakemake(finished, option, "--configfile", "config/poisson.yaml", "tiny.yaml")
             assert proc.returncode == 0, proc.stdout + proc.stderr
             assert "corrupt result" not in proc.stderr and not (finished / (CASES[0] + ".corrupt")).exists()

@@ -28,12 +28,26 @@ READ_ONLY_OPTIONS = ("--lint", "--summary", "-S", "--detailed-summary", "-D", "-
                      "--export-cwl", "--archive")
 
 
+#: The same options as attributes of Snakemake's parsed command line (which resolves abbreviations such as
+#: ``--summ``, as Snakemake itself does; a review).
+READ_ONLY_ARGS = ("lint", "summary", "detailed_summary", "report", "list_rules", "list_target_rules", "dag",
+                  "rulegraph", "filegraph", "d3dag", "list_changes", "list_input_changes", "list_params_changes",
+                  "list_untracked", "print_compilation", "containerize", "export_cwl", "archive")
+
+
 def _read_only():
-    """Whether this Snakemake was started with an option of READ_ONLY_OPTIONS (``--report=PATH`` included)."""
-    return any(arg.split("=", 1)[0] in READ_ONLY_OPTIONS for arg in sys.argv[1:])
+    """Whether this Snakemake was started with an option of READ_ONLY_OPTIONS: read from Snakemake's own parser
+    (abbreviations included), else (another entry point, an argv it does not parse) by the exact names."""
+    try:
+        from snakemake.cli import get_argument_parser
+
+        args, _ = get_argument_parser().parse_known_args(sys.argv[1:])
+        return any(getattr(args, name, None) not in (None, False) for name in READ_ONLY_ARGS)
+    except (Exception, SystemExit):
+        return any(arg.split("=", 1)[0] in READ_ONLY_OPTIONS + ("--list-untracked", "--lu") for arg in sys.argv[1:])
 
 
-READ_ONLY = _read_only()
+READ_ONLY = MAIN_PROCESS and _read_only()     # (jobs never take the actions anyway)
 
 
 def config_error(message):

@@ -43,7 +43,7 @@ import pandas as pd  # noqa: E402
 from ddsolve.io.hdf5 import atomic_target  # noqa: E402
 
 from .rule_sets import DEFAULT, chosen_rule_set, one_rule_set, rule_sets  # noqa: E402
-from .tables import (CONTACT_CASES, LATEX_LABELS, METHOD_LABELS, MULTIBODY_ROW_LABELS,  # noqa: E402
+from .tables import (_truthy, CONTACT_CASES, LATEX_LABELS, METHOD_LABELS, MULTIBODY_ROW_LABELS,  # noqa: E402
                      ROW_LABELS, THESIS_KEYS, THESIS_QUANTITIES)
 
 
@@ -734,7 +734,7 @@ def _plot_not_converged(ax, data: tuple, color: str, who: str, xticks: set) -> N
     if x.size:
         xticks.update(x.tolist())
         ax.plot(x, y, linestyle="none", marker="x", color=color, markersize=8,
-                label=f"{who}: not converged (capped at maxiter; not fitted)")
+                label=f"{who}: not converged (iteration limit or breakdown; not fitted)")
 
 
 def _converged_mask(rows: pd.DataFrame) -> np.ndarray:
@@ -742,8 +742,7 @@ def _converged_mask(rows: pd.DataFrame) -> np.ndarray:
     all True without the column."""
     if "converged" not in rows.columns:
         return np.ones(len(rows), dtype=bool)
-    flags = rows["converged"].map(lambda v: str(v).strip().lower() in ("true", "1", "1.0"))
-    return flags.to_numpy(dtype=bool)
+    return rows["converged"].map(_truthy).to_numpy(dtype=bool)      # as the tables read it
 
 
 def _plain_number(value: float) -> str:

@@ -88,9 +88,10 @@ DESCRIBED_PARAMS: tuple[str, ...] = ("problem", "bodies", "rho", "f", "scaling",
 # ----------------------------------------------------------------------------
 
 def _truthy(value: Any) -> bool:
+    """A flag of a results table, also read back from CSV text ("True", "1", "1.0", "yes")."""
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
-    return str(value).strip().lower() in ("true", "1", "yes")
+    return str(value).strip().lower() in ("true", "1", "1.0", "yes")
 
 
 def condition_table(df: pd.DataFrame, *, rows: Sequence[str] = ("subdomains", "elements"),

@@ -10,6 +10,7 @@ import sys
 from base64 import urlsafe_b64encode
 
 import pytest
+import yaml
 
 from ddsolve.io import hdf5
 from ddsolve.io.check import quick_check
@@ -377,3 +378,16 @@ def test_stale_temporary_files_are_removed(tmp_path):
     (tmp_path / "s" / "m" / "Ns2_m2.h5").write_bytes(b"x")
     assert wf.remove_stale_tmp(tmp_path) == [str(tmp_path / "s" / "m" / ".Ns2_m2.h5.123.abcd1234.tmp")]
     assert os.listdir(tmp_path / "s" / "m") == ["Ns2_m2.h5"]
+
+
+def test_strict_yaml_refuses_a_key_twice_but_keeps_merge_keys():
+    """A key written twice was read as the last one silently; the strict loader refuses it. Its first version
+    also refused YAML merge keys (`<<: *anchor`), which are valid and override as YAML says (a review,
+    2026-11-28)."""
+    from ddstudies.workflow import ConfigError, load_yaml_strict
+
+    text = "base: &b {rtol: 1.0e-6, maxiter: 9}\nx:\n  <<: *b\n  maxiter: 5\n"
+    assert load_yaml_strict(text) == yaml.safe_load(text) == {"base": {"rtol": 1e-6, "maxiter": 9},
+                                                              "x": {"rtol": 1e-6, "maxiter": 5}}
+    with pytest.raises(ConfigError, match=r"key 'methods' appears twice in one mapping \(lines 2 and 4\)"):
+        load_yaml_strict("study: s\nmethods: [feti]\nrtol: 1.0e-6\nmethods: [bddc]\n")
