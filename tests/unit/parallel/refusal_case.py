@@ -16,6 +16,7 @@ SPECS = {"direct": dict(problem="poisson", method="direct"),
 
 if __name__ == "__main__":
     rank = MPI.COMM_WORLD.rank
+    lines = []
     for name in sys.argv[1:]:
         scene = None
         if name == "scene":          # a caller's scene: its parts decide, not the spec's subdomains (here 1)
@@ -23,6 +24,11 @@ if __name__ == "__main__":
             scene = unstructured_scene("poisson", maxh=0.3, parts=2, rho=1.0, seed=0)
         try:
             result = solve(SPECS[name], scene=scene)
-            print(f"{name} {rank} solved" + (f" {result.converged}" if rank == 0 else ""), flush=True)
+            lines.append(f"{name} {rank} solved" + (f" {result.converged}" if rank == 0 else ""))
         except InputError as exc:
-            print(f"{name} {rank} {exc.field}", flush=True)
+            lines.append(f"{name} {rank} {exc.field}")
+    # rank 0 prints every rank's lines: two ranks printing at once interleaved their lines on the shared
+    # stdout (an empty line and a joined one, once in a CI run)
+    every = MPI.COMM_WORLD.gather(lines)
+    if rank == 0:
+        print("\n".join(line for part in every for line in part), flush=True)
