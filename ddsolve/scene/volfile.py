@@ -33,13 +33,19 @@ Sections not listed are left to netgen.
 """
 from __future__ import annotations
 
+import os
 import re
+from typing import Any
 
 import numpy as np
 
 from ..errors import InputError, brief
 
-__all__ = ["check_vol_text"]
+__all__ = ["check_vol_text", "declared_materials", "load_netgen_mesh"]
+
+#: A .vol.gz may decompress to at most GZ_MAX_RATIO times its size, or GZ_MIN_LIMIT bytes if more.
+GZ_MAX_RATIO = 50
+GZ_MIN_LIMIT = 64 * 2**20
 
 _HEADER = re.compile(r"^[ \t]*([A-Za-z][A-Za-z0-9_]*)[ \t]*\r?$", re.M)
 _COUNTED = ("points", "surfaceelements", "volumeelements", "pointelements", "materials", "bcnames",
@@ -177,13 +183,16 @@ def check_vol_text(text: str, name: str = "mesh file") -> int:
 
 def declared_materials(text: str) -> np.ndarray | None:
     """The material indices a ``materials`` section of a checked ``.vol`` text declares (None without one)."""
-    lines = text.splitlines()
-    try:
-        at = lines.index("materials")
-        count = int(lines[at + 1])
-        return np.array([int(ln.split()[0]) for ln in lines[at + 2:at + 2 + count]], dtype=np.int64)
-    except (ValueError, IndexError):
-        return None
+    heads = [(m.start(), m.end(), m.group(1)) for m in _HEADER.finditer(text)]   # as check_vol_text reads it
+    for k, (_, end, word) in enumerate(heads):
+        if word != "materials":
+            continue
+        lines = _data_lines(text[end:heads[k + 1][0] if k + 1 < len(heads) else len(text)])
+        try:
+            return np.array([int(ln.split()[0]) for ln in lines[1:1 + int(lines[0])]], dtype=np.int64)
+        except (ValueError, IndexError):
+            return None
+    return None
 
 
 def _integers(values: np.ndarray, key: str, name: str) -> None:
@@ -226,3 +235,85 @@ def _in_range(points: np.ndarray, n_points: int, key: str, name: str) -> None:
         bad = int(points.min()) if points.min() < 1 else int(points.max())
         raise InputError("mesh", f"{name}: section {key!r} names point {bad}, but the mesh has "
                                  f"{n_points} points (numbered from 1)")
+
+
+def load_netgen_mesh(path: str | os.PathLike, geometry: bool = True) -> Any:
+    """Load a netgen ``.vol`` (or ``.vol.gz``) file, checking that it is one.
+
+    Parameters
+    ----------
+    path : path
+    geometry : bool
+        Also read the geometry that a mesh of an OCC geometry carries after its mesh part
+        (needed by ``Refine()`` to put new boundary points on curved boundaries). Without it,
+        only the checked mesh part reaches netgen: a damaged geometry part made netgen's
+        reader loop for ever (measured: one line dropped from it), and it is not checked.
+
+    Raises
+    ------
+    InputError
+        ``mesh``: missing file, a file that is not a netgen mesh, or one that netgen would
+        crash on (:func:`~ddsolve.scene.volfile.check_vol_text`).
+    """
+    import gzip
+    import tempfile
+
+    from netgen.meshing import Mesh as NGMesh
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError("mesh", f"no such file: {path}")
+    opener = gzip.open if path.endswith(".gz") else open
+    # a .gz is read in blocks up to GZ_MAX_RATIO times its size (at least GZ_MIN_LIMIT): a mesh's text
+    # compresses about 5:1, and a 2 MB compression bomb reached 4.3 GB before it was refused
+    limit = max(GZ_MAX_RATIO * os.path.getsize(path), GZ_MIN_LIMIT) if path.endswith(".gz") else None
+    try:
+        with opener(path, "rb") as fh:
+            if limit is None:
+                data = fh.read()
+            else:
+                data = fh.read(limit + 1)
+                if len(data) > limit:
+                    raise InputError("mesh", f"{path} decompresses to more than {limit / 2**20:.0f} MiB "
+                                             f"({GZ_MAX_RATIO}x its size): not a gzipped netgen mesh")
+            text = data.decode("latin-1")
+    except (OSError, EOFError) as exc:           # EOFError: a truncated .gz
+        raise InputError("mesh", f"cannot read {path}: {exc}") from None
+    mesh_end = check_vol_text(text, path)        # netgen crashes (SIGSEGV) on a truncated or inconsistent file
+    try:                                         # netgen's names reach Python as UTF-8 (a bcname byte 0xff:
+        data[:mesh_end].decode("utf-8")          # a UnicodeDecodeError traceback, a review); latin-1 keeps
+    except UnicodeDecodeError as exc:            # byte and character offsets equal
+        raise InputError("mesh", f"{path} holds bytes that are not UTF-8 text (byte {exc.start}): "
+                                 f"not a netgen mesh, or a name in another encoding") from None
+    ngmesh = NGMesh(dim=2)
+    try:
+        if geometry or not text[mesh_end:].strip():
+            ngmesh.Load(path)
+        else:                                    # the mesh part alone
+            with tempfile.TemporaryDirectory() as tmp:
+                part = os.path.join(tmp, "mesh.vol")
+                with open(part, "w", encoding="latin-1") as fh:
+                    fh.write(text[:mesh_end])
+                ngmesh.Load(part)
+    except Exception as exc:  # netgen raises its own NgException
+        raise InputError("mesh", f"netgen cannot read {path}: {exc}") from None
+    _check_declared_materials(ngmesh, declared_materials(text[:mesh_end]), path)
+    return ngmesh
+
+
+def _check_declared_materials(ngmesh: Any, declared: np.ndarray | None, path: str) -> None:
+    """Refuse a file whose triangle netgen read into a material the ``materials`` section does not declare.
+
+    netgen matches a triangle's two leading numbers against its face descriptors and makes an unmatched one
+    a new material named "default": a one-triangle body of a multibody scene, or a silent part of a poisson
+    one (a review). Read from netgen's own elements, so every such line is found. Files without a
+    ``materials`` section are not checked.
+    """
+    if declared is None or declared.size == 0:
+        return
+    index = np.asarray(ngmesh.Elements2D().NumPy()["index"], dtype=np.int64)
+    bad = np.flatnonzero(~np.isin(index, declared))
+    if bad.size:
+        raise InputError("mesh", f"{path}: triangle {int(bad[0]) + 1} has a material that section 'materials' "
+                                 f"does not declare (it declares {', '.join(map(str, declared))}; netgen read "
+                                 f"index {int(index[bad[0]])}): check the triangle's first two numbers")

@@ -6,7 +6,7 @@ import sys
 import pytest
 
 from ddsolve.errors import InputError
-from ddsolve.scene.unstructured import load_netgen_mesh
+from ddsolve.scene.volfile import load_netgen_mesh
 from ddsolve.scene.volfile import check_vol_text
 
 
