@@ -124,3 +124,19 @@ def test_an_fft_preconditioner_with_rounding_in_its_imaginary_part_passes():
     M = LinearOperator((n, n), matvec=lambda v: np.fft.ifft(np.fft.fft(v) / eig), dtype=float)
     res = pcg(A, np.arange(1.0, n + 1), M=M, rtol=1e-12)
     assert res.converged and res.iterations <= 2
+
+
+@pytest.mark.parametrize("solver", [pcg, pcr])
+def test_an_overflow_in_the_recurrence_is_a_quiet_breakdown(solver):
+    """An overflow inside the iteration (a contact scene with rho 1e300 on every other subdomain) leaked numpy's
+    'overflow encountered in dot' RuntimeWarning before the breakdown was reported; with warnings as errors
+    the solve raised instead of returning converged=False."""
+    import warnings
+
+    A = np.diag([1e300, 1.0, 2.0])
+    b = np.array([1e10, 1.0, 1.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = solver(A, b, rtol=1e-8, M=np.diag([1e300, 1e300, 1e300]))
+    assert not res.converged and res.reason.startswith("breakdown:")
+    assert "= inf" in res.reason or "non-finite" in res.reason, res.reason
