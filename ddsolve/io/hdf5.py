@@ -319,7 +319,7 @@ def atomic_target(path: str | os.PathLike) -> Iterator[Path]:
     An interrupted writer therefore never leaves a partial file under the final
     name, and a failed or terminated (SIGTERM, SIGHUP) one no temporary file
     (:func:`~ddsolve.io.cleanup.removed_on_termination`; a SIGKILLed one may: the
-    workflow removes those when it starts, ``ddstudies.workflow.remove_stale_tmp``).
+    workflow removes those when it starts, ``ddstudies.integrity.remove_stale_tmp``).
 
     Raises
     ------

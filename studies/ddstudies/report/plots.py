@@ -1,7 +1,7 @@
 """Plots of condition number estimates against H/h, with least-squares fits.
 
 The theory for FETI, FETI-DP and BDDC (thesis, Chapter 2) bounds the condition
-number by ``C (1 + log(H/h))^2`` (natural logarithm). :func:`fit_log_squared`
+number by ``C (1 + log(H/h))^2`` (natural logarithm). :func:`~ddstudies.report.fits.fit_log_squared`
 fits the constant C by least squares (a one-parameter fit, no intercept);
 :func:`plot_cond_vs_Hh` draws one panel per method, one marker series per
 number of subdomains per side 1/H (N_s), and the fitted curve a + C (1 + log(H/h))^2
@@ -42,10 +42,12 @@ import pandas as pd  # noqa: E402
 
 from ddsolve.io.hdf5 import atomic_target  # noqa: E402
 
+from .fits import (_finite_pairs, _fit_linear_model, _fit_log_linear_model,  # noqa: E402,F401 (re-exported)
+                   _fit_log_squared_affine_model, _fit_sqrt_linear_model, _r_squared, fit_linear,
+                   fit_log_linear, fit_log_squared, fit_log_squared_affine, fit_sqrt_linear, log_squared)
 from .rule_sets import DEFAULT, chosen_rule_set, one_rule_set, rule_sets  # noqa: E402
 from .tables import (_truthy, CONTACT_CASES, LATEX_LABELS, METHOD_LABELS, MULTIBODY_ROW_LABELS,  # noqa: E402
                      ROW_LABELS, THESIS_KEYS, THESIS_QUANTITIES)
-
 
 
 def _save(fig, path) -> Path | None:
@@ -76,161 +78,6 @@ def label_narrow_log_axis(axis, low: float, high: float) -> None:
     axis.set_major_formatter(formatter)
     axis.set_minor_locator(NullLocator())
     axis.set_minor_formatter(NullFormatter())
-
-
-def _finite_pairs(x, y) -> tuple[np.ndarray, np.ndarray]:
-    x = np.asarray(x, dtype=float).ravel()
-    y = np.asarray(y, dtype=float).ravel()
-    if x.shape != y.shape:
-        raise ValueError(f"x and y differ in length: {x.size} != {y.size}")
-    keep = np.isfinite(x) & np.isfinite(y)
-    return x[keep], y[keep]
-
-
-def _r_squared(y: np.ndarray, fitted: np.ndarray) -> float:
-    """Coefficient of determination 1 - SS_res / SS_tot (SS_tot about the mean).
-
-    NaN with fewer than two points or when all y are equal (SS_tot = 0). For a
-    fit without intercept it can be negative (worse than the mean).
-    """
-    if y.size < 2:
-        return math.nan
-    ss_tot = float(np.sum((y - y.mean()) ** 2))
-    if ss_tot == 0.0:
-        return math.nan
-    ss_res = float(np.sum((y - fitted) ** 2))
-    return 1.0 - ss_res / ss_tot
-
-
-def log_squared(h_ratio) -> np.ndarray:
-    """The model shape ``(1 + log(H/h))^2`` (natural logarithm)."""
-    return (1.0 + np.log(np.asarray(h_ratio, dtype=float))) ** 2
-
-
-def fit_log_squared(h_ratio, cond) -> tuple[float, float]:
-    """Least-squares fit of ``cond ~ C (1 + log(H/h))^2``.
-
-    Parameters
-    ----------
-    h_ratio : array_like
-        H/h values (> 0).
-    cond : array_like
-        Condition number estimates. Pairs with a non-finite value are ignored.
-
-    Returns
-    -------
-    (C, r2) : tuple of float
-        ``C = sum(g * cond) / sum(g * g)`` with ``g = (1 + log(H/h))^2``, and
-        R^2 (see :func:`_r_squared`; NaN for fewer than two points). C is NaN
-        when no usable point is left.
-    """
-    x, y = _finite_pairs(h_ratio, cond)
-    if np.any(x <= 0):
-        raise ValueError("H/h must be positive")
-    if x.size == 0:
-        return math.nan, math.nan
-    g = log_squared(x)
-    denom = float(np.dot(g, g))
-    if denom == 0.0:
-        return math.nan, math.nan
-    c = float(np.dot(g, y)) / denom
-    return c, _r_squared(y, c * g)
-
-
-def fit_linear(x, y) -> tuple[float, float, float]:
-    """Least-squares line ``y ~ slope * x + intercept``.
-
-    Returns
-    -------
-    (slope, intercept, r2) : tuple of float
-        NaN slope/intercept with fewer than two distinct x values; R^2 as in
-        :func:`fit_log_squared`.
-    """
-    x, y = _finite_pairs(x, y)
-    if x.size < 2 or np.all(x == x[0]):
-        return math.nan, math.nan, math.nan
-    xm, ym = x.mean(), y.mean()
-    slope = float(np.dot(x - xm, y - ym) / np.dot(x - xm, x - xm))
-    intercept = float(ym - slope * xm)
-    return slope, intercept, _r_squared(y, slope * x + intercept)
-
-
-def fit_log_squared_affine(h_ratio, y) -> tuple[float, float, float]:
-    """Least-squares fit of ``y ~ C1 + C2 (1 + log(x))^2`` (natural logarithm).
-
-    The FETI-FETI bound of Theorem 4.3.x grows like (1 + log(H_s/h))^2 for a
-    fixed H_b/H_s; unlike :func:`fit_log_squared` this fit has an intercept.
-
-    Parameters
-    ----------
-    h_ratio : array_like
-        x values (> 0), e.g. H_s/h.
-    y : array_like
-        Values; pairs with a non-finite value are ignored.
-
-    Returns
-    -------
-    (C1, C2, r2) : tuple of float
-        NaN with fewer than two distinct x values; R^2 as in :func:`fit_linear`.
-    """
-    x, y = _finite_pairs(h_ratio, y)
-    if np.any(x <= 0):
-        raise ValueError("x must be positive")
-    slope, intercept, r2 = fit_linear(log_squared(x), y)
-    return intercept, slope, r2
-
-
-def fit_log_linear(x, y) -> tuple[float, float, float]:
-    """Least-squares fit of ``y ~ a + b log(x)`` (natural logarithm).
-
-    Returns
-    -------
-    (a, b, r2) : tuple of float
-        NaN with fewer than two distinct x values.
-    """
-    x, y = _finite_pairs(x, y)
-    if np.any(x <= 0):
-        raise ValueError("x must be positive")
-    slope, intercept, r2 = fit_linear(np.log(x), y)
-    return intercept, slope, r2
-
-
-def fit_sqrt_linear(x, y) -> tuple[float, float, float]:
-    """Least-squares fit of ``y ~ a + b sqrt(x)``.
-
-    CG iterations for a condition number growing linearly in x grow like
-    sqrt(x) (the FETI-FETI iterations against H_b/H_s).
-
-    Returns
-    -------
-    (a, b, r2) : tuple of float
-        NaN with fewer than two distinct x values.
-    """
-    x, y = _finite_pairs(x, y)
-    if np.any(x < 0):
-        raise ValueError("x must be non-negative")
-    slope, intercept, r2 = fit_linear(np.sqrt(x), y)
-    return intercept, slope, r2
-
-
-def _fit_linear_model(x, y):
-    slope, intercept, r2 = fit_linear(x, y)
-    return (slope, intercept), r2
-
-
-def _fit_log_linear_model(x, y):
-    a, b, r2 = fit_log_linear(x, y)
-    return (a, b), r2
-
-
-def _fit_sqrt_linear_model(x, y):
-    a, b, r2 = fit_sqrt_linear(x, y)
-    return (a, b), r2
-
-
-def _fit_log_squared_affine_model(x, y):
-    c1, c2, r2 = fit_log_squared_affine(x, y)
-    return (c1, c2), r2
 
 
 #: Fit models of :func:`plot_sweep_fits`: name -> (fit(x, y) -> (params, r2),
