@@ -331,9 +331,9 @@ def check_resources(spec: "ProblemSpec", max_memory: Any = None, max_seconds: An
     est = estimate(spec)
     _check_parts_per_body(spec)
     if max_memory is None:
-        limit, source = MEMORY_FRACTION * available_memory(), "available memory; raise with --max-memory"
+        limit, source = MEMORY_FRACTION * available_memory(), "available memory; raise with --max-memory, or max_memory= in Python"
     else:
-        limit, source = parse_size(max_memory), "--max-memory"
+        limit, source = parse_size(max_memory), "--max-memory / max_memory"
     if est.memory_bytes > limit:
         raise InputError(_largest_field(spec, est),
                          f"problem too large: {'~' if math.isfinite(est.memory_bytes) else ''}{_human(est.memory_bytes)} estimated for {est.n_w:.3g} W dofs, "

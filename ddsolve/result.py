@@ -40,22 +40,24 @@ class SolveResult:
     problem, method : str
         Problem kind (``"poisson"``, ...) and solver name (``"feti"``, ...).
     bodies, subdomains, elements : int
-        1/H_b, H_b/H_s and H_s/h of the structured scene.
+        1/H_b, H_b/H_s and H_s/h of the structured scene; on an unstructured mesh the bodies, the METIS
+        parts per body and 0 (no element count per subdomain side).
     ndof : int
         Number of global (assembled, Dirichlet-free) degrees of freedom.
     nlambda : int
         Number of Lagrange multipliers (0 for primal and direct methods).
     converged : bool
-        Whether the stopping rule ||r_k|| / ||r_0|| < rtol was met (for the
+        Whether the stopping rule ||r_k|| / ||r_0|| <= rtol was met (for the
         Krylov methods also by the recomputed residual, up to a factor 10:
         :func:`ddsolve.api.attained`).
     reason : str
         Why the iteration stopped (human readable, one line).
     iterations : int
         Krylov iterations.
-    residuals : ndarray, shape (iterations + 1,)
+    residuals : ndarray, shape (iterations + 1,), or (0,)
         Residual norms ||r_k||_2, k = 0..iterations (recursively updated by
-        the Krylov method).
+        the Krylov method); empty for the direct methods and the contact methods (whose
+        ``iterations`` sum several solves: see ``extra``).
     true_residual : float or None
         The Krylov residual recomputed from the final iterate, ||P (b - A x)||_2
         (:attr:`ddsolve.krylov.KrylovResult.true_residual`), in the units of

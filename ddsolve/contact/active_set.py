@@ -64,7 +64,7 @@ from ..krylov.result import KrylovResult
 from ..multibody.fallback import broke_down_on_s_ol
 from ..multibody.hybrid import RTOL_RULES, S_OL_FORMS, HybridSolver
 from ..qp import mprgp
-from ..qp.mprgp import check_positive
+from ..qp.mprgp import check_count, check_positive
 from ..qp.result import QPResult
 from .direct import ContactSolution
 from .problem import ContactProblem, kkt_verdict, series_stiffness
@@ -291,6 +291,7 @@ class ActiveSetHybrid:
         """
         t0 = time.perf_counter()
         rtol, pcg_rtol = check_tolerance("rtol", rtol), check_tolerance("pcg_rtol", pcg_rtol)
+        maxiter, max_outer = check_count("maxiter", maxiter, 1), check_count("max_outer", max_outer, 1)
         if forcing is not None:
             forcing = check_tolerance("forcing", forcing)
         for name, value, allowed in (("removal", removal, REMOVALS), ("face_rtol_rule", face_rtol_rule, RTOL_RULES),

@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import InputError
 from ..krylov import KrylovResult, pcg
 from .operators import linear_operator, scaled_jump
 from .projection import Projection
@@ -51,7 +52,7 @@ def projection_weights(B_D: sp.spmatrix, rho_W: np.ndarray, scaling: str, projec
         multiplier between subdomains i and j), or None.
     """
     if projection not in DUAL_PROJECTIONS:
-        raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(DUAL_PROJECTIONS)})")
+        raise InputError("projection", f"unknown projection {projection!r} (choose from {', '.join(DUAL_PROJECTIONS)})")
     if projection == "orthogonal" or scaling == "multiplicity":
         return None
     return floored_weights(B_D.multiply(B_D) @ rho_W)

@@ -63,7 +63,8 @@ FORMAT_VERSION = 1
 #: flat dictionary of :func:`read_result` as ``param_<name>`` for the parameter.
 IDENTITY_KEYS: tuple[str, ...] = ("problem", "method", "bodies", "subdomains", "elements", "mesh")
 #: Identity keys whose result value is not the parameter's on unstructured meshes: the result
-#: reports (parts, 0) for (subdomains, elements), the spec keeps the unused defaults.
+#: reports (parts, 0) for (subdomains, elements), the spec keeps the unused defaults (and with a
+#: ``mesh_file`` the result's ``bodies`` are the file's, not checked either).
 UNSTRUCTURED_SIZES: tuple[str, ...] = ("subdomains", "elements")
 #: Result entries that are dictionaries of scalars, stored flattened as ``<key>_<name>`` attributes.
 FLATTENED: tuple[str, ...] = ("timings",)
@@ -222,8 +223,8 @@ def write_result(path: str | os.PathLike, spec: Any, result: Any, *, store_solut
     Raises
     ------
     ValueError
-        If spec and result disagree on an identity key (problem, method,
-        bodies, subdomains, elements).
+        If spec and result disagree on an identity key (:data:`IDENTITY_KEYS`: problem, method,
+        bodies, subdomains, elements, mesh; see :data:`UNSTRUCTURED_SIZES` for the exceptions).
     TypeError
         If a value cannot be stored (e.g. a dictionary or a ragged list).
     """
@@ -234,6 +235,8 @@ def write_result(path: str | os.PathLike, spec: Any, result: Any, *, store_solut
         if isinstance(summary.get(name), Mapping):
             summary.update({f"{name}_{k}": v for k, v in summary.pop(name).items()})
     skip = UNSTRUCTURED_SIZES if params.get("mesh") == "unstructured" else ()
+    if params.get("mesh_file"):              # the file's bodies (its materials), not the spec's default 1
+        skip = (*skip, "bodies")
     for key in IDENTITY_KEYS:
         if key in skip:
             continue

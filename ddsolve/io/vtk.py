@@ -113,8 +113,12 @@ def write_vtu(path: str | os.PathLike, scene: "Scene", nodal: Mapping[str, np.nd
     path = resolved_target(path)
     if path.suffix.lower() != ".vtu":
         raise ValueError(f"output must be a .vtu file, got {path}")
-    coords = np.asarray(scene.coords, dtype=float)
-    elements = _counterclockwise(coords, np.asarray(scene.elements, dtype=np.int32))
+    from ..scene.scene import check_mesh_arrays
+
+    # netgen's AddPoints and AddElements read the arrays unchecked (a crash, not an error)
+    coords, elements = check_mesh_arrays(scene.coords, scene.elements)
+    coords = np.asarray(coords, dtype=float)
+    elements = _counterclockwise(coords, np.asarray(elements, dtype=np.int32))
     ngmesh = NGMesh(dim=2)
     ngmesh.AddPoints(np.ascontiguousarray(np.column_stack([coords, np.zeros(coords.shape[0])])))
     region = ngmesh.AddRegion("omega", 2)
@@ -174,11 +178,19 @@ def solution_fields(prep, u: np.ndarray, lam: np.ndarray | None = None) -> tuple
     -------
     (nodal, cellwise) : dicts of str to ndarray
     """
+    from ..errors import InputError
+
     scene, sub = prep.scene, prep.sub
     dof = np.asarray(sub.dof_of_node)
+    u = np.asarray(u, dtype=float)
+    if u.shape != (sub.ndof,):
+        raise InputError("u", f"must have shape ({sub.ndof},) (one value per dof), got {u.shape}")
+    if lam is not None and prep.contact is not None and np.shape(lam) != (prep.contact.gi.pair_nodes.shape[0],):
+        raise InputError("lam", f"must have shape ({prep.contact.gi.pair_nodes.shape[0]},) (one value per "
+                                f"contact pair), got {np.shape(lam)}")
     values = np.zeros(scene.n_nodes)
     free = dof >= 0
-    values[free] = np.asarray(u, dtype=float)[dof[free]]
+    values[free] = u[dof[free]]
     nodal = {"u": values}
     element_sub = np.asarray(scene.element_subdomain)
     cellwise = {"subdomain": element_sub.astype(float),

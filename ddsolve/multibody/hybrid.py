@@ -305,7 +305,7 @@ class HybridSolver:
     def inexact_schur(self, s_ol: str = "thesis"):
         """The operator S~_OL of M_D^{-1} in (4.11): :meth:`S_ol` (``"thesis"``) or :meth:`S_ol_energy`."""
         if s_ol not in S_OL_FORMS:
-            raise ValueError(f"unknown s_ol {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
+            raise InputError("s_ol", f"unknown form {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
         return self.S_ol if s_ol == "thesis" else self.S_ol_energy
 
     # ------------------------------------------------------------ active set
@@ -365,7 +365,7 @@ class HybridSolver:
             (Q = M_D^{-1} not positive definite) is factored by LU, with a warning.
         """
         if kind not in PROJECTIONS:
-            raise ValueError(f"unknown projection {kind!r} (choose from {', '.join(PROJECTIONS)})")
+            raise InputError("projection", f"unknown projection {kind!r} (choose from {', '.join(PROJECTIONS)})")
         if kind == "orthogonal" or a.projection.k == 0:
             return a.projection
         key = kind if kind == "lumped" or s_ol == "thesis" else (kind, s_ol)   # Q = M_D^{-1} of that S~_OL
@@ -498,13 +498,13 @@ class HybridSolver:
             start shape, or a floating body not tied to a clamped one.
         """
         if norm not in NORMS:
-            raise ValueError(f"unknown norm {norm!r} (choose from {', '.join(NORMS)})")
+            raise InputError("norm", f"unknown norm {norm!r} (choose from {', '.join(NORMS)})")
         if projection not in PROJECTIONS:
-            raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
+            raise InputError("projection", f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
         if rtol_rule not in RTOL_RULES:
-            raise ValueError(f"unknown rtol_rule {rtol_rule!r} (choose from {', '.join(RTOL_RULES)})")
+            raise InputError("rtol_rule", f"unknown rule {rtol_rule!r} (choose from {', '.join(RTOL_RULES)})")
         if s_ol not in S_OL_FORMS:
-            raise ValueError(f"unknown s_ol {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
+            raise InputError("s_ol", f"unknown form {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
         rtol = check_tolerance("rtol", rtol)
         if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
             raise InputError("maxiter", f"must be an integer >= 1, got {maxiter!r}")
@@ -540,7 +540,7 @@ class HybridSolver:
         setup = time.perf_counter() - t0
         c = float(multiplier_weight)
         if not (c > 0.0 and math.isfinite(c)):
-            raise ValueError(f"multiplier_weight must be positive and finite, got {multiplier_weight!r}")
+            raise InputError("multiplier_weight", f"must be positive and finite, got {multiplier_weight!r}")
         if c != 1.0:                                            # D A D y = D b, x = D y, D = diag(I, c I)
             A_c, M_c = A_op, M_op
             d = np.r_[np.ones(n_g), np.full(n_act, c)]
@@ -607,7 +607,7 @@ class HybridSolver:
             The projected initial guess (None: zero).
         """
         if projection not in PROJECTIONS:
-            raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
+            raise InputError("projection", f"unknown projection {projection!r} (choose from {', '.join(PROJECTIONS)})")
         a = self.active_set(active)
         n_g, n_act = self.gamma_space.n, a.n_active
         lam0 = a.projection.particular(self.kernel_load()) if self.floating.size else np.zeros(n_act)
@@ -682,12 +682,12 @@ class HybridSolver:
                 full[np.asarray(x0["active"], dtype=bool)] = lam_full
                 lam = full[a.active]
             else:
-                raise ValueError("warm start lambda has the wrong shape")
+                raise InputError("x0", "the warm start's lambda has the wrong shape")
         else:
             x = np.asarray(x0, dtype=float)
             if x.shape != (n_g + a.n_active,):
-                raise ValueError(f"x0 must have shape ({n_g + a.n_active},), got {x.shape}")
+                raise InputError("x0", f"must have shape ({n_g + a.n_active},), got {x.shape}")
             u0, lam = x[:n_g], x[n_g:] + lam0
         if u0.shape != (n_g,):
-            raise ValueError(f"warm start u_gamma must have shape ({n_g},), got {u0.shape}")
+            raise InputError("x0", f"the warm start's u_gamma must have shape ({n_g},), got {u0.shape}")
         return np.concatenate([self.P_R(u0), proj.apply(lam - lam0)])

@@ -145,7 +145,7 @@ class GlobalInterface:
         if contact == "full":
             return np.ones(self.n_gl, dtype=bool)
         if contact != "middle":
-            raise ValueError(f"contact must be one of {CONTACTS}, got {contact!r}")
+            raise InputError("contact", f"must be one of {', '.join(CONTACTS)}, got {contact!r}")
         active = np.zeros(self.n_gl, dtype=bool)
         for k in range(self.n_gl):
             axis, start, length = self._face_extent[tuple(self.bodies[k])]

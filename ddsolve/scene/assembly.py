@@ -205,9 +205,15 @@ def assemble(scene: Scene) -> LocalProblems:
     Returns
     -------
     LocalProblems
+
+    Raises
+    ------
+    InputError
+        An inconsistent scene (:meth:`~ddsolve.scene.scene.Scene.check`).
     """
     import ngsolve as ngs
 
+    scene.check()
     if scene.element_type == "P1":
         return _assemble_p1(scene)
     n_sub = scene.n_subdomains

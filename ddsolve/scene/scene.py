@@ -64,10 +64,55 @@ def unique_row_labels(rows: np.ndarray) -> np.ndarray:
     return labels
 
 
+def _array(name: str, value, ndim: int, width: int | None = None, integer: bool = False) -> np.ndarray:
+    """``value`` as an array of ``ndim`` dimensions (and ``width`` columns), of integers or reals, else
+    :class:`~ddsolve.errors.InputError` naming ``name``."""
+    from ..errors import InputError
+
+    a = np.asarray(value)
+    if a.ndim != ndim or (width is not None and a.shape[1] != width):
+        want = "(n,)" if ndim == 1 else f"(n, {width})"
+        raise InputError(name, f"must be an array of shape {want}, got shape {a.shape}")
+    if integer and a.size and a.dtype.kind not in "iu":
+        raise InputError(name, f"must hold integer ids, got dtype {a.dtype}")
+    if not integer and a.dtype.kind not in "biuf":
+        raise InputError(name, f"must be a real array, got dtype {a.dtype}")
+    return a
+
+
+def _in_range(name: str, a: np.ndarray, n: int) -> None:
+    """Every id of ``a`` in [0, n), else :class:`~ddsolve.errors.InputError` naming ``name``."""
+    from ..errors import InputError
+
+    if a.size and (int(a.min()) < 0 or int(a.max()) >= n):
+        bad = a.min() if int(a.min()) < 0 else a.max()
+        raise InputError(name, f"id {int(bad)} is out of range [0, {n})")
+
+
+def check_mesh_arrays(coords, elements, width: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Node coordinates, shape (n_nodes, 2), finite, and elements, shape (n_elements, width) (width 3 or 4
+    when None), of node ids in [0, n_nodes), at least one: the arrays, else
+    :class:`~ddsolve.errors.InputError` naming ``coords`` or ``elements`` (what netgen reads unchecked)."""
+    from ..errors import InputError
+
+    coords = _array("coords", coords, 2, 2)
+    if not np.all(np.isfinite(coords)):
+        raise InputError("coords", "must be finite")
+    if width is None:
+        width = int(np.shape(elements)[1]) if np.ndim(elements) == 2 and np.shape(elements)[1] in (3, 4) else 3
+    elements = _array("elements", elements, 2, width, integer=True)
+    _in_range("elements", elements, coords.shape[0])
+    if elements.shape[0] == 0:
+        raise InputError("elements", "the mesh has no elements")
+    return coords, elements
+
+
 #: Element types: number of nodes per element -> name.
 ELEMENT_TYPES = {4: "Q1", 3: "P1"}
 
-#: A right-hand side: ``f(x, y) -> values`` evaluated on arrays, or a number.
+#: A right-hand side: a number, or ``f(x, y)`` called once with NGSolve's coordinate functions ``ngsolve.x``,
+#: ``ngsolve.y`` and returning a CoefficientFunction (use ``ngsolve.sin``, ``ngsolve.IfPos``: numpy's ufuncs do
+#: not take CoefficientFunctions).
 RightHandSide = Callable[[np.ndarray, np.ndarray], np.ndarray] | float
 
 
@@ -90,9 +135,10 @@ class Scene:
     dirichlet : ndarray of bool, shape (n_nodes,)
         True where u = 0 is imposed.
     f : float, callable or ndarray
-        Right-hand side of -div(rho grad u) = f: a number, ``f(x, y)``, element-wise
-        constants of shape (n_elements,), or (P1 scenes) the element load vectors of
-        shape (n_elements, 3) (:func:`ddsolve.scene.assembly.assemble`).
+        Right-hand side of -div(rho grad u) = f: a number, ``f(x, y)`` (called with NGSolve's coordinate
+        CoefficientFunctions, see :data:`RightHandSide`), element-wise constants of shape (n_elements,),
+        or (P1 scenes) the element load vectors of shape (n_elements, 3)
+        (:func:`ddsolve.scene.assembly.assemble`).
     subdomain_grid : ndarray of int, shape (n_subdomains, 2), optional
         (column, row) of each subdomain in its body for structured scenes
         (used for checkerboard patterns and reporting only).
@@ -123,6 +169,55 @@ class Scene:
         if self.element_type and self.element_type != derived:
             raise ValueError(f"element_type {self.element_type!r} does not match elements of width {width}")
         self.element_type = derived
+
+    def check(self) -> None:
+        """Refuse inconsistent arrays before anything reads them: one O(n) pass, :class:`InputError` naming the
+        field (a user's scene with 3 columns of coordinates crashed netgen in assembly and output, an element
+        id of -1 corrupted memory in the VTK writer, arrays of the wrong length gave numpy's IndexError).
+
+        Checks the shapes and dtypes of the attributes above, node ids in [0, n_nodes), subdomain labels in
+        [0, n_subdomains), body labels >= 0, finite coordinates, and a load ``f`` of a valid form (finite
+        where it is numbers). ``rho``'s values are checked where it is used (:func:`ddsolve.prepare`).
+        """
+        from ..errors import InputError, brief
+
+        width = 4 if self.element_type == "Q1" else 3
+        coords, elements = check_mesh_arrays(self.coords, self.elements, width)
+        n_nodes, n_el = coords.shape[0], elements.shape[0]
+        body = _array("subdomain_body", self.subdomain_body, 1, integer=True)
+        n_sub = body.shape[0]
+        if n_sub == 0 or int(body.min()) < 0:
+            raise InputError("subdomain_body", "needs one body label >= 0 per subdomain" if n_sub else
+                                               "the scene has no subdomains")
+        el_sub = _array("element_subdomain", self.element_subdomain, 1, integer=True)
+        if el_sub.shape[0] != n_el:
+            raise InputError("element_subdomain", f"has {el_sub.shape[0]} labels for {n_el} elements")
+        _in_range("element_subdomain", el_sub, n_sub)
+        rho = _array("rho", self.rho, 1)
+        if rho.shape[0] != n_sub:
+            raise InputError("rho", f"has {rho.shape[0]} values for {n_sub} subdomains")
+        dirichlet = np.asarray(self.dirichlet)
+        if dirichlet.shape != (n_nodes,) or dirichlet.dtype != bool:
+            raise InputError("dirichlet", f"must be a bool array of shape ({n_nodes},) (one per node), got "
+                                          f"{dirichlet.dtype} of shape {dirichlet.shape}")
+        pairs = _array("contact_pairs", self.contact_pairs, 2, 2, integer=True)
+        _in_range("contact_pairs", pairs, n_nodes)
+        if self.subdomain_grid is not None:
+            grid = _array("subdomain_grid", self.subdomain_grid, 2, 2, integer=True)
+            if grid.shape[0] != n_sub:
+                raise InputError("subdomain_grid", f"has {grid.shape[0]} rows for {n_sub} subdomains")
+        f = self.f
+        if callable(f):
+            return
+        shapes = [(n_el,)] + ([(n_el, 3)] if width == 3 else [])
+        number = isinstance(f, (int, float, np.integer, np.floating)) and not isinstance(f, bool)
+        a = np.asarray(f) if number or isinstance(f, (np.ndarray, list, tuple)) else None
+        if a is None or a.dtype.kind not in "iuf" or (a.ndim and a.shape not in shapes):
+            got = f"shape {a.shape}" if a is not None else brief(f)
+            raise InputError("f", f"must be a number, a callable f(x, y) or an array of shape "
+                                  f"{' or '.join(map(str, shapes))}, got {got}")
+        if not np.all(np.isfinite(a)):
+            raise InputError("f", "the load must be finite")
 
     @property
     def n_nodes(self) -> int:
