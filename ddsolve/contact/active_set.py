@@ -57,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from ..dd.common import MethodOutput
 from ..dd.operators import linear_operator, scaled_jump
 from ..errors import InputError, check_tolerance
 from ..krylov import pcg
@@ -117,6 +118,11 @@ class ActiveSetHybrid:
     def BT(self, lam: np.ndarray) -> np.ndarray:
         """B^_{Gamma,c}^T lam, shape (n_c,) -> (n_gamma,)."""
         return self.hybrid.jump_transpose(self.all_pairs, lam)
+
+    def face_u(self, out: MethodOutput) -> np.ndarray:
+        """u, shape (ndof,), of a face solve made with ``interior=False``: its interior values now, from its
+        u_Gamma (:meth:`~ddsolve.multibody.hybrid.HybridSolver.extend`), for the last face solve only."""
+        return out.u if out.u is not None else self.hybrid.extend(out.extra["u_gamma"])
 
     def S_dagger(self, r: np.ndarray) -> np.ndarray:
         """P_R M_BDDC^{-1} P_R r, the stand-in for S^_c^dagger in (5.4), shape (n_gamma,)."""
@@ -330,7 +336,7 @@ class ActiveSetHybrid:
             face_rtol = float(forcing) if loose else rtol
             sign_tol = max(tol, face_rtol) if loose else tol
             face = {"rtol": face_rtol, "maxiter": maxiter, "x0": {"u_gamma": u_k, "lambda": lam_k},
-                    "rtol_rule": face_rtol_rule, "check": False, **face_norm_options}
+                    "rtol_rule": face_rtol_rule, "check": False, "interior": False, **face_norm_options}
             out = h.solve(active, s_ol=s_ol, **face)
             if s_ol_fallback and s_ol == "thesis" and broke_down_on_s_ol(out.krylov):
                 # S~_OL of (4.9)-(4.10) indefinite: redo the face with the PSD energy form (docs/methods.md)
@@ -393,7 +399,7 @@ class ActiveSetHybrid:
         if fallback_faces and converged:
             reason += (f"; face solve(s) {', '.join(map(str, fallback_faces))} redone with s_ol='energy' after "
                        "a breakdown with the indefinite S~_OL of (4.9)-(4.10)")
-        u = out.u if out is not None else np.zeros(self.problem.ndof)
+        u = self.face_u(out) if out is not None else np.zeros(self.problem.ndof)
         lam = lam_k if converged else np.where(active, lam_k, 0.0)
         seconds = time.perf_counter() - t0
         log.info("active set + hybrid: %s", reason)

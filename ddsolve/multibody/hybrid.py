@@ -405,7 +405,8 @@ class HybridSolver:
     def solve(self, active: np.ndarray, *, rtol: float = 1e-6, maxiter: int = 1000,
               x0: Any = None, restart: int = 100, norm: str = "l2",
               projection: str = "orthogonal", rtol_rule: str = "max",
-              multiplier_weight: float = 1.0, s_ol: str = "thesis", check: bool | None = None) -> MethodOutput:
+              multiplier_weight: float = 1.0, s_ol: str = "thesis", check: bool | None = None,
+              interior: bool = True) -> MethodOutput:
         """Solve the KKT system (4.2) on the active set Z^k: PCR on (4.5) with (4.11).
 
         The iteration runs on range(P_R) x V^k for (u_Gamma, mu) with
@@ -480,6 +481,11 @@ class HybridSolver:
             The final error check (:func:`ddsolve.multibody.check.checked_output`): None (default) where
             rho varies between subdomains or the mesh is unstructured, True always, False never (the
             active set method's face solves, judged by the KKT conditions instead).
+        interior : bool
+            Compute the interior values and ``u`` (default). False: ``u`` is None where the check does
+            not run (``check=False``), and :meth:`extend` gives it from ``extra["u_gamma"]`` when needed
+            (the active set method keeps the u of its last face solve only: one discrete harmonic
+            extension of all dofs per solve instead of one per face).
 
         Returns
         -------
@@ -562,8 +568,7 @@ class HybridSolver:
         if nf:
             beta = a.projection.coefficients(a.jump.matvec(u_g))
             u_g = u_g - np.where(self.kernel_column >= 0, beta[np.maximum(self.kernel_column, 0)], 0.0)
-        u_W = self.schur.interior_solution(self.sub.f_W, self.gamma_space.scatter(u_g))
-        u = self.sub.average(u_W)
+        u = self.extend(u_g) if interior or check is not False else None
         jump = float(np.abs(a.jump.matvec(u_g)).max()) if n_act else 0.0
         lam_full = np.zeros(self.gi.n_gl)
         lam_full[a.active] = lam
@@ -577,6 +582,11 @@ class HybridSolver:
                    "constraint_residual": jump, "s_ol": s_ol,
                    "state": {"u_gamma": u_g.copy(), "lambda": lam_full, "active": a.active.copy()}})
         return checked_output(out, self.gi, active, rtol, "hybrid", check)
+
+    def extend(self, u_gamma: np.ndarray) -> np.ndarray:
+        """u, shape (ndof,), from u_Gamma, shape (n_gamma,): the interior values by discrete harmonic
+        extension, A_II^{-1} (f_I - A_IG u_Gamma) per subdomain, averaged to the global dofs (as :meth:`solve`)."""
+        return self.sub.average(self.schur.interior_solution(self.sub.f_W, self.gamma_space.scatter(u_gamma)))
 
     def system(self, active: np.ndarray, *, x0: Any = None, projection: str = "orthogonal",
                s_ol: str = "thesis") -> tuple[Any, Any, np.ndarray, np.ndarray | None]:

@@ -139,6 +139,7 @@ class ReplicatedHybrid:
         """A distributed face solve; ``extra["lambda"]`` (active multipliers) and ``extra["u_gamma"]`` replicated."""
         dh = self.dh
         options.pop("check", None)      # a face solve is judged by the KKT conditions: no error check (as serial)
+        options.pop("interior", None)   # u: gathered on rank 0 when self.gather (DistributedActiveSetHybrid.face_u)
         x0_loc = {"u_gamma": self.to_local(np.asarray(x0["u_gamma"], dtype=float)), "lambda": x0["lambda"]}
         out, info = dh.solve(active, rtol=rtol, maxiter=maxiter, rtol_rule=rtol_rule, x0=x0_loc,
                              gather=self.gather, **options)
@@ -176,6 +177,10 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
         self.n_contact = n_c
         self.all_pairs = rep.active_set(np.ones(n_c, dtype=bool))
         self._pairs = self.dh.active_set(np.ones(n_c, dtype=bool))     # this rank's rows of all pairs
+
+    def face_u(self, out: MethodOutput) -> np.ndarray | None:
+        """The global u of a face solve on rank 0 (``gather``; None without, and on the other ranks)."""
+        return out.u
 
     def measures(self, sol: ContactSolution) -> ContactMeasures:
         """KKT residuals (5.5) and energy of ``sol`` (the last face solve's u), computed distributed.
