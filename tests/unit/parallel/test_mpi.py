@@ -362,3 +362,16 @@ def test_distributed_hybrid_falls_back_to_the_energy_form_as_serial():
     out = json.loads(proc.stdout)
     assert out["converged"] and out["s_ol"] == "energy", out["reason"]
     assert out["error_vs_direct"] < 1e-5                               # measured 2.5e-7
+
+
+@pytest.mark.parametrize("args", [["--subdomains", "3", "--rho", "1e-307", "--f", "1e300"],
+                                  ["--problem", "contact", "--subdomains", "2", "--elements", "4",
+                                   "--rho", "checkerboard:1e300"]])
+def test_an_overflow_is_reported_without_numpy_warnings(args):
+    """inf + (-inf) in the neighbour sums and an overflow in the Krylov inner products printed numpy's
+    RuntimeWarning, with its source line, from every rank (a review); the result says it instead."""
+    proc = mpiexec(3, ["-m", "ddsolve", "solve", *args, "--json"])
+    assert proc.returncode == 0, proc.stderr
+    assert "RuntimeWarning" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+    result = json.loads(proc.stdout)
+    assert result["converged"] is False and "breakdown" in result["reason"], result["reason"]
