@@ -40,7 +40,7 @@ from ..dd.projection import Projection
 from ..multibody.interface import UNTIED_MESSAGE, UNTIED_TOL
 from .hybrid import DistributedHybrid
 from .kkt import distributed_kkt, gamma_diagonal
-from .setup import RankProblem
+from .setup import RankProblem, gather_solution
 
 __all__ = ["ReplicatedHybrid", "DistributedActiveSetHybrid"]
 
@@ -139,10 +139,10 @@ class ReplicatedHybrid:
         """A distributed face solve; ``extra["lambda"]`` (active multipliers) and ``extra["u_gamma"]`` replicated."""
         dh = self.dh
         options.pop("check", None)      # a face solve is judged by the KKT conditions: no error check (as serial)
-        options.pop("interior", None)   # u: gathered on rank 0 when self.gather (DistributedActiveSetHybrid.face_u)
+        options.pop("interior", None)   # no u per face: DistributedActiveSetHybrid.face_u gathers the last one
         x0_loc = {"u_gamma": self.to_local(np.asarray(x0["u_gamma"], dtype=float)), "lambda": x0["lambda"]}
         out, info = dh.solve(active, rtol=rtol, maxiter=maxiter, rtol_rule=rtol_rule, x0=x0_loc,
-                             gather=self.gather, **options)
+                             gather=False, **options)
         a = dh.active_set(active)
         self.face_solves.append(info)
         self.last_u_gamma = out.extra["u_gamma"]
@@ -179,8 +179,17 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
         self._pairs = self.dh.active_set(np.ones(n_c, dtype=bool))     # this rank's rows of all pairs
 
     def face_u(self, out: MethodOutput) -> np.ndarray | None:
-        """The global u of a face solve on rank 0 (``gather``; None without, and on the other ranks)."""
-        return out.u
+        """The global u of the last face solve on rank 0 (``gather``; None without, and on the other ranks).
+
+        Collective with ``gather``: this rank's interior values from its u_Gamma dofs, then gathered
+        (:func:`~ddsolve.parallel.setup.gather_solution`), once per solve instead of once per face solve.
+        """
+        if not self.hybrid.gather:
+            return None
+        dh = self.dh
+        sub = dh.prob.sub
+        u_W = dh.schur.interior_solution(sub.f_W, dh.gamma.space.scatter(self.hybrid.last_u_gamma))
+        return gather_solution(dh.prob, u_W)
 
     def measures(self, sol: ContactSolution) -> ContactMeasures:
         """KKT residuals (5.5) and energy of ``sol`` (the last face solve's u), computed distributed.
