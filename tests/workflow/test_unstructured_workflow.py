@@ -121,3 +121,9 @@ def test_tiny_study_runs(workdir):
     counts = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)\s*$", text, flags=re.MULTILINE)}
     assert counts["unstructured_cond_case"] == 1 and counts["unstructured_cond_aggregate"] == 1
     assert counts["unstructured_cond_law"] == 1 and "unstructured_case" not in counts
+    # another direct backend reruns the contact job (its pdas faces factor with it), not the Poisson ones,
+    # which do not read it (they reran on it before: every finished Poisson case)
+    proc = snakemake(workdir, "-n", "--cores", "1", "--configfile", "tiny.yaml", "--config", "direct=mkl-pardiso")
+    text = proc.stdout + proc.stderr
+    counts = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)\s*$", text, flags=re.MULTILINE)}
+    assert counts["unstructured_case"] == 1 and "results/tiny_unstructured/contact/r0.csv" in text

@@ -424,12 +424,18 @@ def unstructured_case(wildcards):
     except (ValueError, KeyError) as err:
         config_error(f"invalid config: problems: {wildcards.problem}: {err}")
     contact = wildcards.problem == "contact"
-    return {"problem": wildcards.problem, "maxh": float(series["maxh"]), "refine": refine, "parts": parts,
-            "methods": case_methods(series["methods"], refine, series.get("max_refine")),
+    methods = case_methods(series["methods"], refine, series.get("max_refine"))
+    case = {"problem": wildcards.problem, "maxh": float(series["maxh"]), "refine": refine, "parts": parts,
+            "methods": methods,
             "rtol": float(config.get("contact_rtol", 1e-5) if contact else config.get("rtol", 1e-8)),
-            "maxiter": int(config.get("maxiter", 1000)), "cond": bool(config.get("cond", True)),
-            "direct": config.get("direct", "mkl-pardiso"), "direct_threads": int(config.get("direct_threads", 1)),
-            "seed": int(config.get("seed", 0))}
+            "maxiter": int(config.get("maxiter", 1000)), "seed": int(config.get("seed", 0))}
+    # only what the job reads, so that a parameter it does not use reruns nothing: the condition estimates are
+    # Poisson's, the direct backend is that of contact's pdas faces (the Poisson direct peers are methods)
+    if not contact:
+        case["cond"] = bool(config.get("cond", True))
+    elif "pdas" in methods:
+        case.update(direct=config.get("direct", "mkl-pardiso"), direct_threads=int(config.get("direct_threads", 1)))
+    return case
 
 
 def unstructured_cond_files(wildcards=None):
