@@ -49,6 +49,7 @@ from ..dd.check import needs_check
 from ..dd.common import MethodOutput
 from ..dd.dual import DUAL_PROJECTIONS, floored_weights
 from ..dd.operators import DirichletSchur
+from ..errors import InputError
 from .check import distributed_multibody_estimate, tied_pieces
 from .coarse import DistributedPrimalSolver, pinned_vertices
 from .comm import NeighbourSum, shared_indices
@@ -190,7 +191,7 @@ def solve_fetifeti_mpi(prob: RankProblem, *, rtol: float = 1e-6, maxiter: int = 
     comm, sub = prob.comm, prob.sub
     piece = prob.pieces                                     # from rank 0 (distribute_fetifeti)
     if projection not in DUAL_PROJECTIONS:
-        raise ValueError(f"unknown projection {projection!r} (choose from {', '.join(DUAL_PROJECTIONS)})")
+        raise InputError("projection", f"unknown projection {projection!r} (choose from {', '.join(DUAL_PROJECTIONS)})")
     t0 = time.perf_counter()
     cache: dict = {}
     primal_solver = DistributedPrimalSolver(sub, sub.vertex, cache, comm, prob.primal_dofs, pinned=piece["pinned"])

@@ -43,6 +43,7 @@ import scipy.sparse as sp
 from ..dd.check import needs_check
 from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, linear_operator
+from ..errors import InputError
 from ..krylov.result import KrylovResult
 from ..multibody.fallback import with_s_ol_fallback
 from ..multibody.hybrid import NO_COND_MESSAGE, S_OL_FORMS, InterfaceSpace
@@ -357,7 +358,7 @@ class DistributedHybrid:
     def M_D(self, a: DistributedActiveSet, lam: np.ndarray, s_ol: str = "thesis") -> np.ndarray:
         """Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z lam (``s_ol``: "thesis" or "energy")."""
         if s_ol not in S_OL_FORMS:
-            raise ValueError(f"unknown s_ol {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
+            raise InputError("s_ol", f"unknown form {s_ol!r} (choose from {', '.join(S_OL_FORMS)})")
         S = self.S_ol if s_ol == "thesis" else self.S_ol_energy
         return a.scaled_jump_global.matvec(S(a.scaled_jump_global.rmatvec(lam)))
 
@@ -462,7 +463,7 @@ class DistributedHybrid:
             xs = np.concatenate([self.P_R(np.asarray(x0["u_gamma"], dtype=float)), proj(lam - lam0)])
         c = float(multiplier_weight)
         if not (c > 0.0 and math.isfinite(c)):
-            raise ValueError(f"multiplier_weight must be positive and finite, got {multiplier_weight!r}")
+            raise InputError("multiplier_weight", f"must be positive and finite, got {multiplier_weight!r}")
         if c != 1.0:                         # D A D y = D b, x = D y (HybridSolver.solve)
             d = np.r_[np.ones(n_g), np.full(n_act, c)]
             A_c, M_c = A, M

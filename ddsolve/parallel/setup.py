@@ -94,6 +94,8 @@ def _scene(spec: ProblemSpec, size: int, scene=None):
             from ..scene.unstructured import LAST_TIMINGS
             scene_timings = {"mesh": LAST_TIMINGS.get("mesh", 0.0),
                              "partition": LAST_TIMINGS.get("split", 0.0) + LAST_TIMINGS.get("partition", 0.0)}
+    else:          # a user's scene, checked whole before it is cut (its cut parts no longer show an id of -1)
+        scene.check()
     if spec.mesh != "unstructured" or scene.element_type != "P1":
         scene_timings["mesh"] = time.perf_counter() - t0
     if scene.n_subdomains < size:          # a mesh file's parts are known only now
@@ -168,6 +170,8 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     error = comm.comm.bcast(error, root=0)
     if error is not None:
         raise InputError(*error)
+    if given and comm.rank != 0:
+        scene.check()              # passed on rank 0 (the same scene): stores its fields as arrays here too
     if comm.rank == 0:
         for r, cut in pieces:
             if r == 0:

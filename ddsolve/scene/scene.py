@@ -171,9 +171,10 @@ class Scene:
         self.element_type = derived
 
     def check(self) -> None:
-        """Refuse inconsistent arrays before anything reads them: one O(n) pass, :class:`InputError` naming the
-        field (a user's scene with 3 columns of coordinates crashed netgen in assembly and output, an element
-        id of -1 corrupted memory in the VTK writer, arrays of the wrong length gave numpy's IndexError).
+        """Refuse inconsistent arrays before anything reads them, and store each field as the ndarray the
+        solvers read (a list becomes an array): one O(n) pass, :class:`InputError` naming the field (a user's
+        scene with 3 columns of coordinates crashed netgen in assembly and output, an element id of -1
+        corrupted memory in the VTK writer, arrays of the wrong length gave numpy's IndexError).
 
         Checks the shapes and dtypes of the attributes above, node ids in [0, n_nodes), subdomain labels in
         [0, n_subdomains), body labels >= 0, finite coordinates, and a load ``f`` of a valid form (finite
@@ -200,24 +201,29 @@ class Scene:
         if dirichlet.shape != (n_nodes,) or dirichlet.dtype != bool:
             raise InputError("dirichlet", f"must be a bool array of shape ({n_nodes},) (one per node), got "
                                           f"{dirichlet.dtype} of shape {dirichlet.shape}")
-        pairs = _array("contact_pairs", self.contact_pairs, 2, 2, integer=True)
+        pairs = np.asarray(self.contact_pairs)
+        pairs = _array("contact_pairs", pairs.reshape(0, 2) if pairs.size == 0 else pairs, 2, 2, integer=True)
         _in_range("contact_pairs", pairs, n_nodes)
-        if self.subdomain_grid is not None:
-            grid = _array("subdomain_grid", self.subdomain_grid, 2, 2, integer=True)
+        grid = self.subdomain_grid
+        if grid is not None:
+            grid = _array("subdomain_grid", grid, 2, 2, integer=True)
             if grid.shape[0] != n_sub:
                 raise InputError("subdomain_grid", f"has {grid.shape[0]} rows for {n_sub} subdomains")
         f = self.f
-        if callable(f):
-            return
-        shapes = [(n_el,)] + ([(n_el, 3)] if width == 3 else [])
-        number = isinstance(f, (int, float, np.integer, np.floating)) and not isinstance(f, bool)
-        a = np.asarray(f) if number or isinstance(f, (np.ndarray, list, tuple)) else None
-        if a is None or a.dtype.kind not in "iuf" or (a.ndim and a.shape not in shapes):
-            got = f"shape {a.shape}" if a is not None else brief(f)
-            raise InputError("f", f"must be a number, a callable f(x, y) or an array of shape "
-                                  f"{' or '.join(map(str, shapes))}, got {got}")
-        if not np.all(np.isfinite(a)):
-            raise InputError("f", "the load must be finite")
+        if not callable(f):
+            shapes = [(n_el,)] + ([(n_el, 3)] if width == 3 else [])
+            number = isinstance(f, (int, float, np.integer, np.floating)) and not isinstance(f, bool)
+            a = np.asarray(f) if number or isinstance(f, (np.ndarray, list, tuple)) else None
+            if a is None or a.dtype.kind not in "iuf" or (a.ndim and a.shape not in shapes):
+                got = (f"{a.dtype} of shape {a.shape}" if a is not None and a.dtype.kind not in "iuf" else
+                       f"shape {a.shape}" if a is not None else brief(f))
+                raise InputError("f", f"must be a number, a callable f(x, y) or a real array of shape "
+                                      f"{' or '.join(map(str, shapes))}, got {got}")
+            if not np.all(np.isfinite(a)):
+                raise InputError("f", "the load must be finite")
+            f = float(a) if a.ndim == 0 else a.astype(float, copy=False)
+        self.coords, self.elements, self.subdomain_body, self.element_subdomain = coords, elements, body, el_sub
+        self.rho, self.dirichlet, self.contact_pairs, self.subdomain_grid, self.f = rho, dirichlet, pairs, grid, f
 
     @property
     def n_nodes(self) -> int:

@@ -137,3 +137,27 @@ def test_solver_options_are_refused_naming_the_option():
     for value in (-1, 0, 2.5):
         with pytest.raises(InputError, match="max_outer: must be an integer >= 1"):
             solve_contact_active_set(contact, max_outer=value)
+
+
+@pytest.mark.parametrize("field, value", [("contact_pairs", []), ("subdomain_body", [0, 0, 0, 0]),
+                                          ("dirichlet", "list"), ("f", "list"), ("f", np.array(1.0)),
+                                          ("rho", [1.0, 1.0, 1.0, 1.0])])
+def test_lists_and_empty_pairs_are_taken_as_arrays(field, value):
+    """Scene.check stores every field as the array the solvers read: a list of body labels, dirichlet flags or
+    loads passed the first version of the check and failed later with numpy's or Python's errors, and an empty
+    list of contact pairs (no pairs, one body) was refused (a review of the check)."""
+    from ddsolve.dd import solve_fetidp
+
+    sc = _scene()
+    reference = solve_fetidp(prepare(ProblemSpec(), scene=_scene()).sub, rtol=1e-10).u
+    value = {"list": getattr(sc, field).tolist() if field == "dirichlet" else [1.0] * sc.elements.shape[0]}.get(
+        value, value) if isinstance(value, str) else value
+    out = solve_fetidp(prepare(ProblemSpec(), scene=dataclasses.replace(sc, **{field: value})).sub, rtol=1e-10)
+    assert out.krylov.converged and np.array_equal(out.u, reference)
+
+
+@pytest.mark.parametrize("f, message", [(np.ones(16, dtype=complex), r"got complex128 of shape \(16,\)"),
+                                        (True, "got True")])
+def test_a_complex_or_bool_load_is_refused_naming_what_is_wrong(f, message):
+    with pytest.raises(InputError, match=r"f: must be a number, a callable f\(x, y\) or a real array .*" + message):
+        prepare(ProblemSpec(), scene=dataclasses.replace(_scene(), f=f))

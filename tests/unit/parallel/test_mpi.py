@@ -375,3 +375,37 @@ def test_an_overflow_is_reported_without_numpy_warnings(args):
     assert "RuntimeWarning" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     result = json.loads(proc.stdout)
     assert result["converged"] is False and "breakdown" in result["reason"], result["reason"]
+
+
+@pytest.mark.parametrize("case, message", [("neg", "elements: id -1 is out of range [0, 25)"),
+                                           ("dirichlet", "dirichlet: must be a bool array of shape (25,)")])
+def test_a_users_scene_is_checked_whole_before_it_is_cut(case, message):
+    """An element id of -1 in a scene given to ddsolve.parallel.run.solve was cut into a valid local id: 2 ranks
+    solved another problem and reported it converged (serial refused it); an int dirichlet mask failed on rank 0
+    alone with numpy's error while rank 1 waited in a broadcast (a review). Now every rank raises the InputError."""
+    code = f"""
+import dataclasses, numpy as np
+from mpi4py import MPI
+from ddsolve import ProblemSpec
+from ddsolve.parallel.run import solve
+from ddsolve.scene import structured_square
+sc = structured_square(1, 2, 2)
+sc.f = 1.0
+if {case!r} == "neg":
+    sc = dataclasses.replace(sc, elements=np.where(sc.elements == 0, -1, sc.elements))
+else:
+    sc = dataclasses.replace(sc, dirichlet=sc.dirichlet.astype(int))
+lines = []
+try:
+    solve(ProblemSpec(method="fetidp"), scene=sc if MPI.COMM_WORLD.rank == 0 else None)
+    lines.append("solved")
+except Exception as e:
+    lines.append(f"{{type(e).__name__}} {{e}}")
+out = MPI.COMM_WORLD.gather(lines[0], root=0)
+if MPI.COMM_WORLD.rank == 0:
+    print("\\n".join(out))
+"""
+    proc = mpiexec(2, ["-c", code])
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert len(lines) == 2 and all(line.startswith(f"InputError {message}") for line in lines), proc.stdout
