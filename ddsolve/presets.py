@@ -17,8 +17,9 @@ method, and :mod:`ddsolve.api`'s runners pass them on.
     - active set method (Chapter 5): every face solve stops at ||r_k|| <= rtol ||r_0||
       (default: rtol max(||r_0||, ||F||), ``face_rtol_rule="initial"``), the initial
       active set {lambda_hat > 0} (default: {lambda_hat > 10 rtol max lambda_hat},
-      ``initial_active="positive"``) and the removal of Figure 6.3, one blocking pair
-      per outer iteration (default: all negative multipliers at once, ``removal="blocking"``),
+      ``initial_active="positive"``) and the removal of Figure 6.3, the blocking pair (with
+      those the step brings to within the sign test's tolerance of 0) per outer iteration
+      (default: all negative multipliers at once, ``removal="blocking"``),
       face solves stopped in the plain ||.||_2 of Section 4.4 (default: the gaps weighted
       by max rho, invariant under rho -> s rho and equal to it for rho = 1, ``face_norm="l2"``),
       no redo of a face solve that broke down on the indefinite S~_OL of (4.9)-(4.10)
@@ -29,7 +30,8 @@ method, and :mod:`ddsolve.api`'s runners pass them on.
     - SMALBE (Section 6.4): the stopping rule ||g^P|| <= eps ||b||, ||G lambda|| <= eps ||b||
       (default: ||G lambda|| <= eps min(||b||, ||e||), ``equality_rule="section-6.4"``),
       rho_bar = ||P F P|| (default 1, ``rho_bar=None``), no FETI-FETI polish
-      (``polish=False``). The project's acceptance check (force balance, KKT
+      (``polish=False``), and MPRGP's expansion step of Figure 6.6 as printed (default: preceded by
+      Dostál's feasible half step to the boundary, ``halfstep=False``). The project's acceptance check (force balance, KKT
       stationarity) stays enforced: a result that meets the printed rule but fails it is
       reported ``converged=False`` with both facts in the reason, so that no preset calls an
       inaccurate answer converged; its iteration counts are still SMALBE's own.
@@ -54,7 +56,7 @@ THESIS_OPTIONS: dict[tuple[str, str], dict[str, Any]] = {
     ("contact", "active-set"): {"face_rtol_rule": "initial", "initial_active": "positive",
                                 "removal": "blocking", "face_norm": "l2", "s_ol_fallback": False,
                                 "sign_test": "plain"},
-    ("contact", "smalbe"): {"equality_rule": "section-6.4", "rho_bar": None, "polish": False},
+    ("contact", "smalbe"): {"equality_rule": "section-6.4", "rho_bar": None, "polish": False, "halfstep": False},
     ("multibody", "hybrid"): {"s_ol_fallback": False},
 }
 

@@ -341,14 +341,15 @@ def enforce(homogeneous: HomogeneousProblem, rho_bar: float | None) -> EnforcedP
 
 
 def solve_enforced(enforced: EnforcedProblem, *, eps: float, M: float, rho0: float, Gamma: float,
-                   maxiter: int | None, max_outer: int, equality_rule: str = "min"
+                   maxiter: int | None, max_outer: int, equality_rule: str = "min", halfstep: bool = True
                    ) -> tuple[QPResult, float | None]:
     """SMALBE (Figure 6.7) with MPRGP inner solves (Figure 6.6) on (6.17).
 
     Stopping rule ||g^P|| <= eps ||b|| and ||G lambda|| <= eps min(||b|| / F_scale, ||e||)
     (:mod:`ddsolve.contact.smalbe_dual`, "Stopping rule"; ``equality_rule="min"``; ||b|| / F_scale
     is the displacement ||b|| in force units, ||b|| for rho = 1) or ||G lambda|| <= eps ||b||
-    (``"section-6.4"``, as printed); steplength from ``norm_A = NORM_SAFETY max(||P F P||, rho_bar)``.
+    (``"section-6.4"``, as printed); steplength from ``norm_A = NORM_SAFETY max(||P F P||, rho_bar)``;
+    ``halfstep`` of MPRGP's expansion steps (:func:`ddsolve.qp.mprgp.mprgp`; False: Figure 6.6 as printed).
 
     Returns
     -------
@@ -368,7 +369,7 @@ def solve_enforced(enforced: EnforcedProblem, *, eps: float, M: float, rho0: flo
     result = smalbe(enforced.hessian, enforced.b, enforced.homogeneous.lower, enforced.equality, None, None,
                     M=M, rho0=rho0, Gamma=Gamma, eps=eps, maxiter=maxiter,
                     norm_A=NORM_SAFETY * max(enforced.norm_PFP, enforced.rho_bar), norm_BE=1.0,
-                    feas_tol=tol_eq, max_outer=max_outer)
+                    feas_tol=tol_eq, max_outer=max_outer, halfstep=halfstep)
     return result, tol_eq
 
 

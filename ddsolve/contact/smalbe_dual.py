@@ -162,7 +162,8 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
                          Gamma: float = 1.0, maxiter: int | None = None,
                          solver: FetiFetiSolver | None = None, rho_bar: float | str | None = RELATIVE,
                          polish: bool | str = "auto", max_outer: int = 100,
-                         equality_rule: str = "min", acceptance: str = "enforce") -> ContactSolution:
+                         equality_rule: str = "min", acceptance: str = "enforce",
+                         halfstep: bool = True) -> ContactSolution:
     """Solve (3.1) by SMALBE/MPRGP on the FETI-DP dual (6.17) (thesis Section 6.4).
 
     See the module docstring for the formulation (6.13)-(6.17), the stopping rule
@@ -228,6 +229,10 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
         verdict is SMALBE's stopping rule alone (Section 6.4 has no such check);
         the check is still made and its outcome recorded in ``extra["acceptance"]``
         and in the reason (the thesis preset).
+    halfstep : bool
+        MPRGP's expansion steps preceded by the feasible half step to the boundary (default:
+        Dostál's MPRGP, monotone decrease of the cost; :func:`ddsolve.qp.mprgp.mprgp`) or not
+        (``False``: Figure 6.6 as printed, the thesis preset).
 
     Returns
     -------
@@ -296,7 +301,7 @@ def solve_contact_smalbe(problem: ContactProblem, *, eps: float = 1e-5, M: float
     # solve (SMALBE/MPRGP)
     try:
         res, tol_eq = solve_enforced(enforced, eps=eps, M=M, rho0=rho0, Gamma=Gamma, maxiter=maxiter,
-                                     max_outer=max_outer, equality_rule=equality_rule)
+                                     max_outer=max_outer, equality_rule=equality_rule, halfstep=halfstep)
     except ValueError as exc:                                # invalid parameters: report, do not raise
         return _failure(problem, t0, f"invalid SMALBE input: {exc}")
     # map back: balanced multiplier P lambda + lambda~, primal recovery

@@ -158,7 +158,7 @@ def test_solver_options_of_the_presets():
         "face_rtol_rule": "initial", "initial_active": "positive", "removal": "blocking", "face_norm": "l2",
         "s_ol_fallback": False, "sign_test": "plain"}
     assert solver_options("thesis", "contact", "smalbe") == {
-        "equality_rule": "section-6.4", "rho_bar": None, "polish": False}
+        "equality_rule": "section-6.4", "rho_bar": None, "polish": False, "halfstep": False}
     assert solver_options("thesis", "contact", "direct") == {}
     with pytest.raises(ValueError, match="preset"):
         solver_options("literal", "contact", "smalbe")
@@ -207,3 +207,23 @@ def test_unpolished_accuracy_is_smalbe_s_own():
     np.testing.assert_array_equal(polished.extra["u_unpolished"], plain.u)
     np.testing.assert_array_equal(polished.extra["lambda_unpolished"], plain.lam)
     assert p.kkt(plain.u, plain.lam).max > 10 * p.kkt(polished.u, polished.lam).max
+
+
+def test_thesis_preset_runs_figure_6_6_as_printed(monkeypatch):
+    """The thesis preset's MPRGP has no feasible half step before an expansion step (Figure 6.6 as printed;
+    the default is Dostál's MPRGP with it): the preset did not pass halfstep=False (a review: its Table 6.1
+    row was not the literal method)."""
+    from ddsolve.contact import smalbe_chain
+
+    seen = []
+    original = smalbe_chain.smalbe
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("halfstep", True))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(smalbe_chain, "smalbe", spy)
+    problem, _ = setup(4, 4)
+    solve_contact_smalbe(problem, eps=1e-5, **solver_options("thesis", "contact", "smalbe"))
+    solve_contact_smalbe(problem, eps=1e-5)
+    assert seen == [False, True]

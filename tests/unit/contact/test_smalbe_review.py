@@ -142,7 +142,7 @@ def test_thesis_preset_lambda_not_resolved_on_its_active_set_is_not_converged():
     ref = solve_contact_active_set(problem, rtol=1e-9, pcg_rtol=1e-9)
     assert ref.converged and problem.kkt(ref.u, ref.lam).max < 1e-8
     thesis = solver_options("thesis", "contact", "smalbe")
-    assert thesis == {"equality_rule": "section-6.4", "rho_bar": None, "polish": False}
+    assert thesis == {"equality_rule": "section-6.4", "rho_bar": None, "polish": False, "halfstep": False}
     res = solve_contact_smalbe(problem, eps=1e-6, **thesis)
     assert np.abs(res.lam - ref.lam).max() / np.abs(ref.lam).max() > 0.3             # measured 0.38
     assert problem.kkt(res.u, res.lam).max < kkt_limit(1e-6)        # the KKT residuals alone pass it
