@@ -174,3 +174,20 @@ def test_dry_run_plans_the_contact_study(tmp_path):
     assert counts == {"solve_case": 100, "aggregate": 1, "contact_table": 2, "contact_comparison": 1,
                       "figure_5_2": 1, "contact_work_precision": 1, "all": 1, "total": 107}
     assert "results/table_5_6/smalbe/Ns20_m20.h5" in text and "results/table_5_6/smalbe/Ns20_m20_thesis.h5" in text
+
+
+def test_comparison_marks_and_leaves_out_runs_that_did_not_converge():
+    """A run that did not converge was compared as if valid: its count (1000) unmarked in the table and summed
+    into the caption's verdict (a review). Now it is marked (*, or ‡ when rejected by the checks) and its grid
+    is left out of the verdict, which says so."""
+    runs = synthetic([10, 20, 20, 30], [40, 50, 50, 60])
+    bad = (runs["method"] == "active-set") & (runs["subdomains"] == 8) & (runs["elements"] == 8)
+    runs.loc[bad, ["total_iterations", "converged"]] = [1000, False]
+    runs["reason"] = ""
+    rejected = (runs["method"] == "smalbe") & (runs["subdomains"] == 4) & (runs["elements"] == 8)
+    runs.loc[rejected, ["converged", "reason"]] = [False, "not accepted: stopping rule met (...)"]
+    table = method_comparison(runs)
+    text = to_markdown(table)
+    assert "1000*" in text and "50‡" in text
+    caption = comparison_caption(table)
+    assert "ours: yes (20 vs 50 summed; fewer on 1 of 1 grids; 2 grid(s) left out: a run did not converge" in caption

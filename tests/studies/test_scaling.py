@@ -135,3 +135,20 @@ def test_scaling_workflow_dry_run(tmp_path):
     for rule in ("scaling_summary", "scaling_plot", "scaling_profile", "all"):
         assert re.search(rf"^{rule}\s+1\s*$", text, re.MULTILINE), rule
     assert not re.search(r"^solve_case\s", text, re.MULTILINE)       # not the default study
+
+
+def test_runs_that_did_not_converge_are_marked_and_left_out():
+    """A non-converged active-set run (50 s at the smallest size) was fitted (dofs^2.3), compared (ratio 371)
+    and judged against the targets without a mark in the Markdown report (a review)."""
+    df = _synthetic(1.2, 1.2)
+    bad = (df["method"] == "active-set") & (df["ndof"] == 13041)
+    df.loc[bad, ["wall_seconds", "converged"]] = [50.0, False]
+    summary = scaling_summary(df)
+    assert summary["fits"]["active-set"].exponent == pytest.approx(1.1)        # the two converged sizes
+    assert summary["fits"]["active-set"].n_points == 2
+    table = summary["table"]
+    assert math.isnan(table.loc[table["ndof"] == 13041, "ratio"].iloc[0])
+    assert summary["ratio_at"] == pytest.approx(1.2)
+    text = summary_markdown(summary)
+    assert "| 20 | 4 | 13,041 | 50.000 |" in text and "10 (2)* |" in text
+    assert "not converged (stopped at maxiter or by a breakdown)" in text and "left out of the fits" in text

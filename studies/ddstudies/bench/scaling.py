@@ -37,6 +37,7 @@ from ddsolve.spec import ProblemSpec
 
 from ..report.plots import _save
 from ..report.rule_sets import DEFAULT, NOTE_MARK, only_sentence
+from ..report.tables import NOT_CONVERGED_MARK, NOT_CONVERGED_NOTE, _truthy
 from .case import CaseRecord
 from .contact import CONTACT_METHODS, solve_contact
 from .memory import peak_rss_mb
@@ -231,14 +232,20 @@ def scaling_table(df: pd.DataFrame, methods: Sequence[str] | None = None) -> pd.
             row[f"{method}_outer"] = get("outer_iterations")
             row[f"{method}_converged"] = get("converged")
         if DDSOLVE_METHOD in methods and REFERENCE_METHOD in methods:
-            row["ratio"] = row[f"{DDSOLVE_METHOD}_seconds"] / row[f"{REFERENCE_METHOD}_seconds"]
+            both = all(_truthy(row[f"{m}_converged"]) for m in (DDSOLVE_METHOD, REFERENCE_METHOD))
+            # a run that did not converge is no time to compare with (nor to judge a target by)
+            row["ratio"] = (row[f"{DDSOLVE_METHOD}_seconds"] / row[f"{REFERENCE_METHOD}_seconds"] if both
+                            else math.nan)
         rows.append(row)
     return pd.DataFrame(rows).sort_values("ndof").reset_index(drop=True)
 
 
 def fits_by_method(df: pd.DataFrame, *, column: str = "wall_seconds") -> dict[str, ExponentFit]:
-    """:func:`fit_exponent` of ``column`` against ndof for every method with two or more sizes."""
+    """:func:`fit_exponent` of ``column`` against ndof for every method with two or more sizes, over its runs
+    that converged (a run stopped at maxiter or rejected is no point of a growth law)."""
     out = {}
+    if "converged" in df:
+        df = df[[_truthy(c) for c in df["converged"]]]
     for method, rows in df.groupby("method", sort=False):
         try:
             out[str(method)] = fit_exponent(rows["ndof"], rows[column])
@@ -311,11 +318,14 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Scaling of the
     for _, row in table.iterrows():
         cells = [str(int(row["subdomains"])), str(int(row["elements"])), f"{int(row['ndof']):,}"]
         cells += [f"{row[f'{m}_seconds']:.3f}" for m in methods]
-        cells += [f"{_int(row[f'{m}_iterations'])} ({_int(row[f'{m}_outer'])})" for m in methods]
+        cells += [f"{_int(row[f'{m}_iterations'])} ({_int(row[f'{m}_outer'])})"
+                  + (NOT_CONVERGED_MARK if _failed(row, m) else "") for m in methods]
         if "ratio" in table:
             cells.append(f"{row['ratio']:.2f}" if pd.notna(row["ratio"]) else "n/a")
         lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", "Least-squares fit of log(time) against log(dofs):", ""]
+    if any(_failed(row, m) for _, row in table.iterrows() for m in methods):
+        lines += ["", f"{NOT_CONVERGED_MARK} {NOT_CONVERGED_NOTE}; left out of the fits and the ratios."]
+    lines += ["", "Least-squares fit of log(time) against log(dofs), runs that converged:", ""]
     lines += [f"- {m}: time ~ {fit.prefactor:.3g} s x dofs^{fit.exponent:.3f} (R^2 = {fit.r2:.4f}, "
               f"{fit.n_points} sizes)" for m, fit in summary["fits"].items()]
     def ratio(value: float) -> str:
@@ -327,6 +337,12 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Scaling of the
     for name, measured, met in summary["targets"]:
         lines.append(f"| {name} | {measured} | {'n/a' if met is None else ('yes' if met else 'no')} |")
     return "\n".join(lines) + "\n"
+
+
+def _failed(row: pd.Series, method: str) -> bool:
+    """Whether the table row holds a run of ``method`` that did not converge (a missing run is not one)."""
+    flag = row.get(f"{method}_converged", np.nan)
+    return not (isinstance(flag, float) and math.isnan(flag)) and not _truthy(flag)
 
 
 def _int(value: Any) -> str:

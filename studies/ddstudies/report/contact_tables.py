@@ -263,6 +263,25 @@ def method_comparison(df: pd.DataFrame, theses: Mapping[str, pd.DataFrame | None
             out[("polish PCG it.", CONTACT_METHOD_LABELS.get(m, m))] = pd.array(np.round(polish), dtype="Int64")
     out.columns = pd.MultiIndex.from_tuples(out.columns, names=["quantity", "source"])
     out.attrs["grids"] = grids
+    # runs that did not converge (or were rejected) are marked, and the caption leaves their grids out
+    marks, converged = [], {}
+    for m in methods:
+        label = CONTACT_METHOD_LABELS.get(m, m)
+        frame = frames[m]
+        ok = {(int(s), int(e)): _truthy(c) for s, e, c in zip(frame["subdomains"], frame["elements"],
+                                                               frame.get("converged", pd.Series(True, index=frame.index)))}
+        why = {(int(s), int(e)): str(r) for s, e, r in zip(frame["subdomains"], frame["elements"],
+                                                           frame.get("reason", pd.Series("", index=frame.index)))}
+        converged[label] = np.array([ok.get(g, True) for g in grids], dtype=bool)
+        for g, key in zip(grids, index):
+            if g in ok and not ok[g]:
+                marks.append((key, ("total it.", label),
+                              REJECTED_MARK if why[g].startswith("not accepted") else NOT_CONVERGED_MARK))
+    kinds = {mark for _, _, mark in marks}
+    out.attrs["marks"] = marks
+    out.attrs["notes"] = {**({NOT_CONVERGED_MARK: NOT_CONVERGED_NOTE} if NOT_CONVERGED_MARK in kinds else {}),
+                          **({REJECTED_MARK: REJECTED_NOTE} if REJECTED_MARK in kinds else {})}
+    out.attrs["converged"] = converged
     return out
 
 
@@ -297,13 +316,23 @@ def comparison_caption(comparison: pd.DataFrame, *, methods: Sequence[str] = ("a
     ndof = pd.to_numeric(comparison[("N_dof(total)", "")], errors="coerce").astype(float)
     threshold = int(np.nanmedian(ndof.to_numpy()))
     parts = []
+    converged = comparison.attrs.get("converged", {})
+    both = np.ones(len(mask), dtype=bool)
+    for label in (a, b):
+        both &= converged.get(label, np.ones(len(mask), dtype=bool))
+    left_out = int(np.sum(mask & ~both))
     for who, (ca, cb) in (("ours", (a, b)), ("printed in the thesis", (f"{a} printed", f"{b} printed"))):
-        res = _fewer(comparison, mask, ca, cb)
+        ours = who == "ours"
+        res = _fewer(comparison, mask & both if ours else mask, ca, cb)
         if res is None:
+            if ours and left_out:
+                parts.append(f"ours: not compared ({left_out} grid(s) left out: a run did not converge)")
             continue
         sa, sb, k, n = res
+        out_note = (f"; {left_out} grid(s) left out: a run did not converge or was rejected"
+                    if ours and left_out else "")
         parts.append(f"{who}: {'yes' if sa < sb else 'no'} ({sa:.0f} vs {sb:.0f} summed; "
-                     f"fewer on {k} of {n} grids)")
+                     f"fewer on {k} of {n} grids{out_note})")
     verdict = "; ".join(parts) if parts else "no grid has both methods"
     return (f"Does the {a} method need fewer total iterations than {b} on the larger grids "
             f"(N_dof(total) >= {threshold}, {int(mask.sum())} of {len(mask)} grids)? {verdict}.")
