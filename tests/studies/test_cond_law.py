@@ -159,3 +159,15 @@ def test_contact_figure_of_a_small_case(tmp_path):
     with pytest.raises(ValueError, match="P1 triangles"):
         mesh_solution(solve_contact_case({"problem": "contact", "method": "active-set", "subdomains": 2,
                                           "elements": 2})[0], np.zeros(1))
+
+
+def test_two_point_fits_say_exact_instead_of_r2():
+    """The law tables printed R^2 = 1.00 for fits through two points (a review); they say "exact"."""
+    summary = cond_law_summary(_collected(), LAW)
+    text = cond_law_markdown(summary)
+    assert "exact" not in text                         # LAW's sweeps have three points each
+    two = {**LAW, "fixed_Hh": {**LAW["fixed_Hh"], "refine": LAW["fixed_Hh"]["refine"][:2],
+                               "parts": LAW["fixed_Hh"]["parts"][:2]},
+           "fixed_P": {**LAW["fixed_P"], "refine": LAW["fixed_P"]["refine"][:2]}}
+    text = cond_law_markdown(cond_law_summary(_collected(), two))
+    assert "exact (2 points)" in text and "| exact |" in text

@@ -227,6 +227,12 @@ def test_hbhs_growth_laws_ratios_and_crossing():
     assert math.isnan(only.at[0, "crossing"])
     text = tables.to_markdown(tables.growth_table(growth))
     assert "4 → 24" in text and "7.00 → 57.00" in text and "a + b·√(H_b/H_s)" in text
+    # R^2 of a law fitted through two points is 1 by construction: the table says so (as the figures do)
+    assert (growth["points"] > 2).all() and "1.000" in text and "exact" not in text
+    two = plots.hbhs_growth(hbhs_runs().query("subdomains in [4, 8]"), base=(2, 2, 2))
+    assert (two["points"] == 2).all()
+    two_text = tables.to_markdown(tables.growth_table(two))
+    assert "2 points (exact)" in two_text and "1.000" not in two_text
     assert "a + b·log(H_b/h)" in text and f"{x:.0f}" in text and "×8.14" in text
     # the LaTeX twin is ASCII (pdflatex's utf8 input has no glyph for → √ ² × ·; a review)
     tex = tables.to_latex(tables.growth_table(growth))

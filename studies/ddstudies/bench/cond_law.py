@@ -109,6 +109,12 @@ def _r2(y: np.ndarray, pred: np.ndarray) -> float:
     return 1.0 - float(np.sum((y - pred) ** 2)) / ss_tot if ss_tot > 0 else math.nan
 
 
+def _r2_cell(fit: LineFit) -> str:
+    """R^2 of a line fit for a table: with two points the line is exact and R^2 = 1 says nothing (a review:
+    two-point fits read R^2 1.00 in the table, while the figures say "2 points (exact, no R^2)")."""
+    return f"exact ({fit.n_points} points)" if fit.n_points <= 2 else f"{fit.r2:.2f}"
+
+
 def fit_line(x: Iterable[float], y: Iterable[float]) -> LineFit:
     """Least-squares y = a + b x (at least 2 distinct x)."""
     x, y = np.asarray(list(x), dtype=float), np.asarray(list(y), dtype=float)
@@ -258,8 +264,8 @@ def cond_law_markdown(summary: Mapping[str, Any]) -> str:
         for (method, primal), fit in summary["parts_fits"].items():
             lines.append(f"| {method} | {primal} | {fit.parts[0]}..{fit.parts[1]} | "
                          f"{fit.h_ratio[0]:.1f}..{fit.h_ratio[1]:.1f} | {fit.cond.a:.3f} | {fit.cond.b:.3f} | "
-                         f"{fit.cond.r2:.2f} | {fit.cond_ratio:.2f} | {fit.last_step:.2f} | "
-                         f"{fit.limit.a:.3f} - {-fit.limit.b:.3f} / sqrt(P) | {fit.limit.r2:.2f} | "
+                         f"{_r2_cell(fit.cond)} | {fit.cond_ratio:.2f} | {fit.last_step:.2f} | "
+                         f"{fit.limit.a:.3f} - {-fit.limit.b:.3f} / sqrt(P) | {_r2_cell(fit.limit)} | "
                          f"{fit.iterations.a:.1f} + "
                          f"{fit.iterations.b:.2f} log P | {fit.iterations_ratio:.2f} |")
         lines += ["", "cond last step: cond at the largest P over cond at the next smaller P of the sweep; 1 "
@@ -271,9 +277,10 @@ def cond_law_markdown(summary: Mapping[str, Any]) -> str:
                   "| method | primal | C of C x^2 | R^2 | a + C x^2 | R^2 | p of c x^p | R^2 | points |",
                   "|---|---|---|---|---|---|---|---|---|"]
         for (method, primal), fit in summary["log_fits"].items():
+            two = fit.n_points <= 2           # two points fit the two-parameter laws exactly: no R^2
             lines.append(f"| {method} | {primal} | {fit.C:.4f} | {fit.r2:.2f} | {fit.offset.a:.3f} + "
-                         f"{fit.offset.b:.4f} x^2 | {fit.offset.r2:.2f} | {fit.exponent:.2f} | "
-                         f"{fit.exponent_r2:.2f} | {fit.n_points} |")
+                         f"{fit.offset.b:.4f} x^2 | {'exact' if two else f'{fit.offset.r2:.2f}'} | "
+                         f"{fit.exponent:.2f} | {'exact' if two else f'{fit.exponent_r2:.2f}'} | {fit.n_points} |")
         lines += ["", "The bound kappa <= C (1 + log(H/h))^2 is an upper bound; where the free exponent p is "
                   "below 2 the measured range is pre-asymptotic (cond starts near 1 + a constant), which the "
                   "fit with an offset a shows."]

@@ -368,13 +368,13 @@ def hbhs_growth(df: pd.DataFrame, *, base: Sequence[int], contacts: Sequence[str
             rows.append({"case": case, "method": method, "quantity": quantity, "from": int(lo),
                          "to": int(hi), "at_from": at_from, "at_to": at_to,
                          "ratio": at_to / at_from if at_from else math.nan, "law": law,
-                         "a": params[0], "b": params[1], "r2": r2, "crossing": math.nan})
+                         "a": params[0], "b": params[1], "r2": r2, "points": int(x.size), "crossing": math.nan})
         pair = (fitted.get(("feti-feti", "iterations")), fitted.get(("hybrid", "iterations")))
         if all(p is not None and all(math.isfinite(v) for v in p) for p in pair):
             lo = min(r["from"] for r in rows if r["case"] == case)
             rows[-1]["crossing"] = _crossing(pair[0], pair[1], elements, lo)
     columns = ["case", "method", "quantity", "from", "to", "at_from", "at_to", "ratio", "law",
-               "a", "b", "r2", "crossing"]
+               "a", "b", "r2", "points", "crossing"]
     return pd.DataFrame(rows, columns=columns)
 
 

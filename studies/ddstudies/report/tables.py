@@ -459,8 +459,8 @@ def growth_table(growth: pd.DataFrame) -> pd.DataFrame:
 
     Columns: case, method, quantity, the two H_b/H_s values compared with the
     values there and their ratio, the fitted law and its a, b, R^2 (least
-    squares over the whole sweep), and on the hybrid rows the H_b/H_s where the
-    fitted FETI-FETI iterations reach the fitted hybrid iterations.
+    squares over the whole sweep; "2 points (exact)" where two points determine the law), and on the
+    hybrid rows the H_b/H_s where the fitted FETI-FETI iterations reach the fitted hybrid iterations.
     """
     rows = []
     for _, r in growth.iterrows():
@@ -475,7 +475,9 @@ def growth_table(growth: pd.DataFrame) -> pd.DataFrame:
             "fitted law": r["law"],
             "a": "-" if _is_missing(r["a"]) else f"{r['a']:.3g}",
             "b": "-" if _is_missing(r["b"]) else f"{r['b']:.3g}",
-            "R²": "-" if _is_missing(r["r2"]) else f"{r['r2']:.3f}",
+            # two points fit a two-parameter law exactly: R^2 = 1 says nothing (as the figures' legends)
+            "R²": ("-" if _is_missing(r["r2"]) else
+                   f"{int(r['points'])} points (exact)" if int(r.get("points", 3)) <= 2 else f"{r['r2']:.3f}"),
             "fits cross at H_b/H_s": "-" if _is_missing(r["crossing"]) else f"{r['crossing']:.0f}",
         })
     return pd.DataFrame(rows, columns=["case", "method", "quantity", "H_b/H_s", "values", "ratio",
