@@ -221,6 +221,7 @@ def test_report_one_row_per_case(rows):
     for line in table_rows:
         assert line.count(" | ") == 9 and ("**PASS**" in line or "**FAIL**" in line)
     assert f"{len(rows)} cases" in md
+    assert "Rule sets: every number here is from rule set 'default'" in md      # the rules named (a review)
 
 
 # --------------------------------------------------------------------------- Snakemake wiring

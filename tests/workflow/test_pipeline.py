@@ -56,6 +56,7 @@ def test_quick_study_end_to_end(workdir):
     assert df["converged"].all() and (df["cond"] >= 1 - 1e-8).all()
     table = (reports / "table.md").read_text()
     assert "FETI-DP cond" in table and "BDDC iter" in table
+    assert "Rule sets: every number here is from rule set 'default'" in table     # named (a review)
     assert "\\begin{tabular}" in (reports / "table.tex").read_text()
     assert (reports / "cond_vs_Hh.png").read_bytes()[:4] == b"\x89PNG"
     assert not list(results.rglob("*.tmp"))

@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+from ..report.rule_sets import DEFAULT, NOTE_MARK, only_sentence
 from .catalogue import GROUPS
 from .criteria import CRITERIA
 
@@ -37,6 +38,7 @@ def render_markdown(rows: Sequence[Mapping[str, Any]], *, title: str = "Numerica
     n_fail = sum(r["outcome"] == "FAIL" for r in rows)
     lines = [f"# {title}", "",
              f"{len(rows)} cases: {len(rows) - n_fail} PASS, {n_fail} FAIL.", "",
+             f"{NOTE_MARK} {only_sentence(DEFAULT)}", "",
              "Columns: *iter* = Krylov iterations (contact: all inner iterations); *cond* = Lanczos "
              "estimate (PCG methods only); *true* / *rec.* = residual recomputed from the final iterate / "
              "recursively updated residual, both relative to ||r_0|| (contact: *true* is the relative KKT "
