@@ -8,6 +8,8 @@ scikit-fem.
 """
 from __future__ import annotations
 
+import dataclasses
+import logging
 import sys
 import time
 from dataclasses import dataclass, field
@@ -24,6 +26,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from .scene import LocalProblems, Scene
 
 __all__ = ["Prepared", "prepare", "scene_from_spec", "unstructured_scene_from_spec", "check_decomposition"]
+
+log = logging.getLogger(__name__)
 
 #: InputError fields of :func:`ddsolve.scene.unstructured.scene_from_mesh` -> the spec fields they stand for.
 _MESH_FILE_FIELDS = {"mesh": "mesh_file", "bodies": "bodies_materials", "contact": "contact_boundary"}
@@ -203,6 +207,22 @@ def check_finite_matrices(sub: Substructures, mesh_file: str | None = None) -> N
                             f"the largest double ({sys.float_info.max:.3g}): rescale the problem")
 
 
+def tied_scene(spec: ProblemSpec, scene: "Scene") -> "Scene":
+    """``scene`` with the Dirichlet condition carried to every body's copy of a clamped point where the
+    bodies are tied (problem multibody: :meth:`~ddsolve.scene.scene.Scene.tied_dirichlet`); else ``scene``.
+
+    A new scene where the mask changes (the caller's is not modified); logged at INFO.
+    """
+    if spec.problem != "multibody":
+        return scene
+    tied = scene.tied_dirichlet()
+    added = int(np.count_nonzero(tied & ~np.asarray(scene.dirichlet, dtype=bool)))
+    if not added:
+        return scene
+    log.info("multibody: %d node copies made Dirichlet, tied to a clamped copy of the same point", added)
+    return dataclasses.replace(scene, dirichlet=tied)
+
+
 def check_scene_decomposition(spec: ProblemSpec, scene: "Scene") -> None:
     """What :func:`check_decomposition` cannot see before a mesh file is read, checked on its scene.
 
@@ -232,7 +252,13 @@ def check_scene_decomposition(spec: ProblemSpec, scene: "Scene") -> None:
     if spec.problem == "multibody" and scene.n_bodies > 1 and floating.any():
         node_body = np.zeros(scene.n_nodes, dtype=np.int64)
         node_body[scene.elements] = scene.subdomain_body[scene.element_subdomain][:, None]
-        a, b = node_body[scene.contact_pairs[:, 0]], node_body[scene.contact_pairs[:, 1]]
+        # bodies tied wherever they share a point, as the solvers tie them (multibody.interface), also at a
+        # corner alone: the pairs of the shared edges (contact_pairs) left such a body "joined to no clamped
+        # body" although the solvers tie it (a review)
+        loc = scene.locations()
+        order = np.argsort(loc, kind="stable")
+        same = loc[order[1:]] == loc[order[:-1]]
+        a, b = node_body[order[:-1][same]], node_body[order[1:][same]]
         graph = coo_matrix((np.ones(a.size), (a, b)), shape=(scene.n_bodies, scene.n_bodies))
         _, label = connected_components(graph, directed=False)
         held = np.zeros(label.max() + 1, dtype=bool)
@@ -317,6 +343,7 @@ def prepare(spec: ProblemSpec | dict[str, Any], scene: "Scene | None" = None) ->
             from .scene.unstructured import LAST_TIMINGS
             scene_timings = {"mesh": LAST_TIMINGS.get("mesh", 0.0),
                              "partition": LAST_TIMINGS.get("split", 0.0) + LAST_TIMINGS.get("partition", 0.0)}
+    scene = tied_scene(spec, scene)
     check_scene_decomposition(spec, scene)
     rho = np.asarray(scene.rho, dtype=float)
     wrong = ~(np.isfinite(rho) & (rho > 0.0))          # a user's scene (a spec's rho is validated)

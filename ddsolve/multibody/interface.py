@@ -16,7 +16,6 @@ import scipy.sparse as sp
 
 from ..dd.substructure import Substructures, rho_powers
 from ..errors import InputError
-from ..scene.scene import unique_row_labels
 
 #: Contact areas of problem (4.32).
 from ..options import CONTACTS  # noqa: E402
@@ -57,9 +56,7 @@ class GlobalInterface:
     def __init__(self, sub: Substructures) -> None:
         scene = sub.scene
         self.sub = sub
-        size = float(np.ptp(scene.coords, axis=0).max()) or 1.0
-        key = np.round(scene.coords / size, 9)
-        loc = unique_row_labels(key)
+        loc = scene.locations()
         node_body = np.full(scene.n_nodes, -1)
         node_body[scene.elements.ravel()] = np.repeat(scene.subdomain_body[scene.element_subdomain], scene.elements.shape[1])
         # locations held by more than one body (Dirichlet nodes included: they fix the face geometry)

@@ -84,7 +84,7 @@ class RankProblem:
 
 def _scene(spec: ProblemSpec, size: int, scene=None):
     """The global scene of ``spec`` (or ``scene``) and the ``mesh``/``partition`` seconds."""
-    from ..prepared import scene_from_spec
+    from ..prepared import check_scene_decomposition, scene_from_spec, tied_scene
 
     t0 = time.perf_counter()
     scene_timings = {"mesh": 0.0, "partition": 0.0}
@@ -96,6 +96,8 @@ def _scene(spec: ProblemSpec, size: int, scene=None):
                              "partition": LAST_TIMINGS.get("split", 0.0) + LAST_TIMINGS.get("partition", 0.0)}
     else:          # a user's scene, checked whole before it is cut (its cut parts no longer show an id of -1)
         scene.check()
+    scene = tied_scene(spec, scene)            # as ddsolve.prepare: multibody ties carry the Dirichlet condition
+    check_scene_decomposition(spec, scene)
     if spec.mesh != "unstructured" or scene.element_type != "P1":
         scene_timings["mesh"] = time.perf_counter() - t0
     if scene.n_subdomains < size:          # a mesh file's parts are known only now

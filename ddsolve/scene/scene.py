@@ -225,6 +225,30 @@ class Scene:
         self.coords, self.elements, self.subdomain_body, self.element_subdomain = coords, elements, body, el_sub
         self.rho, self.dirichlet, self.contact_pairs, self.subdomain_grid, self.f = rho, dirichlet, pairs, grid, f
 
+    def locations(self) -> np.ndarray:
+        """Label of each node's location, shape (n_nodes,): the body copies of one point share a label.
+
+        Coordinates are compared after rounding to 1e-9 of the scene's extent (one lexsort,
+        :func:`unique_row_labels`), as the tied interfaces of :mod:`ddsolve.multibody.interface` are found.
+        """
+        size = float(np.ptp(self.coords, axis=0).max()) if self.n_nodes else 1.0
+        return unique_row_labels(np.round(self.coords / (size or 1.0), 9))
+
+    def tied_dirichlet(self) -> np.ndarray:
+        """The Dirichlet mask with every copy of a point Dirichlet where one body's copy is, shape (n_nodes,).
+
+        For tied bodies (problem multibody, (4.32)): the tie u^a = u^b at a shared point carries u = 0 from
+        a clamped copy to the others. The interface drops every tie that touches a Dirichlet copy, so an
+        unclamped copy at that point was left free: a clamp edge of a mesh file ending at a point shared
+        with another body, or the re-entrant corner of an L-shape of three bodies, was solved with u
+        jumping there, 7-38% off in energy, and reported converged (a review). Not for contact, whose
+        bodies are not tied.
+        """
+        loc = self.locations()
+        dirichlet = np.asarray(self.dirichlet, dtype=bool)
+        clamped = np.bincount(loc, weights=dirichlet.astype(float), minlength=int(loc.max(initial=-1)) + 1)
+        return clamped[loc] > 0
+
     @property
     def n_nodes(self) -> int:
         return self.coords.shape[0]
