@@ -149,21 +149,15 @@ def fit_sqrt_linear(x, y) -> tuple[float, float, float]:
     return intercept, slope, r2
 
 
-def _fit_linear_model(x, y):
-    slope, intercept, r2 = fit_linear(x, y)
-    return (slope, intercept), r2
+def _model(fit):
+    """``fit(x, y) -> (*params, r2)`` as ``(x, y) -> (params, r2)``, the form of the figures' FIT_MODELS."""
+    def run(x, y):
+        *params, r2 = fit(x, y)
+        return tuple(params), r2
+    return run
 
 
-def _fit_log_linear_model(x, y):
-    a, b, r2 = fit_log_linear(x, y)
-    return (a, b), r2
-
-
-def _fit_sqrt_linear_model(x, y):
-    a, b, r2 = fit_sqrt_linear(x, y)
-    return (a, b), r2
-
-
-def _fit_log_squared_affine_model(x, y):
-    c1, c2, r2 = fit_log_squared_affine(x, y)
-    return (c1, c2), r2
+_fit_linear_model = _model(fit_linear)                  # (slope, intercept)
+_fit_log_linear_model = _model(fit_log_linear)          # (a, b) of a + b log x
+_fit_sqrt_linear_model = _model(fit_sqrt_linear)        # (a, b) of a + b sqrt(x)
+_fit_log_squared_affine_model = _model(fit_log_squared_affine)      # (C1, C2)
