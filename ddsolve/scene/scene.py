@@ -222,8 +222,10 @@ class Scene:
             if not np.all(np.isfinite(a)):
                 raise InputError("f", "the load must be finite")
             f = float(a) if a.ndim == 0 else a.astype(float, copy=False)
-        self.coords, self.elements, self.subdomain_body, self.element_subdomain = coords, elements, body, el_sub
-        self.rho, self.dirichlet, self.contact_pairs, self.subdomain_grid, self.f = rho, dirichlet, pairs, grid, f
+        self.coords, self.elements, self.subdomain_body, self.element_subdomain = (
+            coords.astype(float, copy=False), elements, body, el_sub)
+        self.rho, self.dirichlet, self.contact_pairs, self.subdomain_grid, self.f = (
+            rho.astype(float, copy=False), dirichlet, pairs, grid, f)
 
     def locations(self) -> np.ndarray:
         """Label of each node's location, shape (n_nodes,): the body copies of one point share a label.
