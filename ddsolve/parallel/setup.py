@@ -172,8 +172,11 @@ def prepare_rank(spec: ProblemSpec, comm: CountingComm, scene=None) -> RankProbl
     error = comm.comm.bcast(error, root=0)
     if error is not None:
         raise InputError(*error)
-    if given and comm.rank != 0:
-        scene.check()              # passed on rank 0 (the same scene): stores its fields as arrays here too
+    if given and comm.rank != 0:   # passed on rank 0 (the same scene): the same arrays and ties here too
+        from ..prepared import tied_scene
+
+        scene.check()
+        scene = tied_scene(spec, scene)
     if comm.rank == 0:
         for r, cut in pieces:
             if r == 0:

@@ -409,3 +409,34 @@ if MPI.COMM_WORLD.rank == 0:
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 2 and all(line.startswith(f"InputError {message}") for line in lines), proc.stdout
+
+
+@pytest.mark.parametrize("where", ["every", "root"])
+def test_a_given_multibody_scene_is_tied_on_every_rank(tmp_path, where):
+    """A multibody scene whose clamp ends at a point shared by two bodies: rank 0 ties the Dirichlet condition
+    to every copy (ddsolve.prepared.tied_scene); a scene given on every rank was cut untied on the others and
+    the run crashed in the substructures (found while fixing the serial defect)."""
+    code = f"""
+from mpi4py import MPI
+from netgen.occ import Glue, MoveTo, OCCGeometry
+from ddsolve import ProblemSpec
+from ddsolve.parallel.run import solve
+from ddsolve.scene.unstructured import scene_from_mesh
+faces = []
+for k, x in enumerate((0, 1)):
+    face = MoveTo(x, 0).Rectangle(1, 1).Face()
+    face.faces.name = f"b{{k}}"
+    faces.append(face)
+shape = Glue(faces)
+for edge in shape.edges:
+    edge.name = "clamp" if abs(edge.center.y) < 1e-9 and edge.center.x < 1 else "other"
+scene = scene_from_mesh(OCCGeometry(shape, dim=2).GenerateMesh(maxh=0.25), dirichlet="clamp", parts=2)
+spec = ProblemSpec(problem="multibody", method="feti-feti", mesh="unstructured", check=True, rtol=1e-10)
+result = solve(spec, scene=scene if {where!r} == "every" or MPI.COMM_WORLD.rank == 0 else None)
+if result is not None:
+    print(result.converged, result.error_vs_direct)
+"""
+    proc = mpiexec(2, ["-c", code])
+    assert proc.returncode == 0, proc.stderr
+    converged, error = proc.stdout.split()
+    assert converged == "True" and float(error) < 1e-8
