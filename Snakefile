@@ -32,7 +32,7 @@ else:  # the `studies` list (workflows/rules/reproduce.smk)
 
 onstart:
     # the working directory is locked now: record by whom, remove the temporary files of killed writers
-    studies_workflow.record_lock_owner()
+    studies_workflow.record_lock_owner(remote=not workflow.local_exec)
     for path in studies_workflow.remove_stale_tmp("results"):
         print(f"removed stale temporary file {path}", file=sys.stderr)
 

@@ -25,7 +25,11 @@ start() {
     fi
     chown -R munge:munge /etc/munge /run/munge /var/log/munge /var/lib/munge 2>/dev/null || true
     chmod 0400 /etc/munge/munge.key
-    pgrep -x munged >/dev/null || su -s /bin/sh munge -c munged 2>/dev/null || munged --force
+    if ! pgrep -x munged >/dev/null; then          # started here: its pid is recorded for stop
+        su -s /bin/sh munge -c munged 2>/dev/null || munged --force
+        for _ in 1 2 3 4 5; do [ -s /run/munge/munged.pid ] && break; sleep 0.2; done
+        cp /run/munge/munged.pid "$DIR/run/munged.pid" 2>/dev/null || true      # the daemon's own pid file
+    fi
     host=$(hostname -s)
     # the online processors, not nproc: it reads OMP_NUM_THREADS and the affinity mask, and a test process
     # with OMP_NUM_THREADS=1 got a 1-CPU node on which a 2-task MPI job waited forever (PartitionConfig)
@@ -73,8 +77,13 @@ CONF
 }
 
 stop() {
-    pkill -x slurmd 2>/dev/null || true
-    pkill -x slurmctld 2>/dev/null || true
+    # only the daemons that start started: slurmctld and slurmd write the pid files named in the slurm.conf
+    # it wrote, munged's pid was recorded when start launched it (a review: munged was left running, and
+    # pkill ended any slurmd or slurmctld on the host)
+    for pidfile in "$DIR/run/slurmd.pid" "$DIR/run/slurmctld.pid" "$DIR/run/munged.pid"; do
+        if [ -s "$pidfile" ]; then kill "$(cat "$pidfile")" 2>/dev/null || true; fi
+        rm -f "$pidfile"
+    done
     # Leave the machine as it was: with a slurm.conf but no controller, every `scontrol` (and so
     # every `snakemake` start, whose SLURM executor plugin asks it for MinJobAge) waits ~10 s.
     if [ -e "$CONF" ] && grep -q "$MARK" "$CONF"; then rm -f "$CONF"; fi

@@ -291,13 +291,14 @@ def release_complete(paths: Iterable[str | os.PathLike], snakemake_dir: str | os
 OWNER_FILE = "ddsolve-lock-owner"
 
 
-def record_lock_owner(snakemake_dir: str | os.PathLike = ".snakemake") -> None:
-    """Write ``<host> <pid>`` of this (locked, running) Snakemake process; called from ``onstart``."""
+def record_lock_owner(snakemake_dir: str | os.PathLike = ".snakemake", remote: bool = False) -> None:
+    """Write ``<host> <pid>`` of this (locked, running) Snakemake process, and ``remote`` when its jobs run
+    elsewhere (a cluster executor: ``not workflow.local_exec``); called from ``onstart``."""
     import socket
 
     os.makedirs(snakemake_dir, exist_ok=True)
     with open(os.path.join(snakemake_dir, OWNER_FILE), "w") as stream:
-        stream.write(f"{socket.gethostname()} {os.getpid()}\n")
+        stream.write(f"{socket.gethostname()} {os.getpid()}{' remote' if remote else ''}\n")
 
 
 def release_stale_lock(snakemake_dir: str | os.PathLike = ".snakemake", log=None) -> bool:
@@ -306,7 +307,10 @@ def release_stale_lock(snakemake_dir: str | os.PathLike = ".snakemake", log=None
     Snakemake locks the working directory while it runs and never unlocks it when
     killed (SIGKILL, a power loss): the next run stops until ``--unlock``. The
     owner recorded by :func:`record_lock_owner` says which process held the lock;
-    only when it ran on this host and no longer exists are the locks removed.
+    only when it ran on this host and no longer exists are the locks removed. Not when
+    its jobs ran on a cluster (``remote``): they outlive the submitting process, and a
+    new run would compute their cases again beside them (a review on SLURM); ``log``
+    then says to cancel them (``squeue``, ``scancel``) and to run ``snakemake --unlock``.
     """
     import socket
 
@@ -315,7 +319,7 @@ def release_stale_lock(snakemake_dir: str | os.PathLike = ".snakemake", log=None
     try:
         names = [name for name in os.listdir(locks) if name.endswith(".lock")]
         with open(owner) as stream:
-            host, pid = stream.read().split()
+            host, pid, *flags = stream.read().split()
         pid = int(pid)
     except (OSError, ValueError):
         return False
@@ -327,6 +331,12 @@ def release_stale_lock(snakemake_dir: str | os.PathLike = ".snakemake", log=None
     except ProcessLookupError:
         pass
     except PermissionError:
+        return False
+    if "remote" in flags:
+        if log is not None:
+            log(f"ddsolve: the run that locked this directory (process {pid} on {host}) is gone, but its jobs ran "
+                f"on the cluster and may still be running: cancel them (squeue --me, scancel) or let them end, "
+                f"then run 'snakemake --unlock' (with the same options) and start again")
         return False
     for name in names:
         try:

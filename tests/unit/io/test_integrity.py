@@ -368,8 +368,22 @@ def test_stale_lock_of_a_dead_process_is_released(tmp_path):
     assert not wf.release_stale_lock(tmp_path / ".snakemake") and (locks / "0.input.lock").exists()
     owner.write_text(f"another-host {dead.pid}\n")                        # elsewhere: kept
     assert not wf.release_stale_lock(tmp_path / ".snakemake")
+    # a dead run whose jobs ran on a cluster: they outlive it, a new run would compute their cases beside them
+    # (a review on SLURM); the lock is kept and the message says what to do
+    owner.write_text(f"{socket.gethostname()} {dead.pid} remote\n")
+    said = []
+    assert not wf.release_stale_lock(tmp_path / ".snakemake", log=said.append)
+    assert (locks / "0.input.lock").exists() and "scancel" in said[0] and "snakemake --unlock" in said[0]
     owner.write_text(f"{socket.gethostname()} {dead.pid}\n")
     assert wf.release_stale_lock(tmp_path / ".snakemake") and not (locks / "0.input.lock").exists()
+
+
+def test_the_owner_records_a_remote_run(tmp_path):
+    wf.record_lock_owner(tmp_path, remote=True)
+    host, pid, flag = (tmp_path / wf.OWNER_FILE).read_text().split()
+    assert (host, int(pid), flag) == (socket.gethostname(), os.getpid(), "remote")
+    wf.record_lock_owner(tmp_path)
+    assert len((tmp_path / wf.OWNER_FILE).read_text().split()) == 2
 
 
 def test_stale_temporary_files_are_removed(tmp_path):
