@@ -482,10 +482,8 @@ class HybridSolver:
             rho varies between subdomains or the mesh is unstructured, True always, False never (the
             active set method's face solves, judged by the KKT conditions instead).
         interior : bool
-            Compute the interior values and ``u`` (default). False: ``u`` is None where the check does
-            not run (``check=False``), and :meth:`extend` gives it from ``extra["u_gamma"]`` when needed
-            (the active set method keeps the u of its last face solve only: one discrete harmonic
-            extension of all dofs per solve instead of one per face).
+            Compute ``u`` (default). False: ``u`` is None unless the check runs; :meth:`extend` gives it from
+            ``extra["u_gamma"]`` (the active set method extends its last face solve only).
 
         Returns
         -------
@@ -584,8 +582,7 @@ class HybridSolver:
         return checked_output(out, self.gi, active, rtol, "hybrid", check)
 
     def extend(self, u_gamma: np.ndarray) -> np.ndarray:
-        """u, shape (ndof,), from u_Gamma, shape (n_gamma,): the interior values by discrete harmonic
-        extension, A_II^{-1} (f_I - A_IG u_Gamma) per subdomain, averaged to the global dofs (as :meth:`solve`)."""
+        """u (ndof,) from u_Gamma (n_gamma,): A_II^{-1} (f_I - A_IG u_Gamma) per subdomain, averaged (as :meth:`solve`)."""
         return self.sub.average(self.schur.interior_solution(self.sub.f_W, self.gamma_space.scatter(u_gamma)))
 
     def system(self, active: np.ndarray, *, x0: Any = None, projection: str = "orthogonal",
