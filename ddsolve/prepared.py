@@ -209,11 +209,17 @@ def check_finite_matrices(sub: Substructures, mesh_file: str | None = None) -> N
 
 def tied_scene(spec: ProblemSpec, scene: "Scene") -> "Scene":
     """``scene`` with the Dirichlet condition carried to every body's copy of a clamped point where the
-    bodies are tied (problem multibody: :meth:`~ddsolve.scene.scene.Scene.tied_dirichlet`); else ``scene``.
+    bodies are tied at every shared point (problem multibody with ``contact="full"``, case I:
+    :meth:`~ddsolve.scene.scene.Scene.tied_dirichlet`); else ``scene``.
+
+    Case II (``contact="middle"``) ties the middles of the faces only: a copy at a face's end is not tied,
+    and its own condition stays (a review: the first version clamped it there too, another problem). A
+    caller that prepares with ``"full"`` and then solves with another active mask
+    (``HybridSolver.solve(gi.contact_mask("middle"))``) keeps the full case's mask.
 
     A new scene where the mask changes (the caller's is not modified); logged at INFO.
     """
-    if spec.problem != "multibody":
+    if spec.problem != "multibody" or spec.contact != "full":
         return scene
     tied = scene.tied_dirichlet()
     added = int(np.count_nonzero(tied & ~np.asarray(scene.dirichlet, dtype=bool)))

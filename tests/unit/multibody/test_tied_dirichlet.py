@@ -95,3 +95,25 @@ def test_contact_bodies_keep_their_own_dirichlet():
     assert tied_scene(ProblemSpec(problem="contact"), scene) is scene
     tied = tied_scene(ProblemSpec(problem="multibody", method="feti-feti", bodies=2), scene)
     assert tied is not scene and tied.dirichlet[b] and not scene.dirichlet[b]      # the caller's scene kept
+
+
+def test_case_ii_keeps_the_conditions_of_untied_copies():
+    """Case II (contact="middle") ties the middles of the faces only: a body's copy at a face's end is not tied
+    to a clamped copy there and stays free (a review: the first version of the fix clamped it too, and the
+    direct solve of case II read f^T u 0.4033 instead of 0.6123)."""
+    import dataclasses
+
+    from ddsolve.prepared import tied_scene
+
+    kw = dict(problem="multibody", bodies=2, subdomains=2, elements=4, f="1")
+    base = prepare(ProblemSpec(method="direct", contact="middle", **kw)).scene
+    body = np.full(base.n_nodes, -1)
+    body[base.elements.ravel()] = np.repeat(base.subdomain_body[base.element_subdomain], base.elements.shape[1])
+    x, y = base.coords.T
+    scene = dataclasses.replace(base, dirichlet=((np.abs(y) < 1e-12) | (np.abs(x) < 1e-12)) & (body == 0))
+    at = np.flatnonzero(np.linalg.norm(scene.coords - [0.5, 0.0], axis=1) < 1e-12)
+    assert sorted(body[at]) == [0, 1] and scene.dirichlet[at].tolist().count(True) == 1
+    middle = tied_scene(ProblemSpec(method="hybrid", contact="middle", **kw), scene)
+    assert middle is scene                                   # case II: nothing carried
+    full = tied_scene(ProblemSpec(method="hybrid", contact="full", **kw), scene)
+    assert full.dirichlet[at].all()                          # case I: the tie carries u = 0
