@@ -497,9 +497,8 @@ class HybridSolver:
 
         Raises
         ------
-        ValueError
-            For an unknown ``norm`` or ``projection``, a wrong ``active`` or warm
-            start shape, or a floating body not tied to a clamped one.
+        InputError (a ValueError)
+            An unknown option, a wrong ``active`` or warm start shape; ValueError: a floating body not tied.
         """
         if norm not in NORMS:
             raise InputError("norm", f"unknown norm {norm!r} (choose from {', '.join(NORMS)})")
@@ -557,8 +556,9 @@ class HybridSolver:
 
             b = d * b
             xs = None if xs is None else xs / d
-        kr = self._pcr(linear_operator(n, A_op), b, xs, linear_operator(n, M_op), rtol, maxiter, restart,
-                       norm=norm, relative_to_rhs=rtol_rule == "max")
+        kr = (self._pcr(linear_operator(n, A_op), b, xs, linear_operator(n, M_op), rtol, maxiter, restart,
+                        norm=norm, relative_to_rhs=rtol_rule == "max") if n else
+              KrylovResult.solved_directly(0, "interface unknowns"))      # one part per body, no multipliers
         u_g = kr.x[:n_g]
         mu = kr.x[n_g:] * c if c != 1.0 else kr.x[n_g:]
         lam = lam0 + proj.apply(mu)

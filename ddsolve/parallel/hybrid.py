@@ -479,9 +479,11 @@ class DistributedHybrid:
         if not math.isfinite(atol):      # as serial: b beyond the double range is PCR's breakdown (a global
             atol = 0.0                   # norm: the same on every rank), not an input error
         counter = IterationCounter(self.comm)
-        kr: KrylovResult = DistributedPCR.restarted(A, b, xs, rtol=rtol, atol=atol, maxiter=maxiter,
-                                                    restart=restart, M=M, norm=norm, comm=self.comm, owned=owned,
-                                                    callback=counter)
+        if self.gamma.n_global + a.n_active == 0:      # one part per body, no multipliers (as serial): nothing
+            kr = KrylovResult.solved_directly(n, "interface unknowns")      # to iterate on, on any rank
+        else:
+            kr = DistributedPCR.restarted(A, b, xs, rtol=rtol, atol=atol, maxiter=maxiter, restart=restart, M=M,
+                                          norm=norm, comm=self.comm, owned=owned, callback=counter)
         krylov_seconds = time.perf_counter() - t1
         u_g = kr.x[:n_g]
         lam = lam0 + proj(kr.x[n_g:] * c if c != 1.0 else kr.x[n_g:])

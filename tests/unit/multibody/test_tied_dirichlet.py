@@ -117,3 +117,18 @@ def test_case_ii_keeps_the_conditions_of_untied_copies():
     assert middle is scene                                   # case II: nothing carried
     full = tied_scene(ProblemSpec(method="hybrid", contact="full", **kw), scene)
     assert full.dirichlet[at].all()                          # case I: the tie carries u = 0
+
+
+@pytest.mark.parametrize("method", ["feti-feti", "hybrid"])
+def test_one_part_per_body_without_multipliers_is_solved_directly(tmp_path, method):
+    """Two clamped squares touching at a corner, one part each: the tie makes the corner's copies Dirichlet and
+    leaves no multiplier and no interface unknown. FETI-FETI solved it directly; the hybrid method failed with
+    "A: operator has size 0" (a review). Both now solve it directly, as NGSolve does."""
+    path, mesh = _mesh_file(tmp_path, [(0, 0), (1, 1)],
+                            lambda x, y: (abs(y) < 1e-9 and x < 1) or (abs(y - 1) < 1e-9 and x > 1))
+    spec = ProblemSpec(problem="multibody", method=method, mesh="unstructured", mesh_file=str(path),
+                       dirichlet="clamp", f="1", parts=1)
+    result = solve(spec)
+    assert result.converged and result.iterations == 0 and result.reason.endswith("solved directly"), result.reason
+    reference = _reference_energy(mesh)
+    assert np.sqrt(abs(reference - _energy(spec, result.u)) / reference) < 1e-6
