@@ -40,7 +40,7 @@ from ..dd.projection import Projection
 from ..multibody.interface import UNTIED_MESSAGE, UNTIED_TOL
 from .hybrid import DistributedHybrid
 from .kkt import distributed_kkt, gamma_diagonal
-from .setup import RankProblem, gather_solution
+from .setup import RankProblem
 
 __all__ = ["ReplicatedHybrid", "DistributedActiveSetHybrid"]
 
@@ -181,15 +181,10 @@ class DistributedActiveSetHybrid(ActiveSetHybrid):
     def face_u(self, out: MethodOutput) -> np.ndarray | None:
         """The global u of the last face solve on rank 0 (``gather``; None without, and on the other ranks).
 
-        Collective with ``gather``: this rank's interior values from its u_Gamma dofs, then gathered
-        (:func:`~ddsolve.parallel.setup.gather_solution`), once per solve instead of once per face solve.
+        Collective with ``gather`` (:meth:`~ddsolve.parallel.hybrid.DistributedHybrid.gathered_u`), once per
+        solve instead of once per face solve.
         """
-        if not self.hybrid.gather:
-            return None
-        dh = self.dh
-        sub = dh.prob.sub
-        u_W = dh.schur.interior_solution(sub.f_W, dh.gamma.space.scatter(self.hybrid.last_u_gamma))
-        return gather_solution(dh.prob, u_W)
+        return self.dh.gathered_u(self.hybrid.last_u_gamma) if self.hybrid.gather else None
 
     def measures(self, sol: ContactSolution) -> ContactMeasures:
         """KKT residuals (5.5) and energy of ``sol`` (the last face solve's u), computed distributed.

@@ -355,6 +355,12 @@ class DistributedHybrid:
         y = self._local_solve(z_local)
         return z_global - gl.exchange.sum(self.schur.space_matvec(y, lc.space, gl.space))
 
+    def gathered_u(self, u_g: np.ndarray) -> np.ndarray | None:
+        """The global u on rank 0 (None on the others) from this rank's u_Gamma dofs: the interior values by
+        discrete harmonic extension, then :func:`~ddsolve.parallel.setup.gather_solution`. Collective."""
+        sub = self.prob.sub
+        return gather_solution(self.prob, self.schur.interior_solution(sub.f_W, self.gamma.space.scatter(u_g)))
+
     def M_D(self, a: DistributedActiveSet, lam: np.ndarray, s_ol: str = "thesis") -> np.ndarray:
         """Z B_{Gamma_OL,D} S~_OL B_{Gamma_OL,D}^T Z lam (``s_ol``: "thesis" or "energy")."""
         if s_ol not in S_OL_FORMS:
@@ -490,10 +496,7 @@ class DistributedHybrid:
         if P is not None:                    # u_Gamma - R_c (G^T G)^{-1} G^T Z B^ u_Gamma
             beta = P.coefficients(a.jump.matvec(u_g))
             u_g = u_g - np.where(self.kernel_column >= 0, beta[np.maximum(self.kernel_column, 0)], 0.0)
-        u = None
-        if gather:                           # the interior completion only for the gathered u (the KKT
-            sub = self.prob.sub              # measures of the active set complete the last u_Gamma)
-            u = gather_solution(self.prob, self.schur.interior_solution(sub.f_W, self.gamma.space.scatter(u_g)))
+        u = self.gathered_u(u_g) if gather else None      # the interior completion only for a gathered u
         jump = self.comm.allreduce_scalar(float(np.abs(a.jump.matvec(u_g)).max()) if n_act else 0.0, op="max")
         coarse = self.body_solver.coarse_seconds + self.local_solver.coarse_seconds + (
             P.coarse_seconds if P is not None else 0.0)
