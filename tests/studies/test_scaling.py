@@ -152,3 +152,30 @@ def test_runs_that_did_not_converge_are_marked_and_left_out():
     text = summary_markdown(summary)
     assert "| 20 | 4 | 13,041 | 50.000 |" in text and "10 (2)* |" in text
     assert "not converged (stopped at maxiter or by a breakdown)" in text and "left out of the fits" in text
+
+
+@pytest.mark.workflow
+def test_an_option_of_one_method_reruns_only_that_method(tmp_path):
+    """Each scaling case's params hold only what its method reads: a new backend of the direct reference
+    (pdas) reruns the pdas cases alone, a new rtol the active-set cases alone. Before, both options
+    were in every case's params, so either change reran the whole study."""
+    import re
+
+    from conftest import copy_workflow, run_snakemake
+
+    pytest.importorskip("snakemake")
+    wd = copy_workflow(tmp_path)
+    tiny = "kind: scaling\nstudy: tiny\nsubdomains: 2\nelements: [2, 4]\nmethods: [active-set, pdas]\nrepeats: 1\n"
+    (wd / "tiny.yaml").write_text(tiny)
+    targets = ["results/tiny/active-set/N2_m2.h5", "results/tiny/pdas/N2_m2.h5"]
+    base = ["--cores", "1", "--configfile", "config/scaling.yaml", "tiny.yaml"]
+    run_snakemake(wd, *targets, *base)          # targets first: --configfile takes every path after it
+
+    def planned(extra: str) -> list[str]:
+        (wd / "tiny.yaml").write_text(tiny + extra)
+        proc = run_snakemake(wd, "-n", *targets, *base)
+        return sorted(set(re.findall(r"output: (results/\S+)", proc.stdout + proc.stderr)))
+
+    assert planned("") == []
+    assert planned("direct: superlu\n") == ["results/tiny/pdas/N2_m2.h5"]
+    assert planned("rtol: 1.0e-4\n") == ["results/tiny/active-set/N2_m2.h5"]

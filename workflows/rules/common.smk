@@ -374,10 +374,17 @@ def scaling_case_files(wildcards=None):
             for method in config["methods"] for m in config["elements"]]
 
 
-def scaling_options(wildcards=None):
-    return {key: config.get(key, default) for key, default in
-            (("rtol", 1e-5), ("maxiter", 1000), ("direct", "mkl-pardiso"), ("direct_threads", 1),
-             ("repeats", 1), ("repeat_budget", 30.0))}
+#: Options of a scaling case that each method reads (the direct reference ignores rtol and maxiter,
+#: ddsolve's method the direct backend): a change of another method's option reruns nothing.
+SCALING_OPTIONS = {"active-set": (("rtol", 1e-5), ("maxiter", 1000)),
+                   "pdas": (("direct", "mkl-pardiso"), ("direct_threads", 1))}
+
+
+def scaling_options(wildcards, method=None):
+    """The options of a scaling case (``method``: the wildcard's, else the profiled method's)."""
+    method = method or getattr(wildcards, "method", None) or SCALING_PROFILE.get("method", "active-set")
+    keys = SCALING_OPTIONS.get(method, ()) + (("repeats", 1), ("repeat_budget", 30.0))
+    return {key: config.get(key, default) for key, default in keys}
 
 
 def scaling_mem_mb(wildcards):

@@ -1,7 +1,8 @@
 """Snakemake script of rule scaling_case: time one contact solver on one mesh, write its HDF5 file.
 
-Inputs from Snakemake: wildcards.method, wildcards.N, wildcards.m, params.options (rtol, maxiter,
-direct, direct_threads, repeats, repeat_budget), output[0], log[0].
+Inputs from Snakemake: wildcards.method, wildcards.N, wildcards.m, params.options (the options the
+method reads: rtol and maxiter for active-set, direct and direct_threads for pdas; repeats and
+repeat_budget for both), output[0], log[0].
 """
 import os
 
@@ -16,15 +17,15 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
     import logging
 
     logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    from ddstudies.bench.scaling import case_params, run_scaling_case
+    from ddstudies.bench.scaling import case_params, run_scaling_case, solver_options
     from ddsolve.io.hdf5 import write_result
 
     sm = snakemake  # noqa: F821
     opts = dict(sm.params.options)
     N, m, method = int(sm.wildcards.N), int(sm.wildcards.m), sm.wildcards.method
-    record = run_scaling_case(N, m, method, rtol=float(opts["rtol"]), maxiter=int(opts["maxiter"]),
-                              direct=opts["direct"], direct_threads=int(opts["direct_threads"]),
-                              repeats=int(opts["repeats"]), repeat_budget=float(opts["repeat_budget"]))
+    solver = solver_options(opts)
+    record = run_scaling_case(N, m, method, **solver, repeats=int(opts["repeats"]),
+                              repeat_budget=float(opts["repeat_budget"]))
     print("result:", record.to_dict(), flush=True)
-    write_result(sm.output[0], case_params(N, m, method, rtol=float(opts["rtol"]), maxiter=int(opts["maxiter"]),
-                                           repeats=int(opts["repeats"])), record)
+    spec_options = {key: solver[key] for key in ("rtol", "maxiter") if key in solver}
+    write_result(sm.output[0], case_params(N, m, method, **spec_options, repeats=int(opts["repeats"])), record)

@@ -16,14 +16,12 @@ with job_log(snakemake.log[0]) as log:  # noqa: F821
 
     logging.basicConfig(stream=log, level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     from ddstudies.workflow import write_text
-    from ddstudies.bench.scaling import profile_case
+    from ddstudies.bench.scaling import profile_case, solver_options
 
     sm = snakemake  # noqa: F821
     opts = dict(sm.params.options)
     text = profile_case(int(sm.params.subdomains), int(sm.params.elements), sm.params.method,
-                        rtol=float(opts["rtol"]), maxiter=int(opts["maxiter"]), direct=opts["direct"],
-                        direct_threads=int(opts["direct_threads"]), top=int(sm.params.top),
-                        stats_path=sm.output.stats)
+                        **solver_options(opts), top=int(sm.params.top), stats_path=sm.output.stats)
     Path(sm.output.text).parent.mkdir(parents=True, exist_ok=True)
     write_text(sm.output.text, text)
     print(text, flush=True)

@@ -101,8 +101,9 @@ def run_scaling_case(subdomains: int, elements: int, method: str, *, rtol: float
         pcg_iterations, inner_iterations (list), n_factorizations,
         wall_seconds (best), cpu_seconds (process CPU time of that solve),
         setup_seconds, assembly_seconds, kkt_residual, energy, n_active,
-        peak_rss_mb, repeats_done, blas_threads, direct_backend,
-        direct_threads, threads (the method's: direct_threads for pdas,
+        peak_rss_mb, repeats_done, blas_threads, direct_backend and
+        direct_threads (of pdas; "" and 0 for the other methods, which read
+        neither), threads (the method's: direct_threads for pdas,
         blas_threads otherwise), cpu_count.
     """
     if method not in CONTACT_METHODS:
@@ -136,7 +137,8 @@ def run_scaling_case(subdomains: int, elements: int, method: str, *, rtol: float
         "assembly_seconds": float(assembly), "kkt_residual": float(kkt.max),
         "energy": float(problem.energy(sol.u)), "n_active": int(np.count_nonzero(sol.lam > 0)),
         "peak_rss_mb": float(peak_rss_mb()), "repeats_done": int(done), "blas_threads": int(blas_threads),
-        "direct_backend": direct, "direct_threads": int(direct_threads),
+        "direct_backend": direct if method == REFERENCE_METHOD else "",
+        "direct_threads": int(direct_threads) if method == REFERENCE_METHOD else 0,
         "threads": int(direct_threads if method == "pdas" else blas_threads), "cpu_count": int(os.cpu_count() or 0),
     }
     log.info("%s N=%d m=%d (%d dofs): %.3f s, %d iterations, KKT %.1e", method, subdomains, elements,
@@ -144,12 +146,24 @@ def run_scaling_case(subdomains: int, elements: int, method: str, *, rtol: float
     return CaseRecord(values)
 
 
-def case_params(subdomains: int, elements: int, method: str, *, rtol: float, maxiter: int, repeats: int,
-                f: str = "dostal") -> dict[str, Any]:
-    """``/params`` of a case file: the spec (``method`` the study's name) plus ``repeats``."""
+#: The solver options of a scaling case and their types (``params.options`` of the workflow's jobs).
+SOLVER_OPTIONS = {"rtol": float, "maxiter": int, "direct": str, "direct_threads": int}
+
+
+def solver_options(options: dict[str, Any]) -> dict[str, Any]:
+    """The entries of ``options`` that are :data:`SOLVER_OPTIONS`, cast to their types (a job's params hold
+    only the options its method reads; the others keep :func:`run_scaling_case`'s defaults)."""
+    return {key: cast(options[key]) for key, cast in SOLVER_OPTIONS.items() if key in options}
+
+
+def case_params(subdomains: int, elements: int, method: str, *, rtol: float = 1e-5, maxiter: int = 1000,
+                repeats: int = 1, f: str = "dostal") -> dict[str, Any]:
+    """``/params`` of a case file: the spec (``method`` the study's name) plus ``repeats``; ``rtol`` and
+    ``maxiter`` None for the direct reference, which reads neither."""
     spec = contact_spec(subdomains, elements, f=f, rtol=rtol, maxiter=maxiter)
-    return {**spec.to_dict(), "method": method, "rtol": rtol if method != REFERENCE_METHOD else None,
-            "repeats": int(repeats)}
+    direct = method == REFERENCE_METHOD
+    return {**spec.to_dict(), "method": method, "rtol": None if direct else rtol,
+            "maxiter": None if direct else maxiter, "repeats": int(repeats)}
 
 
 @dataclass(frozen=True)
