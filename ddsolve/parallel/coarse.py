@@ -19,6 +19,13 @@ vertices couple only within their body), a rank factors and solves only the
 blocks holding a coarse dof of its own subdomains (:class:`RestrictedCoarse`).
 Two contact membranes on two ranks: each rank solves its body's block, half
 the coarse problem. With one block (a single body) nothing changes.
+
+The right-hand side of a block that no other rank touches is complete on its
+rank, so the Allreduce runs only over the ranks that share a block with
+another rank (a sub-communicator, :meth:`CountingComm.split`, made once at
+setup), and not at all where every block is one rank's own: bodies dealt
+out whole to the ranks, the usual case of the hybrid method and FETI-FETI.
+The solution is the same: the sum over the other ranks adds only zeros there.
 """
 from __future__ import annotations
 
@@ -59,6 +66,9 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
     coarse_seconds : float
         Time in the coarse problem on this rank: the setup reduction and every
         coarse right-hand side reduction and solve.
+    coarse_comm : CountingComm or None
+        The ranks over which the coarse right-hand side is summed (None: this rank's coarse
+        blocks are its own, no reduction).
     """
 
     def __init__(self, sub, primal_mask: np.ndarray, cache: dict, comm: CountingComm,
@@ -67,6 +77,7 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
         self._all_primal = np.asarray(primal_dofs, dtype=np.int64)
         self._pinned = np.asarray(pinned, dtype=np.int64)
         self.coarse_seconds = 0.0
+        self.coarse_comm: CountingComm | None = comm       # narrowed by _factor_coarse
         t0 = time.perf_counter()
         # no fixed_bodies: a rank may not hold the pinned entry (see pinned_vertices)
         super().__init__(sub, primal_mask, cache, exclude=exclude)
@@ -95,10 +106,28 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
         return S
 
     def _factor_coarse(self, S_PiPi: sp.csc_matrix):
-        """The factor of the blocks of S_PiPi that hold a coarse dof of this rank (see the module docstring)."""
+        """The factor of the blocks of S_PiPi that hold a coarse dof of this rank, and the communicator
+        of the coarse right-hand side's sum (``self.coarse_comm``; see the module docstring). Collective."""
         touched = np.zeros(self.n_primal, dtype=bool)
         touched[self.coarse_of_W[self.primal]] = True
-        return RestrictedCoarse.of(S_PiPi, touched)
+        components = connected_components(S_PiPi, directed=False)
+        self.coarse_comm = self._reduction_comm(components, touched)
+        return RestrictedCoarse.of(S_PiPi, touched, components)
+
+    def _reduction_comm(self, components: tuple[int, np.ndarray], touched: np.ndarray) -> CountingComm | None:
+        """The ranks that share a coarse block with another rank (one allgather of block numbers and,
+        unless all or none of the ranks do, one ``Split``): their communicator, or None on a rank whose
+        blocks are all its own."""
+        n_comp, label = components
+        mine = np.unique(label[touched])
+        per_rank = self.comm.allgather(mine)
+        ranks_of_block = np.bincount(np.concatenate(per_rank), minlength=n_comp)
+        shares = [bool((ranks_of_block[blocks] > 1).any()) for blocks in per_rank]
+        if all(shares):
+            return self.comm
+        if not any(shares):
+            return None
+        return self.comm.split(shares[self.comm.rank])
 
 
 class RestrictedCoarse:
@@ -122,7 +151,7 @@ class RestrictedCoarse:
         self.factor, self.index, self.n = factor, index, n
 
     @classmethod
-    def of(cls, S: sp.spmatrix, touched: np.ndarray):
+    def of(cls, S: sp.spmatrix, touched: np.ndarray, components: tuple[int, np.ndarray] | None = None):
         """The factor of the connected components of S (an undirected graph) that meet ``touched``:
         :func:`~ddsolve.dd.primal.coarse_factor` of S itself when that is all of them.
 
@@ -131,8 +160,10 @@ class RestrictedCoarse:
         S : sparse matrix, shape (n, n)
             Structurally symmetric.
         touched : ndarray of bool, shape (n,)
+        components : (int, ndarray of int), optional
+            ``scipy.sparse.csgraph.connected_components(S, directed=False)``, if already computed.
         """
-        n_comp, label = connected_components(S, directed=False)
+        n_comp, label = connected_components(S, directed=False) if components is None else components
         need = np.zeros(n_comp, dtype=bool)
         need[label[touched]] = True
         keep = need[label]
@@ -150,7 +181,8 @@ class RestrictedCoarse:
 
 class _SummedCoarse:
     """The coarse factor of a :class:`DistributedPrimalSolver`: sums the coarse right-hand side over
-    ranks (one Allreduce of n_primal doubles) before the redundant solve.
+    the ranks of ``owner.coarse_comm`` (one Allreduce of n_primal doubles; none where that is None)
+    before the redundant solve.
 
     Every path of :class:`PrimalConstrainedSolver` (the W-level ``solve`` and the explicit
     interface blocks of ``interface(...)``) calls ``coarse.solve`` once per application, on its
@@ -163,7 +195,8 @@ class _SummedCoarse:
 
     def solve(self, b_pi: np.ndarray) -> np.ndarray:
         t0 = time.perf_counter()
-        b_pi = self.owner.comm.allreduce_sum(b_pi)
+        comm = self.owner.coarse_comm
+        b_pi = comm.allreduce_sum(b_pi) if comm is not None else np.array(b_pi, dtype=np.float64)
         b_pi[self.owner.pinned] = 0.0
         u_pi = self.factor.solve(b_pi)
         self.owner.coarse_seconds += time.perf_counter() - t0

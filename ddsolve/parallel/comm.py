@@ -52,6 +52,16 @@ class CountingComm:
         self.size = comm.Get_size()
         self.counters = CommCounters()
 
+    def split(self, member: bool) -> "CountingComm | None":
+        """The sub-communicator of the ranks passing ``member=True`` (collective over this communicator),
+        counting into the same counters; None on the other ranks."""
+        sub = self.comm.Split(0 if member else self.MPI.UNDEFINED, self.rank)
+        if not member:
+            return None
+        out = CountingComm(sub)
+        out.counters = self.counters
+        return out
+
     # ------------------------------------------------------------ reductions
     def allreduce_sum(self, x: np.ndarray) -> np.ndarray:
         """Elementwise sum over ranks of a float64 array (one Allreduce)."""
