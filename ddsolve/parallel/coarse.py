@@ -127,7 +127,7 @@ class DistributedPrimalSolver(PrimalConstrainedSolver):
             return self.comm
         if not any(shares):
             return None
-        return self.comm.split(shares[self.comm.rank])
+        return self.comm.split(tuple(shares))
 
 
 class RestrictedCoarse:

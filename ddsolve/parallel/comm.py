@@ -22,6 +22,10 @@ import numpy as np
 __all__ = ["CommCounters", "CountingComm", "NeighbourSum", "SharedIndex", "shared_indices"]
 
 
+#: Sub-communicators made by :meth:`CountingComm.split`, by (parent handle, members).
+_SPLITS: dict[tuple[int, tuple[bool, ...]], Any] = {}
+
+
 @dataclass
 class CommCounters:
     """Messages and bytes sent by this rank, and reductions it took part in."""
@@ -52,11 +56,20 @@ class CountingComm:
         self.size = comm.Get_size()
         self.counters = CommCounters()
 
-    def split(self, member: bool) -> "CountingComm | None":
-        """The sub-communicator of the ranks passing ``member=True`` (collective over this communicator),
-        counting into the same counters; None on the other ranks."""
-        sub = self.comm.Split(0 if member else self.MPI.UNDEFINED, self.rank)
-        if not member:
+    def split(self, members: tuple[bool, ...]) -> "CountingComm | None":
+        """The sub-communicator of the ranks r with ``members[r]`` (the same tuple on every rank), counting
+        into the same counters; None on the other ranks.
+
+        Collective over this communicator the first time a tuple is seen: the MPI communicator is made
+        once per process and tuple (:data:`_SPLITS`), so that repeated solves do not use up MPI's
+        communicator ids.
+        """
+        key = (self.comm.py2f(), tuple(bool(m) for m in members))
+        sub = _SPLITS.get(key)
+        if sub is None:
+            sub = self.comm.Split(0 if key[1][self.rank] else self.MPI.UNDEFINED, self.rank)
+            _SPLITS[key] = sub
+        if not key[1][self.rank]:
             return None
         out = CountingComm(sub)
         out.counters = self.counters

@@ -443,3 +443,53 @@ if result is not None:
     assert proc.returncode == 0, proc.stderr
     converged, error = proc.stdout.split()
     assert converged == "True" and float(error) < 1e-8
+
+
+@pytest.mark.parametrize("method, iterations", [("hybrid", 19), ("feti-feti", 9)])
+def test_coarse_sums_over_the_ranks_sharing_a_block(method, iterations):
+    """2 x 2 bodies of 2 x 2 subdomains on 5 ranks (subdomains 0-2, 3-5, 6-8, 9-11, 12-15): ranks 0-3 share
+    bodies 0-2 and sum their coarse right-hand sides over a sub-communicator of 4 ranks; rank 4 holds body 3
+    whole and sums nothing. The iterations and the error against the direct solution are the serial ones."""
+    args = ["-m", "ddsolve", "solve", "--problem", "multibody", "--method", method, "--bodies", "2",
+            "--subdomains", "2", "--elements", "4", "--check", "--json"]
+    code = """
+import runpy, sys
+from ddsolve.parallel import coarse
+made = coarse.DistributedPrimalSolver._reduction_comm
+def spy(self, *a):
+    out = made(self, *a)
+    print("coarse", self.comm.rank, None if out is None else out.size, file=sys.stderr, flush=True)
+    return out
+coarse.DistributedPrimalSolver._reduction_comm = spy
+sys.argv = ["ddsolve", *sys.argv[1:]]
+runpy.run_module("ddsolve", run_name="__main__")
+"""
+    proc = mpiexec(5, ["-c", code, *args[2:]])
+    assert proc.returncode == 0, proc.stderr
+    sizes = {tuple(line.split()[1:]) for line in proc.stderr.splitlines() if line.startswith("coarse ")}
+    assert sizes == {("0", "4"), ("1", "4"), ("2", "4"), ("3", "4"), ("4", "None")}, sizes
+    summary = json.loads(proc.stdout)
+    ref = json.loads(subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=TIMEOUT,
+                                    env=mpi_env(), cwd=ROOT).stdout)
+    assert summary["iterations"] == ref["iterations"] == iterations
+    assert abs(summary["error_vs_direct"] - ref["error_vs_direct"]) <= 1e-6 * ref["error_vs_direct"]
+
+
+def test_split_communicators_are_made_once():
+    """CountingComm.split makes one MPI communicator per member pattern and process (a solver per face
+    solve or per call would otherwise use up MPI's communicator ids), and sums over its members only."""
+    code = """
+import numpy as np
+from mpi4py import MPI
+from ddsolve.parallel import comm as C
+cc = C.CountingComm(MPI.COMM_WORLD)
+members = (True, False, True)
+subs = [cc.split(members) for _ in range(3)]
+n_made = len(C._SPLITS)
+total = None if subs[0] is None else subs[0].allreduce_sum(np.array([cc.rank + 1.0]))[0]
+print(cc.rank, n_made, None if subs[0] is None else subs[0].size, total, subs[0] is None or subs[0].counters is cc.counters)
+"""
+    proc = mpiexec(3, ["-c", code])
+    assert proc.returncode == 0, proc.stderr
+    rows = sorted(proc.stdout.split("\n")[:-1])
+    assert rows == ["0 1 2 4.0 True", "1 1 None None True", "2 1 2 4.0 True"], rows
