@@ -94,6 +94,10 @@ def test_summary_targets_and_plot(tmp_path):
     assert "nan" not in text and "n/a (no direct run at that size)" in text and "n/a (no runs of both" in text
     assert [met for _, _, met in lonely["targets"]] == [None, None, None]
     assert "(not a growth law: sizes too small)" in text
+    # two sizes fit any exponent exactly: no verdict, and no R^2 (it read "R^2 = 1.0000" and "yes"; a review)
+    two = scaling_summary(_synthetic(1.2, 0.8).query("ndof < 1e6"))
+    assert two["targets"][2][1:] == ("dofs^1.100 (not a growth law: 2 sizes)", None)
+    assert "(exact (2 points), 2 sizes)" in summary_markdown(two) and "R^2 = 1.0000" not in summary_markdown(two)
 
 
 @pytest.mark.parametrize("method", ["active-set", "pdas"])

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..report.fits import r2_text
 from ..report.plots import _save
 
 #: The two sweeps of a ``cond_law`` config, in report order.
@@ -111,8 +112,8 @@ def _r2(y: np.ndarray, pred: np.ndarray) -> float:
 
 def _r2_cell(fit: LineFit) -> str:
     """R^2 of a line fit for a table: with two points the line is exact and R^2 = 1 says nothing (a review:
-    two-point fits read R^2 1.00 in the table, while the figures say "2 points (exact, no R^2)")."""
-    return f"exact ({fit.n_points} points)" if fit.n_points <= 2 else f"{fit.r2:.2f}"
+    two-point fits read R^2 1.00 in the table, while the figures said "exact")."""
+    return r2_text(fit.r2, fit.n_points, spec=".2f")
 
 
 def fit_line(x: Iterable[float], y: Iterable[float]) -> LineFit:
@@ -277,10 +278,10 @@ def cond_law_markdown(summary: Mapping[str, Any]) -> str:
                   "| method | primal | C of C x^2 | R^2 | a + C x^2 | R^2 | p of c x^p | R^2 | points |",
                   "|---|---|---|---|---|---|---|---|---|"]
         for (method, primal), fit in summary["log_fits"].items():
-            two = fit.n_points <= 2           # two points fit the two-parameter laws exactly: no R^2
-            lines.append(f"| {method} | {primal} | {fit.C:.4f} | {fit.r2:.2f} | {fit.offset.a:.3f} + "
-                         f"{fit.offset.b:.4f} x^2 | {'exact' if two else f'{fit.offset.r2:.2f}'} | "
-                         f"{fit.exponent:.2f} | {'exact' if two else f'{fit.exponent_r2:.2f}'} | {fit.n_points} |")
+            n = fit.n_points                  # two points fit the two-parameter laws exactly: no R^2
+            lines.append(f"| {method} | {primal} | {fit.C:.4f} | {r2_text(fit.r2, n, n_params=1, spec='.2f')} | "
+                         f"{fit.offset.a:.3f} + {fit.offset.b:.4f} x^2 | {r2_text(fit.offset.r2, n, spec='.2f')} | "
+                         f"{fit.exponent:.2f} | {r2_text(fit.exponent_r2, n, spec='.2f')} | {n} |")
         lines += ["", "The bound kappa <= C (1 + log(H/h))^2 is an upper bound; where the free exponent p is "
                   "below 2 the measured range is pre-asymptotic (cond starts near 1 + a constant), which the "
                   "fit with an offset a shows."]
@@ -312,7 +313,7 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
                       label=f"{method} ({primal}): {fit.cond.a:.2f} + {fit.cond.b:.3f} log P")
             ax_p.plot(p, fit.limit.a + fit.limit.b / np.sqrt(p), "-", color=color, alpha=0.6,
                       label=f"{method} ({primal}): {fit.limit.a:.2f} - {-fit.limit.b:.2f} / sqrt(P) "
-                            f"(R^2 {fit.limit.r2:.2f})")
+                            f"({r2_text(fit.limit.r2, fit.limit.n_points, spec='.2f', label='R^2 ')})")
             ax_p.axhline(fit.limit.a, color=color, lw=0.6, alpha=0.4, label=f"{method} ({primal}): its limit c_inf")
         ax_p.plot(rows["parts"], rows["iterations"] / 10.0, marker=marker, linestyle=":", color=color,
                   alpha=0.5, label=f"{method} ({primal}) iterations / 10")
@@ -335,9 +336,11 @@ def plot_cond_law(summary: Mapping[str, Any], path: str | os.PathLike | None):
             poor = not fit.r2 > 0          # a bound C x^2 that the points do not follow: drawn faintly
             name = f"{method} ({primal})"       # every entry says whose fit it is (a review)
             ax_h.plot(x, fit.C * x ** 2, "--", color=color, alpha=0.3 if poor else 1.0, lw=0.8 if poor else 1.5,
-                      label=f"{name}: {fit.C:.3f} x^2 (R^2 {fit.r2:.2f})")
+                      label=f"{name}: {fit.C:.3f} x^2 "
+                            f"({r2_text(fit.r2, fit.n_points, n_params=1, spec='.2f', label='R^2 ')})")
             ax_h.plot(x, fit.offset.a + fit.offset.b * x ** 2, "-", color=color, alpha=0.6,
-                      label=f"{name}: {fit.offset.a:.2f} + {fit.offset.b:.3f} x^2 (R^2 {fit.offset.r2:.2f})")
+                      label=f"{name}: {fit.offset.a:.2f} + {fit.offset.b:.3f} x^2 "
+                            f"({r2_text(fit.offset.r2, fit.n_points, spec='.2f', label='R^2 ')})")
             ax_h.plot(x, fit.exponent_c * x ** fit.exponent, ":", color=color,
                       label=f"{name}: {fit.exponent_c:.2f} x^{fit.exponent:.2f} (free exponent)")
     from matplotlib.ticker import ScalarFormatter

@@ -49,6 +49,7 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
+from ..report.fits import MIN_FIT_POINTS, r2_text
 from ..report.plots import _save
 from ..report.rule_sets import DEFAULT, NOTE_MARK, only_sentence
 from .memory import current_rss_mb, peak_rss_mb
@@ -319,10 +320,6 @@ def fits(df: pd.DataFrame, *, column: str = "seconds") -> dict[tuple[str, str], 
     return out
 
 
-#: Fewest sizes of a fitted exponent that the targets judge (two points always fit exactly).
-MIN_FIT_POINTS = 3
-
-
 def unstructured_summary(df: pd.DataFrame, targets: Mapping[str, float] | None = None) -> dict[str, Any]:
     """Table, exponent fits and the targets (each with its measured value and whether it is met).
 
@@ -389,7 +386,7 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Unstructured m
     lines += ["", "## Fitted exponents (time ~ c dofs^p)", "", "| problem | method | p | R^2 | points |",
               "|---|---|---|---|---|"]
     for (problem, method), fit in summary["fits"].items():
-        lines.append(f"| {problem} | {method} | {fit.exponent:.2f} | {fit.r2:.3f} | {fit.n_points} |")
+        lines.append(f"| {problem} | {method} | {fit.exponent:.2f} | {r2_text(fit.r2, fit.n_points)} | {fit.n_points} |")
     if summary["checks"]:
         lines += ["", "## Targets", "", "| target | limit | measured | met |", "|---|---|---|---|"]
         for c in summary["checks"]:

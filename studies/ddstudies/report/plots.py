@@ -44,7 +44,8 @@ from ddsolve.io.hdf5 import atomic_target  # noqa: E402
 
 from .fits import (_finite_pairs, _fit_linear_model, _fit_log_linear_model,  # noqa: E402,F401 (re-exported)
                    _fit_log_squared_affine_model, _fit_sqrt_linear_model, _r_squared, fit_linear,
-                   fit_log_linear, fit_log_squared, fit_log_squared_affine, fit_sqrt_linear, log_squared)
+                   fit_log_linear, fit_log_squared, fit_log_squared_affine, fit_sqrt_linear, log_squared,
+                   r2_text)
 from .rule_sets import DEFAULT, chosen_rule_set, one_rule_set, rule_sets  # noqa: E402
 from .tables import (_truthy, CONTACT_CASES, LATEX_LABELS, METHOD_LABELS, MULTIBODY_ROW_LABELS,  # noqa: E402
                      ROW_LABELS, THESIS_KEYS, THESIS_QUANTITIES)
@@ -538,7 +539,8 @@ def plot_cond_vs_Hh(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
             a, c, r2 = fit_log_squared_affine(good[x], good[y]) if len(good) else (math.nan,) * 3
             gname = int(gval) if float(gval).is_integer() else gval
             fits[(method, gname)] = (c, r2)
-            label = f"{glabel}={gname}: a={_fmt(a, '.3g')}, C={_fmt(c, '.3g')}, {_r2_text(r2, len(good))}"
+            label = (f"{glabel}={gname}: a={_fmt(a, '.3g')}, C={_fmt(c, '.3g')}, {_r2_text(r2, len(good))}"
+                     if len(good) >= 2 else f"{glabel}={gname}: {_r2_text(r2, len(good))}")
             ax.plot(good[x], good[y], linestyle="none", marker=marker, color=color, label=label)
             if (~ok).any():
                 ax.plot(pts[x][~ok], pts[y][~ok], linestyle="none", marker=marker, color=color,
@@ -568,11 +570,9 @@ def plot_cond_vs_Hh(df: pd.DataFrame, path: str | os.PathLike | None = None, *,
 
 
 def _r2_text(r2: float, n_points: int) -> str:
-    """The legend's R^2 of a two-parameter fit: with two points it is 1 by construction, so it is not shown as
-    a measure of fit (a review: two-point fits read R^2 = 1.000)."""
-    if n_points <= 2:
-        return f"{n_points} point{'s' if n_points != 1 else ''} (exact, no $R^2$)"
-    return f"$R^2$={_fmt(r2, '.3f')}"
+    """The legend's R^2 of a two-parameter fit (:func:`~ddstudies.report.fits.r2_text`): with two points it is
+    1 by construction, so it is not shown as a measure of fit (a review: two-point fits read R^2 = 1.000)."""
+    return r2_text(r2, n_points, label="$R^2$=")
 
 
 def _plot_not_converged(ax, data: tuple, color: str, who: str, xticks: set) -> None:

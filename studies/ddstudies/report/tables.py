@@ -28,6 +28,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from .fits import r2_text
 from .rule_sets import DEFAULT, RULE_SET_COLUMN, by_rule_set, chosen_rule_set, one_rule_set, only_sentence
 
 #: Display names of key columns (1/H = subdomains per side, H/h = elements per subdomain side).
@@ -476,8 +477,7 @@ def growth_table(growth: pd.DataFrame) -> pd.DataFrame:
             "a": "-" if _is_missing(r["a"]) else f"{r['a']:.3g}",
             "b": "-" if _is_missing(r["b"]) else f"{r['b']:.3g}",
             # two points fit a two-parameter law exactly: R^2 = 1 says nothing (as the figures' legends)
-            "R²": ("-" if _is_missing(r["r2"]) else
-                   f"{int(r['points'])} points (exact)" if int(r.get("points", 3)) <= 2 else f"{r['r2']:.3f}"),
+            "R²": "-" if _is_missing(r["r2"]) else r2_text(r["r2"], int(r.get("points", 3))),
             "fits cross at H_b/H_s": "-" if _is_missing(r["crossing"]) else f"{r['crossing']:.0f}",
         })
     return pd.DataFrame(rows, columns=["case", "method", "quantity", "H_b/H_s", "values", "ratio",
