@@ -250,7 +250,8 @@ def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: 
                   result: SolveResult | None = None) -> None:
     """Write ``spec.output`` (a .vtu file for ParaView, :mod:`ddsolve.io.vtk`) if it is set.
 
-    With ``result``, the cell field ``converged`` (1 or 0 on every element) records its verdict, and a
+    With ``result``, the field ``converged`` (1 or 0 on every element; like every field of the file a point
+    field, written at the vertices of each cell, :func:`~ddsolve.io.vtk.write_vtu`) records its verdict, and a
     result that did not converge is written with a warning (it replaces a previous file all the same).
 
     A write that fails (no space, a file size limit, a name the file system refuses) raises
@@ -264,10 +265,10 @@ def _write_output(spec: ProblemSpec, prep: Prepared, u: np.ndarray | None, lam: 
     from .io.vtk import solution_fields, write_vtu
     nodal, cellwise = solution_fields(prep, u, lam)
     if result is not None:
-        # the file replaces a previous one whatever the verdict: say which it holds (a cell field for ParaView)
+        # the file replaces a previous one whatever the verdict: say which it holds (a field for ParaView)
         cellwise["converged"] = np.full(len(prep.scene.elements), float(bool(result.converged)))
         if not result.converged:
-            log.warning("writing %s with the last iterate of a solve that did not converge (%s); its cell "
+            log.warning("writing %s with the last iterate of a solve that did not converge (%s); its point "
                         "field 'converged' is 0", spec.output, result.reason)
     try:
         write_vtu(spec.output, prep.scene, nodal, cellwise)

@@ -116,9 +116,14 @@ class GlobalInterface:
 
     def active_mask(self, active) -> np.ndarray:
         """``active`` as a bool mask of shape (n_gl,), or :class:`~ddsolve.errors.InputError` naming it
-        (a mask of another length raised a bare IndexError in the solvers)."""
+        (a mask of another length raised a bare IndexError in the solvers). Integers 0 and 1 are read as
+        False and True; any other value is refused (7 was read as True; a review)."""
         mask = np.asarray(active)
-        if mask.shape != (self.n_gl,) or not (mask.dtype == bool or np.issubdtype(mask.dtype, np.integer)):
+        integral = np.issubdtype(mask.dtype, np.integer) and mask.shape == (self.n_gl,)
+        if integral and mask.size and (mask.min() < 0 or mask.max() > 1):
+            raise InputError("active", f"must be a bool array (or of 0 and 1), got the integer "
+                                       f"{int(mask[(mask < 0) | (mask > 1)][0])}")
+        if mask.shape != (self.n_gl,) or not (mask.dtype == bool or integral):
             raise InputError("active", f"must be a bool array of shape ({self.n_gl},) (one entry per global "
                                        f"pair), got {mask.dtype} of shape {mask.shape}")
         return mask.astype(bool, copy=False)

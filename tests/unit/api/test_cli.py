@@ -50,7 +50,7 @@ BAD = [
     (["--subdomains", "0"], "subdomains"),
     (["--subdomains", "2.5"], "subdomains"),
     (["--elements", "-3"], "elements"),
-    (["--elements", "1"], "elements"),          # mesh too small for the decomposition
+    (["--elements", "1"], "elements"),          # [2, ...]: each subdomain needs interior nodes
     (["--rho", "0"], "rho"),
     (["--rho", "-2"], "rho"),
     (["--rho", "checkerboard:-5"], "rho"),

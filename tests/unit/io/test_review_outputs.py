@@ -205,7 +205,8 @@ def test_a_dangling_link_does_not_create_its_directory(tmp_path):
 @pytest.mark.parametrize("maxiter, converged", [(1, 0.0), (1000, 1.0)])
 def test_the_file_says_whether_the_solve_converged(tmp_path, caplog, maxiter, converged):
     """A solve that did not converge replaced an existing file with its last iterate and nothing in the file
-    said so (a review): the cell field 'converged' is 0 then, and a warning names the file."""
+    said so (a review): the field 'converged' is 0 then on every cell, and a warning names the file. It is a point
+    field, as every field of the file (the warning called it a cell field; a review)."""
     import base64
     import re
 
@@ -220,3 +221,14 @@ def test_the_file_says_whether_the_solve_converged(tmp_path, caplog, maxiter, co
     assert values.size == 1024 * 4 and set(values.tolist()) == {converged}      # 4 x 4 x 8 x 8 cells
     warned = [r for r in caplog.records if "did not converge" in r.getMessage() and "u.vtu" in r.getMessage()]
     assert len(warned) == int(not converged)
+    assert all("point field 'converged' is 0" in r.getMessage() for r in warned)
+    assert re.search(r'<PointData[^>]*>(?:(?!</PointData>).)*Name="converged"', target.read_text(), re.S)
+
+
+@pytest.mark.parametrize("below", ["u.vtu", "sub/u.vtu"])
+def test_an_output_path_through_a_file_names_the_file(tmp_path, below):
+    """--output ex1.py/u.vtu, ex1.py a regular file, said "directory '.../ex1.py' does not exist" (a review)."""
+    (tmp_path / "ex1.py").write_text("x = 1\n")
+    with pytest.raises(InputError, match=r"^output: '.*ex1\.py' is a file, not a directory$"):
+        solve(ProblemSpec(subdomains=2, elements=2, output=str(tmp_path / "ex1.py" / below)))
+    assert (tmp_path / "ex1.py").read_text() == "x = 1\n"

@@ -85,3 +85,16 @@ def test_hybrid_load_beyond_the_double_range_is_a_breakdown():
         warnings.simplefilter("ignore", RuntimeWarning)          # the local solves overflow
         res = solve(ProblemSpec(problem="multibody", method="hybrid", rho="1e-20", f="1e300"))
     assert not res.converged and res.reason.startswith("breakdown: non-finite initial residual")
+
+
+def test_an_active_mask_of_other_integers_is_refused(four_by_four):
+    """HybridSolver.solve(np.full(n_gl, 7)) ran as if every pair were active (a review): the docs ask for a bool
+    mask. 0 and 1 still read as False and True; other integers are an InputError naming ``active``."""
+    p, gi = four_by_four
+    hybrid = HybridSolver(p.sub, gi)
+    with pytest.raises(InputError, match=r"^active: must be a bool array \(or of 0 and 1\), got the integer 7"):
+        hybrid.solve(np.full(gi.n_gl, 7))
+    with pytest.raises(InputError, match=r"^active: .*got the integer -1"):
+        gi.active_mask(np.r_[np.ones(gi.n_gl - 1, dtype=int), -1])
+    ones = gi.contact_mask("full").astype(np.int64)
+    np.testing.assert_array_equal(gi.active_mask(ones), ones.astype(bool))
