@@ -45,6 +45,8 @@ log = logging.getLogger(__name__)
 
 METHODS = ("bddc", "fetidp", "feti")
 SCALINGS = ("diagonal", "rho", "multiplicity", "deluxe")
+#: METIS parts when neither ``parts`` nor a partition that gives them is set.
+DEFAULT_PARTS = 16
 #: Weighted (integral) edge averages at order 1 too (at order >= 2 always; see ddsolve.dd.edges).
 #: Off: at order 1 the integral and the nodal mean gave condition numbers within 1.3 % of each
 #: other (docs/ngsolve.md), and the nodal one costs no extra assembly.
@@ -210,8 +212,10 @@ class DDInverse(ngsolve.BaseMatrix):
         enter), ``ngsolve.Compress(H1(...))`` (the dropped dofs fixed at zero) or
         ``ngsolve.Periodic(H1(...))``.
     method : {"bddc", "fetidp", "feti"}
-    parts : int
-        METIS parts (ignored when ``partition`` is given).
+    parts : int, optional
+        METIS parts (default 16) for ``partition`` None or "coarse". With "materials" or an array the
+        partition gives the parts, and ``parts`` must be left unset (an ``InputError`` otherwise: it was
+        ignored silently; a review).
     partition : None, "coarse", "materials" or array of int, shape (mesh.ne,)
         None: METIS on the mesh; "coarse": METIS on the coarsest mesh of a
         ``mesh.Refine()`` hierarchy, children inherit the part; "materials":
@@ -281,7 +285,7 @@ class DDInverse(ngsolve.BaseMatrix):
         The mesh numbers of the elements with dofs (a space with ``definedon=``); None: all.
     """
 
-    def __init__(self, a: Any, fes: Any = None, *, method: str = "bddc", parts: int = 16, partition: Any = None,
+    def __init__(self, a: Any, fes: Any = None, *, method: str = "bddc", parts: int | None = None, partition: Any = None,
                  primal: str = "vertices", rtol: float = 1e-8, maxiter: int = 1000, freedofs: Any = None,
                  cond: bool = False, scaling: str = "diagonal", seed: int = 0) -> None:
         super().__init__()
@@ -314,6 +318,11 @@ class DDInverse(ngsolve.BaseMatrix):
         if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
             raise InputError("maxiter", f"must be a positive integer, got {maxiter!r}")
         seed = check_seed("seed", seed)
+        if parts is not None and partition is not None and not (isinstance(partition, str) and partition == "coarse"):
+            given = f"{partition!r}" if isinstance(partition, str) else "an array"
+            raise InputError("parts", f"is given by partition={given}; leave parts unset (it counts METIS parts "
+                                      "only, for partition None or 'coarse')")
+        parts = DEFAULT_PARTS if parts is None else parts
         if scaling == "deluxe" and method == "feti":
             raise InputError("scaling", "'deluxe' needs method 'bddc' or 'fetidp'")
         self.a, self.fes, self.method, self.rtol, self.maxiter = a, fes, method, rtol, int(maxiter)
@@ -511,13 +520,17 @@ class DDInverse(ngsolve.BaseMatrix):
 
     def Mult(self, x: Any, y: Any) -> None:
         self._check_unchanged()
-        out = _check_vector("y", y.FV().NumPy(), self.ndof)
-        out[:] = self.solve(x.FV().NumPy())
+        # the right-hand side first, by the name of solve(f): for a complex f, NGSolve's result vector is
+        # complex too, and the error named "y", a vector the user never wrote (a review)
+        f = _check_vector("f", x.FV().NumPy(), self.ndof)
+        out = _check_vector("result", y.FV().NumPy(), self.ndof)
+        out[:] = self.solve(f)
 
     def MultAdd(self, s: float, x: Any, y: Any) -> None:
         self._check_unchanged()
-        out = _check_vector("y", y.FV().NumPy(), self.ndof)
-        out[:] += s * self.solve(x.FV().NumPy())
+        f = _check_vector("f", x.FV().NumPy(), self.ndof)
+        out = _check_vector("result", y.FV().NumPy(), self.ndof)
+        out[:] += s * self.solve(f)
 
     def MultTrans(self, x: Any, y: Any) -> None:
         """The inverse of a symmetric form is symmetric."""
@@ -683,8 +696,9 @@ class DDPreconditioner(ngsolve.BaseMatrix):
     def Mult(self, x: Any, y: Any) -> None:
         inv = self.inv
         inv._check_unchanged()
-        out = _check_vector("y", y.FV().NumPy(), inv.ndof)
-        f_W, fb = inv._condense_rhs(inv._to_space(_check_vector("f", x.FV().NumPy(), inv.ndof)))
+        f = _check_vector("f", x.FV().NumPy(), inv.ndof)
+        out = _check_vector("result", y.FV().NumPy(), inv.ndof)
+        f_W, fb = inv._condense_rhs(inv._to_space(f))
         out[:] = inv._from_space(inv._expand(inv._bddc.precondition(f_W), fb))
 
     def MultTrans(self, x: Any, y: Any) -> None:

@@ -53,7 +53,7 @@ def test_vector_of_wrong_size_is_an_input_error(mesh):
     for op in (inv, inv.preconditioner):
         with pytest.raises(InputError, match=rf"^f: expected a vector of {n} entries .*got shape \({n - 1},\)"):
             good.data = op * short
-        with pytest.raises(InputError, match=rf"^y: expected a vector of {n} entries .*got shape \({n + 5},\)"):
+        with pytest.raises(InputError, match=rf"^result: expected a vector of {n} entries .*got shape \({n + 5},\)"):
             long.data = op * good
     with pytest.raises(InputError, match=rf"^f: expected a vector of {n} entries"):
         inv.solve(np.ones(n + 1))
@@ -81,3 +81,31 @@ def test_fes_with_other_dofs_than_the_form_is_an_input_error(mesh):
     u_dd = (inv * f.vec).Evaluate()
     r, d = ref.FV().NumPy(), u_dd.FV().NumPy()
     assert np.linalg.norm(d - r) <= 1e-8 * np.linalg.norm(r)
+
+
+def test_a_complex_right_hand_side_is_named_f(mesh):
+    """inv * b with a complex b named "y", NGSolve's (complex) result vector the user never wrote (a review)."""
+    fes = ngs.H1(mesh, order=1, dirichlet=".*")
+    u, v = fes.TnT()
+    inv = DDInverse(ngs.BilinearForm(ngs.grad(u) * ngs.grad(v) * ngs.dx), parts=4)
+    b = ngs.BaseVector(fes.ndof, True)
+    b[:] = 1.0 + 1.0j
+    for op in (inv, inv.preconditioner):
+        with pytest.raises(InputError, match=r"^f: complex vectors are not supported"):
+            (op * b).Evaluate()
+
+
+@pytest.mark.parametrize("partition", ["materials", "array"])
+def test_parts_with_a_partition_that_gives_the_parts_is_refused(mesh, partition):
+    """parts=5 with an array of 3 labels was ignored silently (a review): the partition gives the parts there.
+    parts is refused with "materials" and an array, and still counts METIS parts with "coarse" and None."""
+    import numpy as np
+
+    fes = ngs.H1(mesh, order=1, dirichlet=".*")
+    u, v = fes.TnT()
+    a = ngs.BilinearForm(ngs.grad(u) * ngs.grad(v) * ngs.dx)
+    given = "materials" if partition == "materials" else np.arange(mesh.ne) % 3
+    with pytest.raises(InputError, match=r"^parts: is given by partition="):
+        DDInverse(a, parts=5, partition=given)
+    assert DDInverse(a, partition=given).n_parts >= (1 if partition == "materials" else 3)
+    assert DDInverse(a, parts=5).n_parts == 5 and DDInverse(a).n_parts == 16
