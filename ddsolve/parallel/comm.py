@@ -22,8 +22,23 @@ import numpy as np
 __all__ = ["CommCounters", "CountingComm", "NeighbourSum", "SharedIndex", "shared_indices"]
 
 
-#: Sub-communicators made by :meth:`CountingComm.split`, by (parent handle, members).
-_SPLITS: dict[tuple[int, tuple[bool, ...]], Any] = {}
+#: The MPI attribute key of :func:`_split_cache` (made on first use).
+_SPLITS_KEYVAL: Any = None
+
+
+def _split_cache(comm: Any) -> dict:
+    """The sub-communicators :meth:`CountingComm.split` made from ``comm``, by member tuple: a dict held as an
+    MPI attribute of ``comm`` (deleted with it by ``Free``), local to this rank."""
+    global _SPLITS_KEYVAL
+    from mpi4py import MPI
+
+    if _SPLITS_KEYVAL is None:
+        _SPLITS_KEYVAL = MPI.Comm.Create_keyval()
+    cache = comm.Get_attr(_SPLITS_KEYVAL)
+    if cache is None:
+        cache = {}
+        comm.Set_attr(_SPLITS_KEYVAL, cache)
+    return cache
 
 
 @dataclass
@@ -61,15 +76,18 @@ class CountingComm:
         into the same counters; None on the other ranks.
 
         Collective over this communicator the first time a tuple is seen: the MPI communicator is made
-        once per process and tuple (:data:`_SPLITS`), so that repeated solves do not use up MPI's
-        communicator ids.
+        once per communicator and tuple, so that repeated solves do not use up MPI's communicator ids.
+        The cache is an MPI attribute of the communicator (:func:`_split_cache`), so it goes with it: a
+        cache keyed by the handle returned another communicator's entry once MPI reused a freed
+        handle (a review: wrong sums and a hang).
         """
-        key = (self.comm.py2f(), tuple(bool(m) for m in members))
-        sub = _SPLITS.get(key)
+        key = tuple(bool(m) for m in members)
+        cache = _split_cache(self.comm)
+        sub = cache.get(key)
         if sub is None:
-            sub = self.comm.Split(0 if key[1][self.rank] else self.MPI.UNDEFINED, self.rank)
-            _SPLITS[key] = sub
-        if not key[1][self.rank]:
+            sub = self.comm.Split(0 if key[self.rank] else self.MPI.UNDEFINED, self.rank)
+            cache[key] = sub
+        if not key[self.rank]:
             return None
         out = CountingComm(sub)
         out.counters = self.counters

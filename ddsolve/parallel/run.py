@@ -104,7 +104,9 @@ def _reduce(prob, comm: CountingComm, info: dict, setup_seconds: float, solve_se
 
     msgs, nbytes, _ = info["per_iteration"]
     return {"totals": comm.comm.allreduce(np.array([msgs, nbytes], dtype=float)),
-            "allreduces": float(info["per_iteration"][2]),
+            # the largest over the ranks: a rank whose coarse blocks are its own makes fewer (the coarse sums
+            # run over the ranks that share a block); rank 0's own count under-reported (a review)
+            "allreduces": comm.comm.allreduce(float(info["per_iteration"][2]), op=comm.MPI.MAX),
             "coarse": comm.comm.allreduce(info["coarse_seconds"], op=comm.MPI.MAX),
             "setup": comm.comm.allreduce(setup_seconds, op=comm.MPI.MAX),
             "solve": comm.comm.allreduce(solve_seconds, op=comm.MPI.MAX),
