@@ -287,11 +287,16 @@ def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
     subdomains = _as_int("subdomains", raw["subdomains"], 1)
     # the range the docs and the workflow schema state, [2, ...], with the reason below it (a review: 0 said
     # "[1, ...]" and 1 "mesh too small")
+    # the range of the docs and the schema, [2, ...], and for an integer below it the reason (a review: 0 said
+    # "[1, ...]" and 1 "mesh too small")
     try:
-        elements = _as_int("elements", raw["elements"], 2)
-    except InputError as exc:
-        raise InputError("elements", f"{exc.message} (each subdomain needs >= 2 elements per side to have "
-                                     f"interior nodes)") from None
+        elements = _as_int("elements", raw["elements"], -MAX_INT)
+    except InputError:
+        raise InputError("elements", f"must be an integer in [2, {MAX_INT}], got {brief(_plain(raw['elements']))}"
+                         ) from None
+    if elements < 2:
+        raise InputError("elements", f"must be an integer in [2, {MAX_INT}], got {elements} (each subdomain "
+                                     f"needs >= 2 elements per side to have interior nodes)")
     rho = _plain(raw["rho"])
     rho_kind = parse_rho(rho)[0]
     if rho_kind == "body-checkerboard" and problem == "poisson":

@@ -231,7 +231,8 @@ class DDInverse(ngsolve.BaseMatrix):
         if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
             raise InputError("maxiter", f"must be a positive integer, got {maxiter!r}")
         seed = check_seed("seed", seed)
-        if parts is not None and partition is not None and not (isinstance(partition, str) and partition == "coarse"):
+        # "materials" or an array only: a mistyped name is left to the partition's own check (a review)
+        if parts is not None and (partition == "materials" if isinstance(partition, str) else partition is not None):
             given = f"{partition!r}" if isinstance(partition, str) else "an array"
             raise InputError("parts", f"is given by partition={given}; leave parts unset (it counts METIS parts "
                                       "only, for partition None or 'coarse')")

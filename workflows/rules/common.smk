@@ -377,6 +377,7 @@ def scaling_case_files(wildcards=None):
 #: Options of a scaling case that each method reads (the direct reference ignores rtol and maxiter,
 #: ddsolve's method the direct backend): a change of another method's option reruns nothing.
 SCALING_OPTIONS = {"active-set": (("rtol", 1e-5), ("maxiter", 1000)),
+                   "smalbe": (("rtol", 1e-5), ("maxiter", 1000)),
                    "pdas": (("direct", "mkl-pardiso"), ("direct_threads", 1))}
 
 

@@ -95,3 +95,16 @@ def test_module_entry_point_no_traceback(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "ddsolve", "solve", "--method", "nope"],
                          capture_output=True, text=True, env=env, timeout=120)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("value, reason", [("0", True), ("1", True), ("x", False), ("3000000000", False)])
+def test_elements_below_two_states_the_range_and_its_reason(value, reason):
+    """--elements 0 said "[1, ...]" and 1 "mesh too small"; the documented range is [2, ...] (a review). The reason
+    (interior nodes) is given for an integer below 2 only, not for a value that is no integer in range."""
+    from ddsolve import ProblemSpec
+    from ddsolve.errors import InputError
+
+    with pytest.raises(InputError) as err:
+        ProblemSpec(elements=value)
+    assert str(err.value).startswith("elements: must be an integer in [2, 2147483647], got ")
+    assert ("interior nodes" in str(err.value)) is reason

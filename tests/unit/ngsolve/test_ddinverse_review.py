@@ -109,3 +109,5 @@ def test_parts_with_a_partition_that_gives_the_parts_is_refused(mesh, partition)
         DDInverse(a, parts=5, partition=given)
     assert DDInverse(a, partition=given).n_parts >= (1 if partition == "materials" else 3)
     assert DDInverse(a, parts=5).n_parts == 5 and DDInverse(a).n_parts == 16
+    with pytest.raises(InputError, match=r"^partition: expected None, 'materials', 'coarse' or an array"):
+        DDInverse(a, parts=5, partition="metis")           # the mistyped name is the error, not parts
