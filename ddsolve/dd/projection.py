@@ -30,10 +30,60 @@ import numpy as np
 import scipy.linalg as la
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import connected_components
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Projection"]
+__all__ = ["Projection", "gram_is_singular", "kernel_is_trivial"]
+
+#: Largest k (columns of G) whose G^T Q G is checked and factored dense; beyond it the orthogonal
+#: projection of a sparse G is checked from its structure and factored by sparse LU (a review: 3,844
+#: floating bodies made a dense 48,006 x 3,844 copy of G, 1.5 GB, and O(k^3) eigensolves and factorizations).
+DENSE_COARSE_MAX = 500
+
+
+def kernel_is_trivial(G: Any) -> bool | None:
+    """Whether G v = 0 only for v = 0, read from the structure of G; None where G is not of that form.
+
+    The form: every row ties two columns by opposite entries of equal size, or holds one entry
+    (the natural coarse spaces G = B R of floating bodies or subdomains: a multiplier between two
+    floating ones, or between a floating one and a clamped one). G v = 0 then forces v equal along
+    the two-entry rows and zero at a column of a one-entry row, so ker G = {0} exactly when every
+    connected component of the columns (joined by the two-entry rows) holds such a column. One pass
+    over the nonzeros and one ``connected_components``: O(nnz), where the eigenvalues of G^T G cost O(k^3).
+
+    Parameters
+    ----------
+    G : sparse matrix or ndarray, shape (n, k)
+    """
+    G = sp.csr_matrix(G)
+    G.eliminate_zeros()
+    counts = np.diff(G.indptr)
+    if counts.max(initial=0) > 2:
+        return None
+    two = G.indptr[:-1][counts == 2]
+    if not np.array_equal(G.data[two], -G.data[two + 1]):
+        return None
+    k = G.shape[1]
+    joined = sp.csr_matrix((np.ones(two.size), (G.indices[two], G.indices[two + 1])), shape=(k, k))
+    n_comp, label = connected_components(joined, directed=False)
+    held = np.zeros(n_comp, dtype=bool)
+    held[label[G.indices[G.indptr[:-1][counts == 1]]]] = True
+    return bool(held.all())
+
+
+def gram_is_singular(G: Any, tol: float) -> bool:
+    """Whether G^T G (k x k) is singular: its smallest eigenvalue at most ``tol max(lambda_max, 1)`` for
+    k <= :data:`DENSE_COARSE_MAX` (dense), else :func:`kernel_is_trivial` (the eigenvalues where G is not of
+    its form). The test of :class:`Projection` with ``singular_tol``, for a caller that factors G^T G itself."""
+    k = G.shape[1]
+    if k > DENSE_COARSE_MAX and sp.issparse(G):
+        trivial = kernel_is_trivial(G)
+        if trivial is not None:
+            return not trivial
+    GtG = G.T @ G
+    ev = np.linalg.eigvalsh(GtG.toarray() if sp.issparse(GtG) else np.asarray(GtG))
+    return not ev.min() > tol * max(ev.max(), 1.0)
 
 
 class Projection:
@@ -52,7 +102,9 @@ class Projection:
         projection is applied as v - G (G^T v), with no coarse solve.
     sparse : bool
         Factor G^T Q G by sparse LU (``splu``) instead of dense Cholesky; for
-        many columns (one per floating subdomain in one-level FETI).
+        many columns (one per floating subdomain in one-level FETI). The orthogonal
+        projection of a sparse G with more than :data:`DENSE_COARSE_MAX` columns and
+        a ``singular_tol`` is factored so too, checked by :func:`kernel_is_trivial`.
     singular_tol : float, optional
         With the dense factorization: raise ``ValueError`` when the smallest
         eigenvalue of G^T Q G is not above ``singular_tol`` times the largest in
@@ -97,12 +149,24 @@ class Projection:
             self.QG = (sp.diags(q) @ G).tocsc() if sp.issparse(G) else q[:, None] * G
         if self.orthonormal or self.k == 0:
             return
+        if Q is None and sp.issparse(G) and self.k > DENSE_COARSE_MAX and singular_tol is not None:
+            if gram_is_singular(G, singular_tol):
+                raise ValueError(singular_message)
+            sparse = True
         if sparse:
             GtQG = (G.T @ self.QG).tocsc() if sp.issparse(G) else sp.csc_matrix(G.T @ self.QG)
-            self._factor = ("splu", spla.splu(GtQG))
+            try:
+                self._factor = ("splu", spla.splu(GtQG))
+            except RuntimeError as exc:                 # "Factor is exactly singular"
+                if singular_tol is None:
+                    raise
+                raise ValueError(singular_message) from exc
             return
-        Gd = G.toarray() if sp.issparse(G) else np.asarray(G)
-        GtQG = Gd.T @ self.QG if Q is not None else (G.T @ G)
+        if Q is not None:                               # Q G is dense: so is G^T Q G
+            Gd = G.toarray() if sp.issparse(G) else np.asarray(G)
+            GtQG = Gd.T @ self.QG
+        else:                                           # G^T G from sparse G, no dense copy of G
+            GtQG = G.T @ G
         GtQG = GtQG.toarray() if sp.issparse(GtQG) else np.asarray(GtQG)
         if Q is not None:
             GtQG = 0.5 * (GtQG + GtQG.T)

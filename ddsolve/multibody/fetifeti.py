@@ -23,6 +23,7 @@ import scipy.sparse as sp
 from ..dd.common import MethodOutput
 from ..dd.dual import dual_operators, projection_weights, solve_dual
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver
+from ..dd.projection import gram_is_singular
 from ..dd.substructure import Substructures
 from ..errors import InputError, check_flag, check_tolerance
 from .check import checked_output
@@ -116,8 +117,7 @@ class FetiFetiSolver:
             # pairs, as the hybrid method checks (HybridSolver.active_set). solve_dual's sparse LU does not
             # check it (a review: four floating bodies tied only to each other gave converged=True with
             # G^T lambda - e 25% of ||e||; no active pair at all, "Factor is exactly singular").
-            ev = np.linalg.eigvalsh((G.T @ G).toarray())        # k x k, k = floating bodies
-            if not ev.min() > UNTIED_TOL * max(ev.max(), 1.0):
+            if gram_is_singular(G, UNTIED_TOL):                 # the test of HybridSolver's projection
                 raise InputError("active", UNTIED_MESSAGE)
         q = projection_weights(B_D, sub.rho[sub.sub_of_W], sub.scaling, projection)
         setup = time.perf_counter() - t0

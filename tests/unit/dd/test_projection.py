@@ -76,3 +76,53 @@ def test_scaled_jump_pairs_equal_sparse():
                                atol=1e-12)
     np.testing.assert_allclose(PairJump(first, second, n).rmatvec(lam),
                                np.bincount(first, lam, n) - np.bincount(second, lam, n), atol=0)
+
+
+def _body_graph_G(n_side: int, tied_cols=(0,), seed: int = 3) -> sp.csr_matrix:
+    """G = B R of a grid of floating bodies: two-entry rows (+1, -1) between neighbours (2 rows each), and a
+    one-entry row (a tie to a clamped body) for each column of ``tied_cols``; rows shuffled."""
+    k = n_side * n_side
+    rows = []
+    for i in range(n_side):
+        for j in range(n_side):
+            c = i * n_side + j
+            for d in ((0, 1), (1, 0)):
+                if i + d[0] < n_side and j + d[1] < n_side:
+                    rows += [{c: 1.0, (i + d[0]) * n_side + j + d[1]: -1.0}] * 2
+    rows += [{c: (-1.0) ** c} for c in tied_cols]
+    order = np.random.default_rng(seed).permutation(len(rows))
+    r = [rows[o] for o in order]
+    return sp.csr_matrix((np.concatenate([list(x.values()) for x in r]),
+                          (np.repeat(np.arange(len(r)), [len(x) for x in r]),
+                           np.concatenate([list(x.keys()) for x in r]))), shape=(len(r), k))
+
+
+def test_kernel_is_trivial_reads_the_body_graph():
+    from ddsolve.dd.projection import gram_is_singular, kernel_is_trivial
+
+    G = _body_graph_G(6)
+    assert kernel_is_trivial(G) is True and not gram_is_singular(G, 1e-10)
+    untied = _body_graph_G(6, tied_cols=())
+    assert kernel_is_trivial(untied) is False and gram_is_singular(untied, 1e-10)
+    two = sp.vstack([G, sp.csr_matrix(([1.0, 1.0], ([0, 0], [0, 1])), shape=(1, 36))]).tocsr()
+    assert kernel_is_trivial(two) is None                   # equal signs: not a tie, the structure says nothing
+    weighted = sp.vstack([G, sp.csr_matrix(([2.0, -1.0], ([0, 0], [0, 1])), shape=(1, 36))]).tocsr()
+    assert kernel_is_trivial(weighted) is None              # unequal sizes: likewise
+
+
+def test_many_columns_are_factored_sparse_with_the_same_projection(monkeypatch):
+    """Beyond DENSE_COARSE_MAX columns the orthogonal projection is checked from G's structure and factored by
+    sparse LU (a review: 3,844 floating bodies made a 1.5 GB dense copy of G and O(k^3) eigensolves); P is the
+    dense path's to rounding, and an untied body is refused the same way."""
+    import ddsolve.dd.projection as projection
+
+    G = _body_graph_G(12)                                          # k = 144
+    v = np.random.default_rng(5).standard_normal(G.shape[0])
+    dense = Projection(G, singular_tol=1e-10, singular_message="untied")
+    monkeypatch.setattr(projection, "DENSE_COARSE_MAX", 50)
+    fast = Projection(G, singular_tol=1e-10, singular_message="untied")
+    assert fast._factor[0] == "splu" and dense._factor[0] == "cho"
+    np.testing.assert_allclose(fast.apply(v), dense.apply(v), rtol=0, atol=1e-12 * np.abs(v).max())
+    assert np.abs(G.T @ fast.apply(v)).max() < 1e-10
+    with pytest.raises(ValueError, match="^untied$"):
+        Projection(_body_graph_G(12, tied_cols=()), singular_tol=1e-10, singular_message="untied")
