@@ -211,10 +211,9 @@ class Substructures:
 
         self.multiplicity = np.bincount(self.node_of_W, minlength=scene.n_nodes)[self.node_of_W]
         self.interface = self.multiplicity > 1
-        on_body_boundary = np.zeros(self.n_W, dtype=bool)
-        for b in range(scene.n_bodies):
-            in_b = self.body_of_sub[self.sub_of_W] == b
-            on_body_boundary[in_b] = scene.boundary_nodes(b)[self.node_of_W[in_b]]
+        # a node belongs to one body (each body has its own copies), so the mask of all bodies at once is each
+        # body's (a loop over the bodies made an O(n) pass each: O(n_bodies n); a review)
+        on_body_boundary = scene.boundary_node_mask()[self.node_of_W]
         self.cross_point = (self.multiplicity >= 3) | ((self.multiplicity == 2) & on_body_boundary)
         self.vertex = self._anchor_floating(self.cross_point.copy())
         self.primal = primal

@@ -21,11 +21,13 @@ import math
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 from scipy.sparse import csgraph
 
 from ..dd.check import energy_error_estimate, judge_output, needs_check
 from ..dd.common import MethodOutput
 from ..dd.operators import DirichletSchur, PrimalConstrainedSolver
+from ..dd.projection import DENSE_COARSE_MAX
 from ..dd.substructure import Substructures
 from ..scene.assembly import LocalProblems
 from ..scene.scene import Scene
@@ -137,10 +139,42 @@ def floating_shifts(node: np.ndarray, body: np.ndarray, weight: np.ndarray, weig
     WU = sp.csr_matrix((weighted_u, (row, body)), shape=(nodes.size, n_bodies))
     S = np.asarray(W.sum(axis=1)).ravel()
     mean = np.asarray(WU.sum(axis=1)).ravel() / S
-    M = np.diag(np.asarray(W.sum(axis=0)).ravel()) - (W.T @ sp.diags(1.0 / S) @ W).toarray()
+    M = (sp.diags(np.asarray(W.sum(axis=0)).ravel()) - W.T @ sp.diags(1.0 / S) @ W).tocsr()
     rhs = W.T @ mean - np.asarray(WU.sum(axis=0)).ravel()
-    shift[floating] = np.linalg.lstsq(M[np.ix_(floating, floating)], rhs[floating], rcond=None)[0]
+    M_ff = M[floating][:, floating]
+    if floating.size <= DENSE_COARSE_MAX:
+        shift[floating] = np.linalg.lstsq(M_ff.toarray(), rhs[floating], rcond=None)[0]
+    else:                          # sparse (a dense k x k least squares took 18.5 s at k = 3,844; a review)
+        shift[floating] = _laplacian_lstsq(M_ff.tocsr(), rhs[floating])
     return shift
+
+
+def _laplacian_lstsq(L: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
+    """The least-squares solution of minimum norm of L x = b, L (k x k) a weighted graph Laplacian plus a
+    nonnegative diagonal (the M_ff of :func:`floating_shifts`), by sparse LU: what ``np.linalg.lstsq`` gives.
+
+    On a connected component with a positive row sum (a floating body tied to a non-floating one) L is
+    SPD there and solved as it is. On a component whose rows sum to zero (floating bodies tied to nothing
+    else) L annihilates the constants: b is projected onto their complement, one dof of the component is
+    pinned to 0, and the solution's mean is then removed (the solution orthogonal to the kernel).
+    """
+    k = L.shape[0]
+    n_comp, label = csgraph.connected_components(L, directed=False)
+    row_sum = np.asarray(L.sum(axis=1)).ravel()
+    scale = np.bincount(label, weights=np.abs(L.diagonal()), minlength=n_comp)
+    grounded = np.bincount(label, weights=np.abs(row_sum), minlength=n_comp) > 1e-12 * np.maximum(scale, 1e-300)
+    size = np.bincount(label, minlength=n_comp)
+    b = b.astype(float, copy=True)
+    floating = ~grounded[label]
+    b[floating] -= (np.bincount(label, weights=b, minlength=n_comp) / size)[label][floating]
+    _, pin = np.unique(label, return_index=True)                  # the first dof of every component
+    keep = np.ones(k, dtype=bool)
+    keep[pin[~grounded]] = False
+    x = np.zeros(k)
+    if keep.any():
+        x[keep] = spla.splu(L[keep][:, keep].tocsc()).solve(b[keep])
+    x[floating] -= (np.bincount(label, weights=np.where(floating, x, 0.0), minlength=n_comp) / size)[label][floating]
+    return x
 
 
 def multibody_error_estimate(sub: Substructures, gi: GlobalInterface, active: np.ndarray,

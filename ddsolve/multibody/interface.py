@@ -100,12 +100,21 @@ class GlobalInterface:
         na, nb = na[srt], nb[srt]
         # face extents per body pair from all pairs (Dirichlet ends included)
         body_pairs = np.stack([node_body[na], node_body[nb]], axis=1)
+        # one sort for all body pairs (a mask over all pairs per body pair was O(n_bodypairs n_gl); a review)
         self._face_extent: dict[tuple[int, int], tuple[int, float, float]] = {}
-        for key in {tuple(bp) for bp in body_pairs.tolist()}:
-            xy = scene.coords[na[(body_pairs[:, 0] == key[0]) & (body_pairs[:, 1] == key[1])]]
-            extent = np.ptp(xy, axis=0)
-            axis = int(np.argmax(extent))
-            self._face_extent[key] = (axis, float(xy[:, axis].min()), float(extent[axis]))
+        if na.size:
+            keys, group = np.unique(body_pairs, axis=0, return_inverse=True)
+            group = group.ravel()
+            by_group = np.argsort(group, kind="stable")
+            starts = np.flatnonzero(np.r_[True, np.diff(group[by_group]) != 0])
+            xy = scene.coords[na[by_group]]
+            low, high = np.minimum.reduceat(xy, starts, axis=0), np.maximum.reduceat(xy, starts, axis=0)
+            extent = high - low
+            axis = np.argmax(extent, axis=1)
+            rows = np.arange(keys.shape[0])
+            for key, ax, lo_, ext in zip(keys.tolist(), axis.tolist(), low[rows, axis].tolist(),
+                                         extent[rows, axis].tolist()):
+                self._face_extent[(key[0], key[1])] = (ax, lo_, ext)
         keep = free[na] & free[nb]
         na, nb = na[keep], nb[keep]
         self.pair_nodes = np.stack([na, nb], axis=1)

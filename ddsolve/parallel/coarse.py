@@ -37,7 +37,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..dd.operators import PrimalConstrainedSolver
-from ..dd.primal import coarse_factor
+from ..dd.primal import coarse_factor, first_entry_of_bodies
 from .comm import CountingComm
 
 __all__ = ["DistributedPrimalSolver", "RestrictedCoarse", "pinned_vertices"]
@@ -219,11 +219,5 @@ def pinned_vertices(topo, floating_bodies, primal_dofs: np.ndarray) -> list[int]
     ValueError
         A floating body without a primal vertex.
     """
-    body_W = topo.body_of_sub[topo.sub_of_W]
-    pinned = []
-    for body in floating_bodies:
-        cand = np.flatnonzero(topo.vertex & (body_W == body))
-        if cand.size == 0:
-            raise ValueError(f"floating body {body} has no primal vertex to pin")
-        pinned.append(int(np.searchsorted(primal_dofs, topo.l2g[cand[0]])))
-    return pinned
+    first = first_entry_of_bodies(topo.vertex, topo.body_of_sub[topo.sub_of_W], floating_bodies)
+    return [int(c) for c in np.searchsorted(primal_dofs, topo.l2g[first])]
