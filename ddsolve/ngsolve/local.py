@@ -61,6 +61,10 @@ class DofScene:
     def boundary_nodes(self, body: int) -> np.ndarray:
         return self.boundary
 
+    def boundary_node_mask(self) -> np.ndarray:
+        """The boundary nodes of all bodies at once (as :meth:`ddsolve.scene.Scene.boundary_node_mask`)."""
+        return self.boundary
+
 
 def element_parts(mesh: Any, V: np.ndarray, parts: int, partition: Any, seed: int = 0,
                   graph: tuple[np.ndarray, np.ndarray] | None = None,
