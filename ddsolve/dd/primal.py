@@ -24,6 +24,7 @@ import scipy.sparse.linalg as spla
 
 from . import operators as _operators
 from .local import (
+    GROUPS_LOOP_MAX,
     BatchedSolver,
     DenseBlocks,
     _BlockView,
@@ -585,6 +586,8 @@ class ExplicitInterfaceSolve(InterfaceSolve):
         dense = DenseBlocks(blocks)
         if not solver.n_primal:
             return InterfaceBlocks(dense)
+        if coarse is not None and len(coarse) > GROUPS_LOOP_MAX:
+            coarse = None       # many groups (a general mesh): the sparse rows of Psi, no loop over the groups
         if coarse is not None:
             flat = (np.concatenate([c.coarse_index.ravel() for c in coarse]) if coarse
                     else np.zeros(0, dtype=np.int64))
@@ -601,6 +604,7 @@ class ExplicitInterfaceSolve(InterfaceSolve):
         """
         solver, iface_blocks = self.solver, self.blocks
         dense = iface_blocks.blocks
+        b_pi = b_pi.astype(np.float64, copy=False)      # a bincount of no entries is an int array
         if iface_blocks.coarse is not None:       # b_pi -= sum_i R_Pi^T Psi_D^T bs (dense per group)
             parts = []
             for (A, off, n, n_m, _), coarse_block in zip(dense.parts, iface_blocks.coarse):
