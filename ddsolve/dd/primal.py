@@ -50,24 +50,11 @@ COARSE_PARDISO_MIN_NNZ = 1_000_000
 
 
 def first_entry_of_bodies(mask: np.ndarray, body_of_entry: np.ndarray, bodies) -> np.ndarray:
-    """The first entry with ``mask`` of each of ``bodies`` (the pinned primal vertex of a floating body).
+    """The first entry with ``mask`` of each of ``bodies`` (the pinned primal vertex of a floating body),
+    shape (len(bodies),), in one pass (a pass per body was O(n_bodies n); a review).
 
-    One pass over the entries (a pass per body was O(n_bodies n); a review).
-
-    Parameters
-    ----------
-    mask : ndarray of bool, shape (n,)
-    body_of_entry : ndarray of int, shape (n,)
-    bodies : sequence of int
-
-    Returns
-    -------
-    ndarray of int, shape (len(bodies),)
-
-    Raises
-    ------
-    ValueError
-        A body with no entry in ``mask`` (the first such body of ``bodies`` is named).
+    ``mask`` (n,) bool, ``body_of_entry`` (n,) int. Raises ``ValueError`` naming the first body of
+    ``bodies`` with no entry in ``mask``.
     """
     bodies = np.asarray(bodies, dtype=np.int64).reshape(-1)
     entries = np.flatnonzero(mask)
