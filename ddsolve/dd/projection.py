@@ -56,7 +56,7 @@ def kernel_is_trivial(G: Any) -> bool | None:
     ----------
     G : sparse matrix or ndarray, shape (n, k)
     """
-    G = sp.csr_matrix(G)
+    G = sp.csr_matrix(G, copy=True)          # eliminate_zeros works in place: not on the caller's arrays
     G.eliminate_zeros()
     counts = np.diff(G.indptr)
     if counts.max(initial=0) > 2:

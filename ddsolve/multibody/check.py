@@ -161,8 +161,10 @@ def _laplacian_lstsq(L: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
     k = L.shape[0]
     n_comp, label = csgraph.connected_components(L, directed=False)
     row_sum = np.asarray(L.sum(axis=1)).ravel()
-    scale = np.bincount(label, weights=np.abs(L.diagonal()), minlength=n_comp)
-    grounded = np.bincount(label, weights=np.abs(row_sum), minlength=n_comp) > 1e-12 * np.maximum(scale, 1e-300)
+    # grounded: a row sum above rounding relative to the largest diagonal entry of L (an untied body's own
+    # diagonal is rounding, ~1e-15, and a test relative to it read that as a tie; a review), as lstsq's cutoff
+    floor = 1e-12 * float(np.abs(L.diagonal()).max(initial=0.0))
+    grounded = np.bincount(label, weights=np.abs(row_sum), minlength=n_comp) > floor
     size = np.bincount(label, minlength=n_comp)
     b = b.astype(float, copy=True)
     floating = ~grounded[label]

@@ -44,3 +44,22 @@ def test_few_groups_keep_their_gemms():
     assert dense._batched is None and len(dense._looped) == len(blocks)
     xs = np.random.default_rng(2).standard_normal(dense.size)
     np.testing.assert_array_equal(dense.apply(xs), _reference(blocks, xs))
+
+
+def test_the_coarse_coupling_by_sparse_psi_rows_is_the_blocks_one(monkeypatch):
+    """With more than GROUPS_LOOP_MAX groups the interface solve couples the coarse problem through the sparse
+    rows of Psi instead of one dense Psi block per group: the same A~^-1 on the interface (64 METIS parts)."""
+    import ddsolve.dd.primal as primal
+    from ddsolve import ProblemSpec, prepare
+    from ddsolve.dd.primal import ExplicitInterfaceSolve, PrimalConstrainedSolver
+
+    sub = prepare(ProblemSpec(method="bddc", mesh="unstructured", geometry="square", maxh=0.08, parts=64)).sub
+    solver = PrimalConstrainedSolver(sub, sub.vertex, {})
+    b = np.where(sub.interface, np.random.default_rng(3).standard_normal(sub.n_W), 0.0)
+    fast = ExplicitInterfaceSolve(solver, sub.interface)
+    assert fast.blocks.coarse is None and fast.blocks.psi is not None and fast.blocks.blocks._batched is not None
+    monkeypatch.setattr(primal, "GROUPS_LOOP_MAX", 10**9)
+    looped = ExplicitInterfaceSolve(solver, sub.interface)
+    assert looped.blocks.coarse is not None and len(looped.blocks.coarse) > GROUPS_LOOP_MAX
+    x, y = fast.solve(b), looped.solve(b)
+    np.testing.assert_allclose(x, y, rtol=0, atol=1e-11 * np.abs(y).max())
