@@ -226,14 +226,14 @@ class DirichletSchur:
             Kg = K[loc_g]
             S = Kg[:, loc_g].toarray()
             members_arr = np.asarray(members)
-            index = np.stack([sub.position(s, loc_g) for s in members_arr], axis=1)
+            index = sub.positions(members_arr, loc_g)
             if loc_i.size:
                 K_ig = K_igs[k].toarray()
                 X = solved.pop(k)
                 S -= K_ig.T @ X
                 S = 0.5 * (S + S.T)
                 if keep_ext:
-                    index_i = np.stack([sub.position(s, loc_i) for s in members_arr], axis=1)
+                    index_i = sub.positions(members_arr, loc_i)
                     ext.append(ExtensionBlock(np.ascontiguousarray(X), index, index_i))
             blocks.append((S, index, sub.rho[members_arr]))
         if keep_ext:

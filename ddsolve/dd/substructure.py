@@ -362,6 +362,22 @@ class Substructures:
         """W positions of template-local (free) indices ``loc`` of subdomain s."""
         return self.offsets[s] + np.searchsorted(self._free_local[s], loc)
 
+    def positions(self, members: np.ndarray, loc: np.ndarray) -> np.ndarray:
+        """:meth:`position` of ``loc`` (k,) for each of ``members`` (m,), shape (k, m), by one search over the
+        (subdomain, local index) keys of all W entries (one call per member was a Python loop over the
+        subdomains: 262,144 calls, 2 s, for 256 x 256 subdomains; a review)."""
+        members = np.asarray(members, dtype=np.int64)
+        source = (id(self.sub_of_W), id(self.local_index))     # a transformed copy with other arrays: rebuilt
+        keys = getattr(self, "_position_keys", None)
+        if keys is None or keys[0] != source:
+            width = int(self.local_index.max(initial=-1)) + 1
+            key = self.sub_of_W.astype(np.int64) * width + self.local_index
+            keys = self._position_keys = (source, key if bool(np.all(key[1:] > key[:-1])) else None, width)
+        _, key, width = keys
+        if key is None:                              # local indices not sorted within a subdomain
+            return np.stack([self.position(int(s), loc) for s in members], axis=1).reshape(len(loc), members.size)
+        return np.searchsorted(key, members[None, :] * width + np.asarray(loc, dtype=np.int64)[:, None])
+
     def scaling_weights(self, scaling: str, gamma: float = 1.0) -> np.ndarray:
         """delta-dagger weights of Section 2.3 for every W entry.
 

@@ -63,3 +63,21 @@ def test_the_coarse_coupling_by_sparse_psi_rows_is_the_blocks_one(monkeypatch):
     assert looped.blocks.coarse is not None and len(looped.blocks.coarse) > GROUPS_LOOP_MAX
     x, y = fast.solve(b), looped.solve(b)
     np.testing.assert_allclose(x, y, rtol=0, atol=1e-11 * np.abs(y).max())
+
+
+def test_positions_of_many_members_are_the_position_of_each():
+    """Substructures.positions (one search for a whole group) replaced a call of position per member, a Python
+    loop over the subdomains when the explicit local Schur blocks are formed (a review)."""
+    from ddsolve import ProblemSpec, prepare
+
+    for spec in (dict(method="feti", subdomains=4, elements=4),
+                 dict(problem="multibody", bodies=2, subdomains=2, elements=3),
+                 dict(method="bddc", mesh="unstructured", geometry="square", maxh=0.1, parts=8)):
+        sub = prepare(ProblemSpec(**spec)).sub
+        members = np.arange(sub.n_sub)[::-1]
+        loc = sub._free_local[0][::2]
+        same = [s for s in members if np.isin(loc, sub._free_local[s]).all()]
+        got = sub.positions(np.asarray(same), loc)
+        assert got.shape == (loc.size, len(same))
+        for j, s in enumerate(same):
+            np.testing.assert_array_equal(got[:, j], sub.position(s, loc))
