@@ -170,7 +170,7 @@ def test_two_point_fits_say_exact_instead_of_r2():
                                "parts": LAW["fixed_Hh"]["parts"][:2]},
            "fixed_P": {**LAW["fixed_P"], "refine": LAW["fixed_P"]["refine"][:2]}}
     text = cond_law_markdown(cond_law_summary(_collected(), two))
-    assert "exact (2 points)" in text and "| exact |" not in text
+    assert "exact, 2 points" in text and "| exact |" not in text
     law_rows = [line for line in text.splitlines() if "x^2 |" in line and not line.startswith("| method")]
     # the one-parameter bound C x^2 through two points still has an R^2; the two-parameter laws do not
-    assert law_rows and all(line.count("exact (2 points)") == 2 for line in law_rows), law_rows
+    assert law_rows and all(line.count("exact, 2 points") == 2 for line in law_rows), law_rows

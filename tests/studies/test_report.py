@@ -251,9 +251,9 @@ def test_a_study_of_one_other_preset_names_it_and_its_reports_run():
 def test_a_two_point_fit_shows_no_r2():
     """A two-parameter fit through two points has R^2 = 1 by construction; the legends showed "R^2=1.000" as if it
     measured the fit (a review, 2026-11-28)."""
-    assert plots._r2_text(1.0, 2) == "exact (2 points)"
+    assert plots._r2_text(1.0, 2) == "exact, 2 points"
     assert plots._r2_text(0.98765, 3) == "$R^2$=0.988"
-    assert plots._r2_text(float("nan"), 1) == "no fit (1 point)"
+    assert plots._r2_text(float("nan"), 1) == "no fit, 1 point"
 
 
 def test_r2_is_shown_the_same_way_everywhere():
@@ -261,6 +261,6 @@ def test_r2_is_shown_the_same_way_everywhere():
     cond-law tables said "exact" (a review); every report now uses ddstudies.report.fits.r2_text."""
     from ddstudies.report.fits import r2_text
 
-    assert r2_text(1.0, 2) == "exact (2 points)" and r2_text(1.0, 2, n_params=1, spec=".2f") == "1.00"
-    assert r2_text(0.5, 1) == "no fit (1 point)" and r2_text(float("nan"), 4) == "n/a"
+    assert r2_text(1.0, 2) == "exact, 2 points" and r2_text(1.0, 2, n_params=1, spec=".2f") == "1.00"
+    assert r2_text(0.5, 1) == "no fit, 1 point" and r2_text(float("nan"), 4) == "n/a"
     assert r2_text(0.91234, 3, spec=".4f", label="R^2 = ") == "R^2 = 0.9123"

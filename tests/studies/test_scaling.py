@@ -97,7 +97,8 @@ def test_summary_targets_and_plot(tmp_path):
     # two sizes fit any exponent exactly: no verdict, and no R^2 (it read "R^2 = 1.0000" and "yes"; a review)
     two = scaling_summary(_synthetic(1.2, 0.8).query("ndof < 1e6"))
     assert two["targets"][2][1:] == ("dofs^1.100 (not a growth law: 2 sizes)", None)
-    assert "(exact (2 points), 2 sizes)" in summary_markdown(two) and "R^2 = 1.0000" not in summary_markdown(two)
+    assert "(exact, 2 sizes, no R^2)" in summary_markdown(two) and "R^2 = 1.0000" not in summary_markdown(two)
+    assert "(R^2 = 1.0000, 3 sizes)" in summary_markdown(summary)             # three sizes: a fit with its R^2
 
 
 @pytest.mark.parametrize("method", ["active-set", "pdas"])

@@ -232,7 +232,7 @@ def test_hbhs_growth_laws_ratios_and_crossing():
     two = plots.hbhs_growth(hbhs_runs().query("subdomains in [4, 8]"), base=(2, 2, 2))
     assert (two["points"] == 2).all()
     two_text = tables.to_markdown(tables.growth_table(two))
-    assert "exact (2 points)" in two_text and "1.000" not in two_text
+    assert "exact, 2 points" in two_text and "1.000" not in two_text
     assert "a + b·log(H_b/h)" in text and f"{x:.0f}" in text and "×8.14" in text
     # the LaTeX twin is ASCII (pdflatex's utf8 input has no glyph for → √ ² × ·; a review)
     tex = tables.to_latex(tables.growth_table(growth))

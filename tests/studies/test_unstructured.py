@@ -69,7 +69,7 @@ def test_fits_recover_exponents_and_targets_are_checked():
     exps3 = [c for c in unstructured_summary(third, {"max_exponent": 1.1})["checks"] if "dofs^p" in c["target"]]
     assert len(exps3) == 2 and all(c["met"] is True and c["note"] == "" for c in exps3)
     text = summary_markdown(summary)
-    assert "| poisson | fetidp | 1.05 | exact (2 points) | 2 |" in text and "## Targets" in text    # not R^2 1.000
+    assert "| poisson | fetidp | 1.05 | exact, 2 points | 2 |" in text and "## Targets" in text    # not R^2 1.000
     assert "| 1.05 (not a growth law: 2 sizes) | n/a |" in text
     assert "Rule sets: every number here is from rule set 'default'" in text     # the rules named
     header = next(line for line in text.splitlines() if line.startswith("| problem"))

@@ -344,7 +344,8 @@ def summary_markdown(summary: Mapping[str, Any], *, title: str = "Scaling of the
         lines += ["", f"{NOT_CONVERGED_MARK} {NOT_CONVERGED_NOTE}; left out of the fits and the ratios."]
     lines += ["", "Least-squares fit of log(time) against log(dofs), runs that converged:", ""]
     lines += [f"- {m}: time ~ {fit.prefactor:.3g} s x dofs^{fit.exponent:.3f} "
-              f"({r2_text(fit.r2, fit.n_points, spec='.4f', label='R^2 = ')}, {fit.n_points} sizes)"
+              + (f"(R^2 = {r2_text(fit.r2, fit.n_points, spec='.4f')}, {fit.n_points} sizes)" if fit.n_points > 2
+                 else f"({r2_text(fit.r2, fit.n_points).replace('points', 'sizes')}, no R^2)")
               for m, fit in summary["fits"].items()]
     def ratio(value: float) -> str:
         return f"{value:.2f}" if math.isfinite(value) else "n/a (no runs of both methods at that size)"

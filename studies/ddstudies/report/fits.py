@@ -21,14 +21,14 @@ def r2_text(r2: float, n_points: int, *, n_params: int = 2, spec: str = ".3f", l
     """R^2 of a least-squares fit as every table, legend and report shows it.
 
     A law with ``n_params`` parameters passes through ``n_params`` points exactly, so its R^2 = 1 says
-    nothing about the law: "exact (2 points)"; fewer points fit nothing: "no fit (1 point)". Otherwise
+    nothing about the law: "exact, 2 points"; fewer points fit nothing: "no fit, 1 point". Otherwise
     ``label`` followed by R^2 in ``spec`` ("n/a" where it is not finite).
     """
     points = f"{n_points} point{'s' if n_points != 1 else ''}"
     if n_points < n_params:
-        return f"no fit ({points})"
+        return f"no fit, {points}"
     if n_points == n_params:
-        return f"exact ({points})"
+        return f"exact, {points}"
     return label + (format(r2, spec) if math.isfinite(r2) else "n/a")
 
 
