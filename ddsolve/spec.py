@@ -285,8 +285,6 @@ def _validated(raw: Mapping[str, Any]) -> dict[str, Any]:
                                        f"got {bodies}")
         bodies = 2
     subdomains = _as_int("subdomains", raw["subdomains"], 1)
-    # the range the docs and the workflow schema state, [2, ...], with the reason below it (a review: 0 said
-    # "[1, ...]" and 1 "mesh too small")
     # the range of the docs and the schema, [2, ...], and for an integer below it the reason (a review: 0 said
     # "[1, ...]" and 1 "mesh too small")
     try:

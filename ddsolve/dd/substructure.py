@@ -367,13 +367,14 @@ class Substructures:
         (subdomain, local index) keys of all W entries (one call per member was a Python loop over the
         subdomains: 262,144 calls, 2 s, for 256 x 256 subdomains; a review)."""
         members = np.asarray(members, dtype=np.int64)
-        source = (id(self.sub_of_W), id(self.local_index))     # a transformed copy with other arrays: rebuilt
         keys = getattr(self, "_position_keys", None)
-        if keys is None or keys[0] != source:
+        # built from these very arrays (a transformed copy with other arrays builds its own)
+        if keys is None or keys[0] is not self.sub_of_W or keys[1] is not self.local_index:
             width = int(self.local_index.max(initial=-1)) + 1
             key = self.sub_of_W.astype(np.int64) * width + self.local_index
-            keys = self._position_keys = (source, key if bool(np.all(key[1:] > key[:-1])) else None, width)
-        _, key, width = keys
+            keys = self._position_keys = (self.sub_of_W, self.local_index,
+                                          key if bool(np.all(key[1:] > key[:-1])) else None, width)
+        _, _, key, width = keys
         if key is None:                              # local indices not sorted within a subdomain
             return np.stack([self.position(int(s), loc) for s in members], axis=1).reshape(len(loc), members.size)
         return np.searchsorted(key, members[None, :] * width + np.asarray(loc, dtype=np.int64)[:, None])

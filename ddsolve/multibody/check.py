@@ -145,7 +145,7 @@ def floating_shifts(node: np.ndarray, body: np.ndarray, weight: np.ndarray, weig
     if floating.size <= DENSE_COARSE_MAX:
         shift[floating] = np.linalg.lstsq(M_ff.toarray(), rhs[floating], rcond=None)[0]
     else:                          # sparse (a dense k x k least squares took 18.5 s at k = 3,844; a review)
-        shift[floating] = _laplacian_lstsq(M_ff.tocsr(), rhs[floating])
+        shift[floating] = _laplacian_lstsq(M_ff, rhs[floating])
     return shift
 
 
