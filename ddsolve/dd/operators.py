@@ -42,7 +42,7 @@ EXPLICIT_MAX_BLOCK = 4000
 #: :class:`DirichletSchur` (dense n_I x n_G per group) for :meth:`DirichletSchur.interior_solution`.
 EXPLICIT_EXTENSION_BYTES = 512 * 2**20
 #: Harmonic extensions solved at once while explicit blocks are formed without keeping them.
-EXPLICIT_BUILD_BYTES = 32 * 2**20
+EXPLICIT_BUILD_BYTES = 64 * 2**20
 
 
 @dataclass
@@ -178,12 +178,16 @@ class DirichletSchur:
             groups[key].members.append(s)
         return list(groups.values())
 
+    def _factor_of(self, group: _SchurGroup):
+        """The interior factorization of a group (built by ``self.II``, found in the shared cache)."""
+        return self._cache[group.template.to_bytes(8, "little") + group.interior_local.astype(np.int64).tobytes()]
+
     def _build_explicit(self, force: bool = False) -> DenseBlocks | bool:
         groups = self._explicit_groups()
-        setup_cols = sum(g.gamma_local.size for g in groups)
         biggest = max((g.gamma_local.size for g in groups), default=0)
         explicit = True if force else self._explicit_option
         if explicit is None:
+            setup_cols = sum(g.gamma_local.size for g in groups)
             fits = biggest <= EXPLICIT_MAX_BLOCK
             explicit = setup_cols <= EXPLICIT_SETUP_MATVECS * max(self.sub.n_sub, 1) and fits
             if fits and not explicit:                # rent now, buy once the rent has reached the price
@@ -196,45 +200,20 @@ class DirichletSchur:
         # after many implicit applications keeps none: its build must not add memory at the end)
         keep_ext = not force and (sum(g.interior_local.size * g.gamma_local.size for g in groups) * 8
                                   <= EXPLICIT_EXTENSION_BYTES)
+        corrections, extensions = self._harmonic_products(groups, keep_ext)
         ext: list[ExtensionBlock] = []
-        # harmonic extensions K_II^{-1} K_IG (rho cancels): the batched subdomains share
-        # multi-column solves (solve_many), all groups at once when the extensions are kept,
-        # else in batches of at most EXPLICIT_BUILD_BYTES of them
-        K_igs = {k: sub.stiffness[g.template][g.interior_local][:, g.gamma_local]
-                 for k, g in enumerate(groups) if g.interior_local.size}
-        batch_of: dict[int, int] = {}
-        size = batch = 0
-        for k in K_igs:
-            nbytes = groups[k].interior_local.size * groups[k].gamma_local.size * 8
-            if size and not keep_ext and size + nbytes > EXPLICIT_BUILD_BYTES:
-                batch, size = batch + 1, 0
-            batch_of[k], size = batch, size + nbytes
-        solved: dict[int, np.ndarray] = {}
-
-        def solve_batch(b: int) -> None:
-            keys = [k for k, kb in batch_of.items() if kb == b]
-            solved.update(zip(keys, solve_many([
-                (self._cache[groups[k].template.to_bytes(8, "little")       # built by self.II
-                             + groups[k].interior_local.astype(np.int64).tobytes()], K_igs[k])
-                for k in keys])))
-
         for k, group in enumerate(groups):
-            if k in K_igs and k not in solved:
-                solve_batch(batch_of[k])
             t, loc_i, loc_g, members = group.template, group.interior_local, group.gamma_local, group.members
-            K = sub.stiffness[t]
-            Kg = K[loc_g]
+            Kg = sub.stiffness[t][loc_g]
             S = Kg[:, loc_g].toarray()
             members_arr = np.asarray(members)
             index = sub.positions(members_arr, loc_g)
             if loc_i.size:
-                K_ig = K_igs[k].toarray()
-                X = solved.pop(k)
-                S -= K_ig.T @ X
+                S -= corrections.pop(k)
                 S = 0.5 * (S + S.T)
                 if keep_ext:
-                    index_i = sub.positions(members_arr, loc_i)
-                    ext.append(ExtensionBlock(np.ascontiguousarray(X), index, index_i))
+                    ext.append(ExtensionBlock(np.ascontiguousarray(extensions.pop(k)), index,
+                                              sub.positions(members_arr, loc_i)))
             blocks.append((S, index, sub.rho[members_arr]))
         if keep_ext:
             self._extensions = HarmonicExtensions(
@@ -243,6 +222,39 @@ class DirichletSchur:
                 flat_interior=np.concatenate([e.interior_index.ravel() for e in ext]) if ext else np.zeros(0, np.int64))
         log.debug("DirichletSchur: %d explicit local Schur complements (largest %d)", len(blocks), biggest)
         return DenseBlocks(blocks)
+
+    def _harmonic_products(self, groups: list[_SchurGroup], keep_ext: bool) -> tuple[dict, dict]:
+        """K_GI K_II^{-1} K_IG of every group with an interior, shape (n_G, n_G), and, with ``keep_ext``,
+        the harmonic extensions X = K_II^{-1} K_IG, shape (n_I, n_G) (rho cancels in both).
+
+        All groups are solved together, column window by column window (:func:`solve_many`: the
+        batched subdomains share each solve of their block-diagonal factorization, so a window costs
+        its width in whole solves, whichever groups it holds). Kept extensions take one window of
+        every column; otherwise a window holds at most ``EXPLICIT_BUILD_BYTES`` of X and is reduced
+        to its columns of K_GI X at once (batches of groups instead would pay the whole
+        factorization's solves once per batch).
+        """
+        sub = self.sub
+        K_igs = {k: sub.stiffness[g.template][g.interior_local][:, g.gamma_local]
+                 for k, g in enumerate(groups) if g.interior_local.size}
+        widest = max((K.shape[1] for K in K_igs.values()), default=0)
+        rows = sum(K.shape[0] for K in K_igs.values())
+        window = max(1, widest if keep_ext else EXPLICIT_BUILD_BYTES // (8 * max(rows, 1)))
+        whole = window >= widest                # one window of every column: the dense product, one GEMM
+        corrections = {} if whole else {k: np.empty((K.shape[1], K.shape[1])) for k, K in K_igs.items()}
+        extensions: dict[int, np.ndarray] = {}
+        factors = {k: self._factor_of(groups[k]) for k in K_igs}
+        for c0 in range(0, widest, window):
+            keys = [k for k, K in K_igs.items() if K.shape[1] > c0]
+            columns = [K_igs[k] if whole else K_igs[k][:, c0:c0 + window] for k in keys]
+            for k, X in zip(keys, solve_many([(factors[k], K) for k, K in zip(keys, columns)])):
+                if whole:
+                    corrections[k] = K_igs[k].toarray().T @ X
+                    if keep_ext:
+                        extensions[k] = X
+                else:
+                    corrections[k][:, c0:c0 + X.shape[1]] = K_igs[k].T @ X
+        return corrections, extensions
 
     def _interior_load(self, f: np.ndarray) -> np.ndarray:
         """A_II^{-1} f_I (zero off the interior), cached for the last f (same array, same values)."""
