@@ -41,8 +41,9 @@ EXPLICIT_MAX_BLOCK = 4000
 #: Memory budget of the explicit harmonic extensions K_II^{-1} K_IG kept by an explicit
 #: :class:`DirichletSchur` (dense n_I x n_G per group) for :meth:`DirichletSchur.interior_solution`.
 EXPLICIT_EXTENSION_BYTES = 512 * 2**20
-#: Harmonic extensions solved at once while explicit blocks are formed without keeping them.
-EXPLICIT_BUILD_BYTES = 64 * 2**20
+#: Harmonic extensions solved at once while explicit blocks are formed without keeping them (a
+#: window of columns of all of them; at least one column, which exceeds this beyond 4M interior rows).
+EXPLICIT_BUILD_BYTES = 32 * 2**20
 
 
 @dataclass

@@ -45,8 +45,8 @@ MAX_INTERFACES = 4
 #: minimum degree handles badly; 2D coarse matrices stay far below (Table 4's largest, FETI-FETI
 #: with 9,212 primal dofs: 80,628 entries). Measured on a 3D DDInverse (order 2, 290,448 dofs,
 #: 290 METIS parts, 10,987 primal dofs, 3,677,215 entries, one thread): SuperLU 44.0 s, PARDISO
-#: 0.92 s (docs/ngsolve.md, "3D meshes"); most of SuperLU's time was its row pivoting, which
-#: :func:`symmetric_superlu` skips (a similar matrix: 58.1 s -> 5.9 s).
+#: 0.92 s (docs/ngsolve.md, "3D meshes"); most of SuperLU's time went to its default options,
+#: which :func:`symmetric_superlu` replaces (a similar matrix: 58.1 s -> 5.9 s).
 COARSE_PARDISO_MIN_NNZ = 1_000_000
 
 
@@ -71,9 +71,9 @@ def coarse_factor(S: sp.spmatrix):
     """A factorization of the coarse matrix ``S`` (n_primal, n_primal) with a ``solve`` method.
 
     PARDISO's Cholesky for a ``S`` with many entries (:data:`COARSE_PARDISO_MIN_NNZ`); SuperLU
-    (minimum degree on S^T + S) otherwise, see :func:`symmetric_superlu`. When PARDISO finds ``S``
-    not positive definite, SuperLU with partial pivoting factors it or reports the singular matrix,
-    as it always did.
+    (minimum degree on S^T + S) otherwise, and where PARDISO fails, see :func:`symmetric_superlu`
+    (a ``S`` that is not positive definite gets SuperLU's default pivoting, which factors it or
+    reports the singular matrix, as it always did).
     """
     from . import pardiso
 
@@ -82,21 +82,22 @@ def coarse_factor(S: sp.spmatrix):
             return pardiso.PardisoCholesky(S)
         except RuntimeError as exc:
             log.info("coarse problem: PARDISO failed (%s); using SuperLU", exc)
-            return spla.splu(sp.csc_matrix(S), permc_spec="MMD_AT_PLUS_A")
     return symmetric_superlu(S)
 
 
 def symmetric_superlu(S: sp.spmatrix):
-    """SuperLU of a symmetric ``S`` with diagonal pivots, so that the symmetric minimum degree
-    ordering survives; partial pivoting where ``S`` turns out not positive definite.
+    """SuperLU of a symmetric ``S`` in its symmetric mode with diagonal pivots, so that the
+    symmetric minimum degree ordering survives; the default pivoting where ``S`` turns out not
+    positive definite.
 
-    SuperLU's default threshold pivoting swaps rows away from the ordering: on a 2D coarse matrix of
-    ``DDInverse`` (19,477 primal dofs with edge averages, 466,013 entries, 4,000 METIS parts) it took
-    12.3 s with 7.1M factor entries, against 0.19 s and 3.4M with diagonal pivots (same solution to
-    4e-15; 8,000 parts: 276 s against 0.44 s, a review). The diagonal pivots are kept when they are
-    all positive and no row was swapped (S is then positive definite up to rounding; at a zero
-    diagonal entry SuperLU swaps rows even so); otherwise ``S`` is factored again with the default
-    pivoting, as before.
+    SuperLU's defaults (no symmetric mode, threshold pivoting) were slow on coarse matrices: on a
+    2D one of 7,511 primal dofs (no row swapped, the same fill) 0.81 s against 0.03 s, the gain
+    all from the symmetric mode; on 3D ones the row swaps also undo the ordering (3.78M entries:
+    58.1 s and 97.9M factor entries against 5.9 s and 28.4M; 2D with edge averages, 19,477 primal
+    dofs: 12.3 s against 0.19 s; a review measured 276 s of a 305 s setup at 8,000 parts). The
+    diagonal pivots are kept when they are all positive and no row was swapped (S is then
+    positive definite up to rounding; at a zero diagonal entry SuperLU swaps rows even so);
+    otherwise ``S`` is factored again with the default pivoting, as before.
     """
     A = sp.csc_matrix(S)
     try:

@@ -55,3 +55,21 @@ def test_windowed_build_equals_the_whole_one_and_costs_its_columns(monkeypatch):
     xs = np.random.default_rng(0).standard_normal(ref_blocks.size)
     expected = ref_blocks.apply(xs)
     np.testing.assert_allclose(blocks.apply(xs), expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
+def test_one_column_windows_on_shared_templates_and_a_forced_build(monkeypatch):
+    """Structured subdomains share templates (one factorization each, no batched one) and a Dirichlet
+    exclude leaves groups of different interiors; one-column windows of a forced build (the rent-or-buy
+    switch: extensions not kept) give the blocks of the one-window build."""
+    sub = prepare(ProblemSpec(method="bddc", subdomains=4, elements=6)).sub
+    exclude = np.zeros(sub.n_W, dtype=bool)
+    exclude[np.flatnonzero(~sub.interface)[::7]] = True          # some interior entries held out
+    reference = DirichletSchur(sub, sub.interface, {}, exclude=exclude, explicit=True).explicit_blocks()
+    monkeypatch.setattr(operators, "EXPLICIT_BUILD_BYTES", 1)    # windows of one column
+    windowed = DirichletSchur(sub, sub.interface, {}, exclude=exclude, explicit=False)
+    assert not windowed.explicit
+    blocks = windowed._build_explicit(force=True)
+    assert windowed._extensions is None
+    xs = np.random.default_rng(1).standard_normal(reference.size)
+    expected = reference.apply(xs)
+    np.testing.assert_allclose(blocks.apply(xs), expected, rtol=0, atol=1e-12 * np.abs(expected).max())

@@ -227,9 +227,9 @@ def test_primal_blocks_of_the_batch_equal_those_of_one_factorization_per_subdoma
 def test_symmetric_superlu_keeps_the_ordering_of_a_positive_definite_matrix():
     """ddsolve.dd.primal.symmetric_superlu (SuperLU's coarse factorization): on an SPD matrix whose
     off-diagonal entries exceed some diagonal ones (a 40 x 40 grid Laplacian scaled by 10^U(-2, 2)) the
-    default threshold pivoting swaps rows and makes 8.9x the fill (355,646 against 39,942 entries; a
-    2D coarse matrix of 19,477 primal dofs took 12.3 s against 0.19 s); diagonal pivots keep the
-    minimum degree ordering and solve like the direct solve."""
+    default threshold pivoting swaps rows and makes 8.9x the fill (a 2D coarse matrix with edge
+    averages, 19,477 primal dofs, took 12.3 s against 0.19 s); diagonal pivots keep the minimum
+    degree ordering and solve like the direct solve."""
     from ddsolve.dd.primal import symmetric_superlu
 
     n = 40
@@ -240,7 +240,7 @@ def test_symmetric_superlu_keeps_the_ordering_of_a_positive_definite_matrix():
     lu = symmetric_superlu(A)
     default = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
     assert np.array_equal(lu.perm_r, lu.perm_c) and not np.array_equal(default.perm_r, default.perm_c)
-    assert lu.L.nnz + lu.U.nnz == 39942 and default.L.nnz + default.U.nnz == 355646
+    assert default.L.nnz + default.U.nnz > 4 * (lu.L.nnz + lu.U.nnz)        # SciPy 1.x: 355,646 / 39,942
     b = rng.standard_normal(n * n)
     x = lu.solve(b)
     np.testing.assert_allclose(x, spla.spsolve(A, b), rtol=1e-8)
