@@ -37,7 +37,8 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..dd.operators import PrimalConstrainedSolver
-from ..dd.primal import coarse_factor, first_entry_of_bodies
+from ..dd.coarse import coarse_factor
+from ..dd.primal import first_entry_of_bodies
 from .comm import CountingComm
 
 __all__ = ["DistributedPrimalSolver", "RestrictedCoarse", "pinned_vertices"]
@@ -153,7 +154,7 @@ class RestrictedCoarse:
     @classmethod
     def of(cls, S: sp.spmatrix, touched: np.ndarray, components: tuple[int, np.ndarray] | None = None):
         """The factor of the connected components of S (an undirected graph) that meet ``touched``:
-        :func:`~ddsolve.dd.primal.coarse_factor` of S itself when that is all of them.
+        :func:`~ddsolve.dd.coarse.coarse_factor` of S itself when that is all of them.
 
         Parameters
         ----------

@@ -127,25 +127,25 @@ def test_subdomain_ordering_and_pardiso_ordering_agree(monkeypatch):
 
 @needs_mkl
 def test_coarse_factor_backend_by_stored_entries(monkeypatch):
-    """ddsolve.dd.primal.coarse_factor: PARDISO from COARSE_PARDISO_MIN_NNZ entries, SuperLU below and
+    """ddsolve.dd.coarse.coarse_factor: PARDISO from COARSE_PARDISO_MIN_NNZ entries, SuperLU below and
     for a matrix PARDISO finds not positive definite; each solves like a direct solve."""
-    from ddsolve.dd import primal
+    from ddsolve.dd import coarse
 
     K = _laplacian(20, 1e-2)
     rng = np.random.default_rng(5)
     b = rng.standard_normal(K.shape[0])
     ref = spla.spsolve(sp.csc_matrix(K), b)
-    monkeypatch.setattr(primal, "COARSE_PARDISO_MIN_NNZ", K.nnz)
-    dense_coupling = primal.coarse_factor(K)
+    monkeypatch.setattr(coarse, "COARSE_PARDISO_MIN_NNZ", K.nnz)
+    dense_coupling = coarse.coarse_factor(K)
     assert isinstance(dense_coupling, pardiso.PardisoCholesky)
     np.testing.assert_allclose(dense_coupling.solve(b), ref, rtol=1e-10)
-    monkeypatch.setattr(primal, "COARSE_PARDISO_MIN_NNZ", K.nnz + 1)
-    sparse = primal.coarse_factor(K)
+    monkeypatch.setattr(coarse, "COARSE_PARDISO_MIN_NNZ", K.nnz + 1)
+    sparse = coarse.coarse_factor(K)
     assert not isinstance(sparse, pardiso.PardisoCholesky)
     np.testing.assert_allclose(sparse.solve(b), ref, rtol=1e-10)
-    monkeypatch.setattr(primal, "COARSE_PARDISO_MIN_NNZ", 1)
+    monkeypatch.setattr(coarse, "COARSE_PARDISO_MIN_NNZ", 1)
     indefinite = sp.csr_matrix(K - 2.0 * sp.eye(K.shape[0]))
-    fallback = primal.coarse_factor(indefinite)
+    fallback = coarse.coarse_factor(indefinite)
     assert not isinstance(fallback, pardiso.PardisoCholesky)
     np.testing.assert_allclose(indefinite @ fallback.solve(b), b, rtol=1e-8, atol=1e-10)
 
@@ -225,12 +225,12 @@ def test_primal_blocks_of_the_batch_equal_those_of_one_factorization_per_subdoma
 
 
 def test_symmetric_superlu_keeps_the_ordering_of_a_positive_definite_matrix():
-    """ddsolve.dd.primal.symmetric_superlu (SuperLU's coarse factorization): on an SPD matrix whose
+    """ddsolve.dd.coarse.symmetric_superlu (SuperLU's coarse factorization): on an SPD matrix whose
     off-diagonal entries exceed some diagonal ones (a 40 x 40 grid Laplacian scaled by 10^U(-2, 2)) the
     default threshold pivoting swaps rows and makes 8.9x the fill (a 2D coarse matrix with edge
     averages, 19,477 primal dofs, took 12.3 s against 0.19 s); diagonal pivots keep the minimum
     degree ordering and solve like the direct solve."""
-    from ddsolve.dd.primal import symmetric_superlu
+    from ddsolve.dd.coarse import symmetric_superlu
 
     n = 40
     T = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(n, n))
@@ -252,7 +252,7 @@ def test_symmetric_superlu_pivots_where_the_matrix_is_not_positive_definite(kind
     """Not positive definite: a negative diagonal pivot (K - 2I), or a zero diagonal entry (a symmetric
     permutation block, where even the diagonal-pivot factorization swaps rows), is factored again with
     the default pivoting and solved as before."""
-    from ddsolve.dd.primal import symmetric_superlu
+    from ddsolve.dd.coarse import symmetric_superlu
 
     K = _laplacian(12, 1e-2)
     if kind == "negative pivots":
